@@ -1,0 +1,80 @@
+"""surgiplan: plugin-based planning for surgical training and robot-assisted surgery.
+
+The public API for plugin authors and library users::
+
+    from surgiplan import Planner, PlanResult, PlanStatus, PluginSpec, hookimpl, Length
+    from surgiplan import load_pipeline, run_pipeline, load_scene, Scene
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("surgiplan")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    __version__ = "0.0.0+unknown"
+
+from .deformable import Constraints, DeformableModel, EquilibriumState
+from .devices import Device, ExecutionReport, LifecycleState, Trajectory
+from .errors import (
+    ConfigError,
+    PlanningInputError,
+    PluginError,
+    SceneError,
+    SurgiplanError,
+)
+from .executors import DaskExecutor, Executor, InlineExecutor, LocalExecutor, TaskStore, run_tasks
+from .hookspecs import PluginSpec, hookimpl
+from .pipeline import load_pipeline, load_scene
+from .planning import Planner, PlanningProblem, PlanResult, PlanStatus
+from .progress import NullProgress, Progress
+from .results import StageContext, StageResult
+from .runner import run_pipeline
+from .scene import Scene
+from .spaces import CastGimbalSpace, R3Space, SE3Space, Space
+from .units import Angle, Coordinate, Length, PositiveLength, Vec3
+
+__all__ = [
+    "Angle",
+    "CastGimbalSpace",
+    "ConfigError",
+    "Constraints",
+    "Coordinate",
+    "DaskExecutor",
+    "DeformableModel",
+    "Device",
+    "EquilibriumState",
+    "ExecutionReport",
+    "Executor",
+    "InlineExecutor",
+    "Length",
+    "LifecycleState",
+    "LocalExecutor",
+    "NullProgress",
+    "PlanResult",
+    "PlanStatus",
+    "Planner",
+    "PlanningInputError",
+    "PlanningProblem",
+    "PluginError",
+    "PluginSpec",
+    "PositiveLength",
+    "Progress",
+    "R3Space",
+    "SE3Space",
+    "Scene",
+    "SceneError",
+    "Space",
+    "StageContext",
+    "StageResult",
+    "SurgiplanError",
+    "TaskStore",
+    "Trajectory",
+    "Vec3",
+    "hookimpl",
+    "load_pipeline",
+    "load_scene",
+    "run_pipeline",
+    "run_tasks",
+]

@@ -1,0 +1,262 @@
+"""Pydantic models of the scene and pipeline files (the user's contract).
+
+Values are SI after validation: lengths typed :data:`~surgiplan.units.Length`
+are scaled by the file's ``length_unit`` through the validation context.
+Every model forbids unknown keys, so a misspelt key is an error that names it.
+See ``DESIGN.md`` and ``configs/`` for complete examples.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    PositiveInt,
+    Tag,
+    model_validator,
+)
+
+from .models import PoseModel, QuaternionPoseModel
+from .units import LENGTH_UNITS, Angle, Length, PositiveLength, Vec3
+
+LengthUnit = Literal[tuple(LENGTH_UNITS)]  # type: ignore[valid-type]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# ----------------------------------------------------------------------------- scene
+
+
+class BoundsModel(_Strict):
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _non_empty(self):
+        bad = [axis for axis, lo, hi in zip("xyz", self.min, self.max, strict=True) if hi <= lo]
+        if bad:
+            raise ValueError(f"max must exceed min along {', '.join(bad)}")
+        return self
+
+
+class BoxModel(_Strict):
+    """Either ``min``/``max`` corners or a ``size`` centred on the obstacle's pose."""
+
+    min: Vec3 | None = None
+    max: Vec3 | None = None
+    size: tuple[PositiveLength, PositiveLength, PositiveLength] | None = None
+
+    @model_validator(mode="after")
+    def _one_form(self):
+        corners = self.min is not None or self.max is not None
+        if corners == (self.size is not None):
+            raise ValueError("give either min and max, or size")
+        if corners:
+            if self.min is None or self.max is None:
+                raise ValueError("give both min and max")
+            bad = [a for a, lo, hi in zip("xyz", self.min, self.max, strict=True) if hi <= lo]
+            if bad:
+                raise ValueError(f"max must exceed min along {', '.join(bad)}")
+        return self
+
+
+class SphereModel(_Strict):
+    radius: PositiveLength
+
+
+class CylinderModel(_Strict):
+    """A solid cylinder along the obstacle's local z axis, centred on its pose."""
+
+    radius: PositiveLength
+    length: PositiveLength
+
+
+class CapsuleModel(_Strict):
+    """``radius`` with either a ``length`` along local z (centred) or end points ``a`` and ``b``."""
+
+    radius: PositiveLength
+    length: Length | None = None
+    a: Vec3 | None = None
+    b: Vec3 | None = None
+
+    @model_validator(mode="after")
+    def _one_form(self):
+        ends = self.a is not None or self.b is not None
+        if ends == (self.length is not None):
+            raise ValueError("give either length, or end points a and b")
+        if ends and (self.a is None or self.b is None):
+            raise ValueError("give both a and b")
+        return self
+
+
+def _mesh_shorthand(value: Any) -> Any:
+    return {"file": value} if isinstance(value, str) else value
+
+
+class MeshModel(_Strict):
+    """A mesh file (STL, OBJ, PLY, GLB, ...), relative to the file that names it.
+
+    ``unit``: the unit of the coordinates in the mesh file (default: the
+    naming file's ``length_unit``); ``scale``: an extra factor.
+    """
+
+    file: str
+    unit: LengthUnit | None = None
+    scale: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.0
+
+
+class ObstacleModel(_Strict):
+    name: str = Field(min_length=1)
+    box: BoxModel | None = None
+    sphere: SphereModel | None = None
+    cylinder: CylinderModel | None = None
+    capsule: CapsuleModel | None = None
+    mesh: Annotated[MeshModel | None, BeforeValidator(_mesh_shorthand)] = None
+    pose: PoseModel = Field(default_factory=PoseModel)
+
+    @model_validator(mode="after")
+    def _one_shape(self):
+        given = [k for k in SHAPES if getattr(self, k) is not None]
+        if len(given) != 1:
+            found = ", ".join(given) if given else "none"
+            raise ValueError(f"give exactly one shape ({', '.join(SHAPES)}); found {found}")
+        return self
+
+    @property
+    def shape(self) -> str:
+        return next(k for k in SHAPES if getattr(self, k) is not None)
+
+
+SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh")
+
+
+class SceneModel(_Strict):
+    """A scene file, or the ``scene:`` block of a pipeline file."""
+
+    name: str | None = None
+    length_unit: LengthUnit | None = None
+    bounds: BoundsModel
+    obstacles: list[ObstacleModel] = Field(default_factory=list)
+    points: dict[str, Vec3] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _unique_names(self):
+        names = [o.name for o in self.obstacles]
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            raise ValueError(f"obstacle names must be unique; repeated: {', '.join(repeated)}")
+        return self
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+
+class GimbalConfigurationModel(_Strict):
+    """An explicit CAST gimbal configuration."""
+
+    yaw: Angle
+    pitch: Angle
+    insertion: Length
+    roll: Angle = 0.0
+
+
+def _endpoint_form(value: Any) -> str:
+    if isinstance(value, str):
+        return "name"
+    if isinstance(value, dict):
+        return "gimbal" if "yaw" in value or "insertion" in value else "pose"
+    if isinstance(value, GimbalConfigurationModel):
+        return "gimbal"
+    if isinstance(value, QuaternionPoseModel):
+        return "pose"
+    return "point"
+
+
+#: a start or goal: a point name, coordinates [x, y, z], a gimbal configuration
+#: {yaw, pitch, insertion, roll} or a pose {xyz, rpy | quaternion}
+Endpoint = Annotated[
+    Annotated[str, Tag("name")]
+    | Annotated[Vec3, Tag("point")]
+    | Annotated[GimbalConfigurationModel, Tag("gimbal")]
+    | Annotated[QuaternionPoseModel, Tag("pose")],
+    Discriminator(_endpoint_form),
+]
+
+
+class StageModel(_Strict):
+    """One stage of a pipeline; which keys apply depends on ``stage``."""
+
+    stage: Literal["plan", "simulate", "execute"]
+    plugin: str = Field(min_length=1)
+    name: str | None = Field(default=None, min_length=1)
+    settings: dict[str, Any] = Field(default_factory=dict)
+    # plan stages
+    space: dict[str, Any] | None = None
+    start: Endpoint | None = None
+    goal: Endpoint | None = None
+    artifact: str | None = None
+    bounds: BoundsModel | None = None
+    clearance_threshold: Length | None = None
+    # execute stages
+    path_from: str | None = None
+
+    @model_validator(mode="after")
+    def _keys_for_stage(self):
+        plan_only = ("space", "start", "goal", "artifact", "bounds", "clearance_threshold")
+        if self.stage == "plan":
+            missing = [k for k in ("start", "goal") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"a plan stage needs {' and '.join(missing)}")
+            if self.path_from is not None:
+                raise ValueError("path_from applies to execute stages only")
+        else:
+            extra = [k for k in plan_only if getattr(self, k) is not None]
+            if self.stage == "simulate" and self.path_from is not None:
+                extra.append("path_from")
+            if extra:
+                raise ValueError(f"{', '.join(extra)} apply to plan stages only, not to {self.stage} stages")
+        return self
+
+
+class ExecutorModel(_Strict):
+    """``local`` (process pool, ``workers``) or ``dask`` (scheduler ``address``)."""
+
+    kind: Literal["local", "dask"] = "local"
+    workers: PositiveInt | None = None
+    address: str | None = None
+
+    @model_validator(mode="after")
+    def _address_for_dask(self):
+        if self.kind == "dask" and not self.address:
+            raise ValueError("the dask executor needs the scheduler's address (e.g. tcp://127.0.0.1:8786)")
+        if self.kind == "local" and self.address:
+            raise ValueError("address applies to the dask executor only")
+        return self
+
+
+class OutputModel(_Strict):
+    #: output directory, relative to the current directory; default out/<name>
+    dir: str | None = None
+    figures: bool = True
+    gltf: bool = True
+
+
+class PipelineModel(_Strict):
+    name: str = Field(min_length=1)
+    description: str | None = None
+    length_unit: LengthUnit = "m"
+    #: the scene inline, or the path of a scene file (relative to this file)
+    scene: Annotated[
+        Annotated[SceneModel, Tag("inline")] | Annotated[str, Tag("file")],
+        Discriminator(lambda v: "file" if isinstance(v, str) else "inline"),
+    ]
+    pipeline: list[StageModel] = Field(min_length=1)
+    executor: ExecutorModel = Field(default_factory=ExecutorModel)
+    output: OutputModel = Field(default_factory=OutputModel)

@@ -1,0 +1,142 @@
+"""The device interface, shaped after ros2_control's hardware components.
+
+A device turns a planned path into motion: it maps the path through its
+kinematic model to a timed joint trajectory, sends it to its drives (over a
+simulated or real bus), and reports what actually happened.
+
+Lifecycle (as ros2_control's managed nodes)::
+
+    unconfigured --configure--> inactive --activate--> active
+         ^                         |  ^                  |
+         +-------cleanup-----------+  +----deactivate----+
+    any --error--> error;  any --shutdown--> finalized
+
+Commands (:meth:`Device.execute`) are accepted only when active.
+"""
+
+from __future__ import annotations
+
+import enum
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel
+
+from .errors import SurgiplanError
+
+if TYPE_CHECKING:
+    from .results import StageContext
+    from .spaces.base import Space
+
+
+class LifecycleState(enum.StrEnum):
+    UNCONFIGURED = "unconfigured"
+    INACTIVE = "inactive"
+    ACTIVE = "active"
+    FINALIZED = "finalized"
+    ERROR = "error"
+
+
+class LifecycleError(SurgiplanError):
+    """A lifecycle transition or command that is not allowed in the current state."""
+
+    exit_code = 1
+
+
+@dataclass
+class Trajectory:
+    """What an execute stage hands to a device: the planned path and its space."""
+
+    path: np.ndarray
+    space: Space
+    #: the stage that planned it
+    source: str = ""
+
+
+@dataclass
+class ExecutionReport:
+    """What the device did: ``completed`` or ``stopped`` (with the reason)."""
+
+    status: str
+    metrics: dict[str, Any] = field(default_factory=dict)
+    #: positions the tip actually reached (n, 3), metres
+    executed_tip_path: np.ndarray | None = None
+    faults: list[dict[str, Any]] = field(default_factory=list)
+    message: str = ""
+
+
+class Device(ABC):
+    """Base class of device plugins; subclasses implement the ``on_*`` transitions and ``run``."""
+
+    Settings: ClassVar[type[BaseModel]]
+
+    _transitions: ClassVar[dict[str, tuple[tuple[LifecycleState, ...], LifecycleState]]] = {
+        "configure": ((LifecycleState.UNCONFIGURED,), LifecycleState.INACTIVE),
+        "activate": ((LifecycleState.INACTIVE,), LifecycleState.ACTIVE),
+        "deactivate": ((LifecycleState.ACTIVE,), LifecycleState.INACTIVE),
+        "cleanup": ((LifecycleState.INACTIVE,), LifecycleState.UNCONFIGURED),
+        "shutdown": (
+            (LifecycleState.UNCONFIGURED, LifecycleState.INACTIVE, LifecycleState.ACTIVE, LifecycleState.ERROR),
+            LifecycleState.FINALIZED,
+        ),
+    }
+
+    def __init__(self, settings: BaseModel) -> None:
+        self.settings = settings
+        self.state = LifecycleState.UNCONFIGURED
+        self.context: StageContext | None = None
+
+    def _transition(self, name: str, action) -> None:
+        allowed, target = self._transitions[name]
+        if self.state not in allowed:
+            raise LifecycleError(f"cannot {name} a device that is {self.state.value}")
+        try:
+            action()
+        except Exception:
+            self.state = LifecycleState.ERROR
+            raise
+        self.state = target
+
+    def configure(self, context: StageContext) -> None:
+        self.context = context
+        self._transition("configure", lambda: self.on_configure(context))
+
+    def activate(self) -> None:
+        self._transition("activate", self.on_activate)
+
+    def deactivate(self) -> None:
+        self._transition("deactivate", self.on_deactivate)
+
+    def cleanup(self) -> None:
+        self._transition("cleanup", self.on_cleanup)
+
+    def shutdown(self) -> None:
+        if self.state is not LifecycleState.FINALIZED:
+            self._transition("shutdown", self.on_shutdown)
+
+    def execute(self, trajectory: Trajectory) -> ExecutionReport:
+        if self.state is not LifecycleState.ACTIVE:
+            raise LifecycleError(f"a device must be active to execute; it is {self.state.value}")
+        return self.run(trajectory)
+
+    # ------------------------------------------------------------------ for subclasses
+    def on_configure(self, context: StageContext) -> None:
+        """Open the bus, load the kinematic model; states become readable."""
+
+    def on_activate(self) -> None:
+        """Enable the drives; commands are accepted afterwards."""
+
+    def on_deactivate(self) -> None:
+        """Stop and disable the drives."""
+
+    def on_cleanup(self) -> None:
+        """Release what ``on_configure`` acquired."""
+
+    def on_shutdown(self) -> None:
+        """Final release of every resource."""
+
+    @abstractmethod
+    def run(self, trajectory: Trajectory) -> ExecutionReport:
+        """Execute a trajectory; called only when active."""

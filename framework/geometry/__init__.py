@@ -1,0 +1,1 @@
+"""Geometry: rigid transforms, exact vectorised distances, obstacle shapes."""

@@ -1,0 +1,51 @@
+"""Small pydantic models shared by the scene, spaces and plugins (SI after validation)."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, model_validator
+
+from .geometry.transforms import Pose
+from .units import Angle, Finite, Vec3
+
+
+class PoseModel(BaseModel):
+    """A rigid pose: position ``xyz`` (length unit of the file) and ``rpy`` (radians, or '30 deg')."""
+
+    model_config = ConfigDict(extra="forbid")
+    xyz: Vec3 = (0.0, 0.0, 0.0)
+    rpy: tuple[Angle, Angle, Angle] = (0.0, 0.0, 0.0)
+
+    def to_pose(self) -> Pose:
+        return Pose.from_xyz_rpy(self.xyz, self.rpy)
+
+
+class QuaternionPoseModel(BaseModel):
+    """A pose by position and either ``rpy`` or a scalar-last ``quaternion`` (qx, qy, qz, qw)."""
+
+    model_config = ConfigDict(extra="forbid")
+    xyz: Vec3 = (0.0, 0.0, 0.0)
+    rpy: tuple[Angle, Angle, Angle] | None = None
+    quaternion: tuple[Finite, Finite, Finite, Finite] | None = None
+
+    @model_validator(mode="after")
+    def _one_orientation(self):
+        if self.rpy is not None and self.quaternion is not None:
+            raise ValueError("give either rpy or quaternion, not both")
+        if self.quaternion is not None and not np.linalg.norm(self.quaternion) > 0:
+            raise ValueError("quaternion must not be zero")
+        return self
+
+
+class AngleRange(BaseModel):
+    """Joint limits in radians (``[min, max]``; '60 deg' accepted)."""
+
+    model_config = ConfigDict(extra="forbid")
+    min: Angle
+    max: Angle
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        if self.max < self.min:
+            raise ValueError(f"max ({self.max}) is below min ({self.min})")
+        return self

@@ -1,0 +1,138 @@
+"""The planner interface: an expensive, storable ``build`` and a cheap ``query``.
+
+Both methods of paper 000 (PRM's learning and query phases) and paper 001
+(optMIS's offline repository and online A*) split planning this way, and so
+does OMPL's PRM. :class:`Planner` makes the split explicit:
+
+* ``build(problem) -> artifact`` — roadmaps, path repositories; run once and
+  stored (``artifact:`` in a plan stage) so that many queries reuse it;
+* ``query(artifact, start, goal) -> PlanResult`` — the online answer.
+
+A planner that stores its artifact implements :meth:`Planner.save_artifact`
+and :meth:`Planner.load_artifact` with plain arrays and JSON values (never
+pickle: a stored file must not be able to run code when loaded). The
+framework writes the file atomically, with a content hash of the scene,
+space, plugin and settings, and rebuilds when they change.
+"""
+
+from __future__ import annotations
+
+import enum
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel
+
+from .executors import Executor, InlineExecutor
+from .progress import NullProgress, Progress
+from .scene import Scene
+from .spaces.base import Space
+
+
+class PlanStatus(enum.StrEnum):
+    SOLVED = "solved"
+    NO_PATH = "no_path"
+    INVALID_START = "invalid_start"
+    INVALID_GOAL = "invalid_goal"
+    TIMEOUT = "timeout"
+
+
+@dataclass
+class PlanningProblem:
+    """What a planner's build phase gets: the scene, the space, and how to run work."""
+
+    scene: Scene
+    space: Space
+    executor: Executor = field(default_factory=InlineExecutor)
+    progress: Progress = field(default_factory=NullProgress)
+    #: a directory the planner may use to checkpoint long offline work (resumable)
+    workdir: Path | None = None
+
+
+@dataclass
+class PlanResult:
+    """The answer to a query.
+
+    ``path``: waypoints (n, space.dimension) in SI; consecutive waypoints are
+    joined by the space's local planner (straight lines in R3).
+    ``metrics``: plugin-specific numbers (JSON-able); the framework adds the
+    common ones (``length_m``, ``min_clearance_m``, ...) when absent.
+    ``clearance_threshold``: the clearance (m) the planner aims to keep, if
+    any; figures highlight the parts of the path below it.
+    """
+
+    status: PlanStatus
+    path: np.ndarray
+    metrics: dict[str, Any] = field(default_factory=dict)
+    message: str = ""
+    clearance_threshold: float | None = None
+    #: extra data for figures, e.g. {"critical_regions": [...]} (JSON-able)
+    annotations: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def solved(self) -> bool:
+        return self.status is PlanStatus.SOLVED
+
+    @classmethod
+    def failure(cls, status: PlanStatus, dimension: int, message: str, **metrics) -> PlanResult:
+        return cls(status, np.empty((0, dimension)), dict(metrics), message)
+
+
+class Planner(ABC):
+    """Base class of planner plugins.
+
+    Subclasses set ``Settings`` (a pydantic model with ``extra="forbid"``) and
+    implement :meth:`build` and :meth:`query`.
+    """
+
+    Settings: ClassVar[type[BaseModel]]
+    #: bump when the stored artifact layout changes, so old files are rebuilt
+    artifact_version: ClassVar[int] = 1
+
+    def __init__(self, settings: BaseModel) -> None:
+        self.settings = settings
+
+    @abstractmethod
+    def build(self, problem: PlanningProblem) -> Any:
+        """The offline phase; returns the artifact :meth:`query` needs."""
+
+    @abstractmethod
+    def query(self, artifact: Any, start: np.ndarray, goal: np.ndarray) -> PlanResult:
+        """The online phase: a path from ``start`` to ``goal`` (configurations)."""
+
+    # ------------------------------------------------------------------ persistence
+    @property
+    def stores_artifacts(self) -> bool:
+        return type(self).save_artifact is not Planner.save_artifact
+
+    def save_artifact(self, artifact: Any) -> Mapping[str, Any]:
+        """The artifact as named numpy arrays and JSON-able values."""
+        raise NotImplementedError
+
+    def load_artifact(self, data: Mapping[str, Any], problem: PlanningProblem) -> Any:
+        """Rebuild the artifact from what :meth:`save_artifact` returned."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def check_endpoints(space: Space, start, goal, margin: float = 0.0) -> PlanResult | None:
+        """A failed :class:`PlanResult` when start or goal is not a valid configuration."""
+        for status, q, what in (
+            (PlanStatus.INVALID_START, start, "start"),
+            (PlanStatus.INVALID_GOAL, goal, "goal"),
+        ):
+            q = np.asarray(q, dtype=float)
+            if q.shape != (space.dimension,):
+                return PlanResult.failure(
+                    status, space.dimension, f"{what} has shape {q.shape}, expected ({space.dimension},)"
+                )
+            if not space.is_valid(q[None, :], margin)[0]:
+                clearance = float(space.clearance(q[None, :])[0])
+                return PlanResult.failure(
+                    status, space.dimension, f"{what} is not a free configuration (clearance {clearance * 1000:.3g} mm)"
+                )
+        return None

@@ -1,0 +1,98 @@
+"""Progress reporting for long offline phases.
+
+Plugins receive a :class:`Progress` and open tasks on it::
+
+    with problem.progress.task("building roadmap", total=n) as task:
+        for chunk in chunks:
+            ...
+            task.advance(len(chunk))
+
+The command line passes a :class:`RichProgress` (bars on stderr); tests and
+library users get :class:`NullProgress` unless they ask otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+
+class ProgressTask:
+    """Handle of one running task; ``advance`` by finished units."""
+
+    def advance(self, amount: float = 1.0) -> None:  # pragma: no cover - interface
+        pass
+
+    def update(self, completed: float) -> None:  # pragma: no cover - interface
+        pass
+
+
+class Progress:
+    """Base progress reporter: reports nothing."""
+
+    @contextlib.contextmanager
+    def task(self, description: str, total: float | None = None) -> Iterator[ProgressTask]:
+        yield ProgressTask()
+
+    def close(self) -> None:
+        pass
+
+
+class NullProgress(Progress):
+    """Reports nothing (the default outside the command line)."""
+
+
+class _RichTask(ProgressTask):
+    def __init__(self, progress, task_id) -> None:
+        self._progress = progress
+        self._task_id = task_id
+
+    def advance(self, amount: float = 1.0) -> None:
+        self._progress.advance(self._task_id, amount)
+
+    def update(self, completed: float) -> None:
+        self._progress.update(self._task_id, completed=completed)
+
+
+class RichProgress(Progress):
+    """Progress bars on stderr with rich: description, bar, count, elapsed and remaining time."""
+
+    def __init__(self, console=None) -> None:
+        from rich.console import Console
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+        from rich.progress import Progress as _Progress
+
+        self._progress = _Progress(
+            TextColumn("[progress.description]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=console or Console(stderr=True),
+            transient=False,
+        )
+        self._started = False
+
+    @contextlib.contextmanager
+    def task(self, description: str, total: float | None = None) -> Iterator[ProgressTask]:
+        if not self._started:
+            self._progress.start()
+            self._started = True
+        task_id = self._progress.add_task(description, total=total)
+        try:
+            yield _RichTask(self._progress, task_id)
+            if total is not None:
+                self._progress.update(task_id, completed=total)
+        finally:
+            self._progress.stop_task(task_id)
+
+    def close(self) -> None:
+        if self._started:
+            self._progress.stop()
+            self._started = False

@@ -1,0 +1,84 @@
+"""What stages receive and return: :class:`StageContext` and :class:`StageResult`.
+
+Each entry of ``result.json`` is a :class:`StageResult` in SI units::
+
+    {"stage": "plan", "name": "intermediate", "plugin": "safe_prm",
+     "status": "solved", "path": [[x, y, z], ...], "metrics": {...}}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .executors import Executor, InlineExecutor
+from .progress import NullProgress, Progress
+from .scene import Scene
+from .storage import to_jsonable
+
+#: statuses that count as success, per stage kind
+SUCCESS = {"plan": {"solved"}, "simulate": {"converged", "completed"}, "execute": {"completed"}}
+
+
+@dataclass
+class StageContext:
+    """Everything a stage plugin may use besides its settings."""
+
+    name: str
+    scene: Scene
+    output_dir: Path
+    #: directory of the pipeline file (relative input paths resolve against it)
+    base_dir: Path
+    executor: Executor = field(default_factory=InlineExecutor)
+    progress: Progress = field(default_factory=NullProgress)
+    #: earlier stages' results, by stage name
+    previous: dict[str, StageResult] = field(default_factory=dict)
+    #: where long work may checkpoint (resumable)
+    workdir: Path | None = None
+
+
+@dataclass
+class StageResult:
+    stage: str
+    name: str
+    plugin: str
+    status: str
+    path: np.ndarray | None = None
+    metrics: dict[str, Any] = field(default_factory=dict)
+    message: str = ""
+    #: files the stage wrote, relative to the output directory
+    files: list[str] = field(default_factory=list)
+    #: the tip trajectory (n, 3) for figures, when the path is not in R3
+    tip_path: np.ndarray | None = None
+    #: the space the path is in (kind), for readers of result.json
+    space: str | None = None
+    clearance_threshold: float | None = None
+    annotations: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def succeeded(self) -> bool:
+        return self.status in SUCCESS.get(self.stage, set())
+
+    def to_json(self) -> dict[str, Any]:
+        entry: dict[str, Any] = {
+            "stage": self.stage,
+            "name": self.name,
+            "plugin": self.plugin,
+            "status": self.status,
+            "path": [] if self.path is None else np.asarray(self.path).tolist(),
+            "metrics": to_jsonable(self.metrics),
+        }
+        if self.space:
+            entry["space"] = self.space
+        if self.tip_path is not None and self.space not in (None, "r3"):
+            entry["tip_path"] = np.asarray(self.tip_path).tolist()
+        if self.message:
+            entry["message"] = self.message
+        if self.files:
+            entry["files"] = list(self.files)
+        if self.annotations:
+            entry["annotations"] = to_jsonable(self.annotations)
+        return entry

@@ -1,0 +1,245 @@
+"""The configuration-space interface planners work in.
+
+A :class:`Space` knows its coordinates (bounds, sampling, distance,
+interpolation), how to place the moving body for a configuration, and how to
+decide, *with a certificate*, that the body keeps a clearance margin along a
+motion. Planners only ever talk to the scene through their space, so the same
+planner plans for an instrument tip (:class:`~surgiplan.spaces.r3.R3Space`),
+a whole laparoscopic shaft about a fulcrum
+(:class:`~surgiplan.spaces.gimbal.CastGimbalSpace`) or a gripper pose
+(:class:`~surgiplan.spaces.se3.SE3Space`).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import ClassVar
+
+import numpy as np
+from pydantic import BaseModel
+
+from ..scene import Scene, meets_margin
+
+
+class Space(ABC):
+    """A configuration space over a scene.
+
+    Subclasses declare ``Settings`` (a pydantic model, ``extra="forbid"``) and
+    are built with ``Space.from_settings(settings, scene)``.
+    """
+
+    #: registered name (``space: {kind: ...}`` in a pipeline file)
+    kind: ClassVar[str]
+    Settings: ClassVar[type[BaseModel]]
+
+    def __init__(self, scene: Scene) -> None:
+        self.scene = scene
+
+    @classmethod
+    @abstractmethod
+    def from_settings(cls, settings: BaseModel, scene: Scene) -> Space: ...
+
+    # ------------------------------------------------------------------ coordinates
+    @property
+    @abstractmethod
+    def dimension(self) -> int:
+        """Number of coordinates of a configuration."""
+
+    @property
+    @abstractmethod
+    def low(self) -> np.ndarray: ...
+
+    @property
+    @abstractmethod
+    def high(self) -> np.ndarray: ...
+
+    @abstractmethod
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` configurations (n, dimension) drawn uniformly within the limits."""
+
+    @abstractmethod
+    def distance(self, q1, q2) -> np.ndarray:
+        """Metric used for nearest neighbours and path cost (metre-like units)."""
+
+    @abstractmethod
+    def interpolate(self, q1, q2, t) -> np.ndarray:
+        """Configurations a fraction ``t`` of the way from q1 to q2 (the local planner)."""
+
+    def within_limits(self, q) -> np.ndarray:
+        q = np.atleast_2d(q)
+        return np.all((q >= self.low - 1e-12) & (q <= self.high + 1e-12), axis=1)
+
+    # ------------------------------------------------------------------ body placement
+    @abstractmethod
+    def tip(self, q) -> np.ndarray:
+        """Workspace position (n, 3) of the instrument tip (or body origin), metres."""
+
+    @abstractmethod
+    def clearance(self, q, cutoff: float | np.ndarray = np.inf) -> np.ndarray:
+        """Exact clearance (m) of the whole moving body at each configuration.
+
+        Values below ``cutoff`` are exact; above it a lower bound that is at
+        least ``cutoff`` may be returned (far obstacles are then skipped).
+        """
+
+    def motion_is_clear(self, q1, q2, margin: float = 0.0) -> np.ndarray:
+        """Certified: True only if the body keeps ``margin`` along every motion q1[i] → q2[i].
+
+        The default steps along each motion by the remaining slack over
+        :meth:`motion_speed_bound` (:func:`certify_by_stepping`); spaces with
+        an exact swept-volume test override it.
+        """
+        q1 = np.atleast_2d(np.asarray(q1, float))
+        q2 = np.atleast_2d(np.asarray(q2, float))
+        ok = self.within_limits(q1) & self.within_limits(q2)  # the limits are convex
+        if np.any(ok):
+            tiny = 1e-12 if margin <= 0 else 0.0  # margin 0: touching is not clear
+            ok[ok] = certify_by_stepping(
+                lambda q, enough: self.motion_slack(q, margin, enough) + tiny,
+                self.interpolate,
+                q1[ok],
+                q2[ok],
+                self.motion_speed_bound(q1[ok], q2[ok]),
+            )
+        return ok
+
+    def motion_slack(self, q, margin: float, enough: float | np.ndarray = np.inf) -> np.ndarray:
+        """What must stay positive along a motion: clearance beyond ``margin`` (m).
+
+        A slack of ``enough`` already finishes the motion in one step, so the
+        value need only be exact below it.
+        """
+        return self.clearance(q, cutoff=margin + enough) - margin
+
+    def motion_speed_bound(self, q1, q2) -> np.ndarray:
+        """Bound (m per unit t) on the speed of any body point along the motions q1 → q2."""
+        raise NotImplementedError(f"space '{self.kind}' must override motion_is_clear or motion_speed_bound")
+
+    def is_valid(self, q, margin: float = 0.0) -> np.ndarray:
+        """Within limits, inside the workspace, and clearance meeting ``margin``."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        ok = self.within_limits(q) & self.in_workspace(q)
+        if np.any(ok):
+            ok[ok] = meets_margin(self.clearance(q[ok]), margin)
+        return ok
+
+    def nearest_obstacle(self, q) -> np.ndarray:
+        """Index in ``scene.obstacles`` of the obstacle nearest to the body (-1: none)."""
+        return self.scene.signed_distance(self.tip(q))[1]
+
+    def in_workspace(self, q) -> np.ndarray:
+        """Whether the tip is inside the scene bounds (the workspace)."""
+        return self.scene.in_bounds(self.tip(q))
+
+    @abstractmethod
+    def configuration(self, value, *, what: str = "point") -> np.ndarray:
+        """A configuration from user input: a workspace point (m) or explicit coordinates.
+
+        Raises :class:`~surgiplan.errors.PlanningInputError` when the input
+        cannot be a configuration of this space (e.g. out of reach).
+        """
+
+    # ------------------------------------------------------------------ paths
+    def densify(self, path, resolution: float) -> np.ndarray:
+        """The path with extra configurations so consecutive tips are at most ``resolution`` apart.
+
+        Tip spacing is measured on the straight chord; subclasses whose local
+        planner curves the tip refine further where needed.
+        """
+        path = np.atleast_2d(np.asarray(path, dtype=float))
+        if len(path) < 2:
+            return path
+        tips = self.tip(path)
+        out = [path[:1]]
+        for i in range(len(path) - 1):
+            chord = float(np.linalg.norm(tips[i + 1] - tips[i]))
+            n = max(1, int(np.ceil(chord / resolution)))
+            t = np.linspace(0.0, 1.0, n + 1)[1:]
+            out.append(self.interpolate(path[i][None, :].repeat(n, 0), path[i + 1][None, :].repeat(n, 0), t))
+        return np.concatenate(out)
+
+    def tip_path_length(self, path) -> float:
+        """Length (m) of the tip's trajectory along the path."""
+        dense = self.densify(path, resolution=self._length_resolution())
+        return float(np.sum(np.linalg.norm(np.diff(self.tip(dense), axis=0), axis=1)))
+
+    def _length_resolution(self) -> float:
+        return float(np.min(self.scene.extent)) / 2000.0
+
+    def segment_clearance(self, q1, q2) -> np.ndarray:
+        """Minimum clearance (m) of the body along each motion q1[i] → q2[i].
+
+        Exact where the swept volume is known in closed form (R3); otherwise a
+        certified lower bound, below the true value by at most
+        :meth:`segment_clearance_tolerance`: each motion is sampled finely
+        enough that no body point moves more than twice the tolerance between
+        samples, and half that motion is subtracted.
+        """
+        q1 = np.atleast_2d(np.asarray(q1, float))
+        q2 = np.atleast_2d(np.asarray(q2, float))
+        tol = self.segment_clearance_tolerance()
+        speed = self.motion_speed_bound(q1, q2)
+        steps = np.maximum(1, np.ceil(speed / (2 * tol)).astype(int))
+        owner = np.repeat(np.arange(len(q1)), steps + 1)
+        start = np.concatenate([[0], np.cumsum(steps + 1)[:-1]])
+        t = (np.arange(len(owner)) - start[owner]) / steps[owner]
+        c = self.clearance(self.interpolate(q1[owner], q2[owner], t))
+        return np.minimum.reduceat(c, start) - speed / steps / 2
+
+    def segment_clearance_tolerance(self) -> float:
+        """Largest amount (m) by which :meth:`segment_clearance` may underestimate."""
+        return 1e-5
+
+    def spec(self) -> dict:
+        """Canonical description (JSON-able), used in artifact content hashes."""
+        return {"kind": self.kind, **self.settings_spec()}
+
+    @abstractmethod
+    def settings_spec(self) -> dict: ...
+
+
+def certify_by_stepping(
+    value,
+    interpolate,
+    q1: np.ndarray,
+    q2: np.ndarray,
+    lipschitz: np.ndarray,
+    *,
+    min_fraction: float = 1e-7,
+    max_iterations: int = 20_000,
+) -> np.ndarray:
+    """Certify motions by stepping no farther than the remaining clearance allows.
+
+    ``value(q, enough)`` is a slack that must stay positive (clearance minus
+    margin, in metres); it may return any lower bound of at least ``enough``
+    (the slack that covers the rest of the motion) when the true slack
+    exceeds it, which lets far obstacles be skipped. ``lipschitz[i]`` bounds how fast any point of the body moves,
+    in metres per unit of the motion parameter t ∈ [0, 1]. From a
+    configuration with slack c the body cannot lose its margin within
+    ``c / lipschitz`` in t, so stepping by that much covers the whole motion
+    with balls: a motion accepted is clear everywhere. A motion whose slack
+    drops to zero, or whose steps shrink below ``min_fraction``, or that needs
+    more than ``max_iterations`` steps (a motion grazing its margin), is
+    rejected: conservative, never optimistic. Vectorised over motions.
+    """
+    q1 = np.atleast_2d(q1)
+    q2 = np.atleast_2d(q2)
+    n = len(q1)
+    ok = np.ones(n, dtype=bool)
+    t = np.zeros(n)
+    active = np.arange(n)
+    lipschitz = np.maximum(np.asarray(lipschitz, dtype=float), 1e-300)
+    for _ in range(max_iterations):
+        if not active.size:
+            break
+        q = interpolate(q1[active], q2[active], t[active])
+        slack = value(q, lipschitz[active] * (1.0 - t[active]))
+        failed = slack <= 0.0
+        step = np.where(failed, 0.0, slack / lipschitz[active])
+        failed |= step < min_fraction
+        ok[active[failed]] = False
+        t[active] += step
+        done = failed | (t[active] >= 1.0)
+        active = active[~done]
+    ok[active] = False
+    return ok

@@ -1,0 +1,106 @@
+"""Atomic files and the array bundle format used for artifacts and checkpoints.
+
+Everything surgiplan writes goes through :func:`atomic_write`: a temporary
+file in the destination directory, flushed and fsynced, then renamed over the
+target. A crash or Ctrl-C leaves either the old file or the new one, never a
+truncated one.
+
+A *bundle* is a ``.npz`` file of named numpy arrays plus one JSON document
+(``__meta__``) for everything else. It is read with ``allow_pickle=False``:
+loading a stored file never runs code.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import tempfile
+import zipfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+_META = "__meta__"
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[Any]:
+    """Open a temporary file next to ``path``; on success rename it over ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs are ordinary files
+        with os.fdopen(fd, mode) as handle:
+            yield handle
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    with atomic_write(path, "wb") as handle:
+        handle.write(data)
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def write_json_atomic(path: str | Path, value: Any) -> None:
+    write_text_atomic(path, json.dumps(value, indent=2, sort_keys=False, default=_json_default) + "\n")
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+def to_jsonable(value: Any) -> Any:
+    """Arrays to lists, numpy scalars to Python numbers, recursively."""
+    return json.loads(json.dumps(value, default=_json_default))
+
+
+def save_bundle(path: str | Path, arrays: Mapping[str, Any], meta: Mapping[str, Any] | None = None) -> None:
+    """Write named arrays and a JSON ``meta`` document atomically to a ``.npz`` file."""
+    buffer = io.BytesIO()
+    payload = {k: np.asarray(v) for k, v in arrays.items()}
+    if _META in payload:
+        raise ValueError(f"'{_META}' is reserved")
+    for key, array in payload.items():
+        if array.dtype == object:
+            raise TypeError(f"array '{key}' has dtype object; store numbers, or put it in meta")
+    payload[_META] = np.frombuffer(json.dumps(dict(meta or {}), default=_json_default).encode(), dtype=np.uint8)
+    np.savez_compressed(buffer, **payload)
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+def load_bundle(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Read a bundle; raises ``ValueError`` with the reason when it is not a valid one."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, KeyError) as exc:
+        raise ValueError(f"not a readable bundle ({exc.__class__.__name__}: {exc})") from None
+    if _META not in arrays:
+        raise ValueError("no metadata record")
+    try:
+        meta = json.loads(arrays.pop(_META).tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"metadata is not valid JSON ({exc})") from None
+    return arrays, meta

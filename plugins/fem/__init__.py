@@ -1,0 +1,1 @@
+"""Built-in deformable-model plugins: stvk (nonlinear St. Venant-Kirchhoff FEM)."""

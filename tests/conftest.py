@@ -1,0 +1,80 @@
+"""Shared fixtures.
+
+Third-party plugins installed on the machine must not leak into the suite:
+by default only surgiplan's own entry points are loaded
+(SURGIPLAN_PLUGIN_PACKAGES=surgiplan); tests about the example third-party
+package opt in with the ``with_example_plugin`` fixture.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from surgiplan import registry
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIGS = ROOT / "configs"
+DATA = Path(__file__).resolve().parent / "data"
+
+os.environ["SURGIPLAN_PLUGIN_PACKAGES"] = "surgiplan"
+os.environ.pop("SURGIPLAN_DISABLE_PLUGINS", None)
+os.environ.pop("SURGIPLAN_STRICT_PLUGINS", None)
+
+
+@pytest.fixture(autouse=True)
+def _fresh_registry():
+    registry.reset_default_registry()
+    yield
+    registry.reset_default_registry()
+
+
+@pytest.fixture
+def with_example_plugin(monkeypatch):
+    monkeypatch.setenv("SURGIPLAN_PLUGIN_PACKAGES", "surgiplan,surgiplan-hello")
+    registry.reset_default_registry()
+    names = registry.default_registry().names("planner")
+    if "via_point" not in names:
+        pytest.fail(
+            "the example plugin package is not installed: pip install -e examples/surgiplan-hello "
+            "(the Makefile's test target does this)"
+        )
+    return registry.default_registry()
+
+
+@pytest.fixture
+def block_world():
+    from surgiplan import load_scene
+
+    return load_scene(CONFIGS / "scenes" / "block_world.yaml")
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
+
+
+def run_cli(args, capsys):
+    """Run the CLI in-process; returns (exit code, stdout, stderr)."""
+    from surgiplan.cli import main
+
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+@pytest.fixture
+def cli(capsys):
+    return lambda *args: run_cli(args, capsys)
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
