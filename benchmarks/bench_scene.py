@@ -116,7 +116,7 @@ def main() -> None:
     rows.append(
         {
             "scene": "block world",
-            "query": "gimbal shaft motion, 4 mm margin (certified stepping)",
+            "query": "gimbal shaft motion, 4 mm margin (certified, covering balls)",
             "surgiplan_us_per_query": round(t_ours / len(q1) * 1e6, 2),
         }
     )

@@ -76,8 +76,9 @@ def _cmd_run(args) -> int:
     outcome = run_pipeline(pipeline, progress=progress)
     if not args.quiet:
         unit = pipeline.model.length_unit
+        # piped output (CI logs, files) has no terminal width: do not fold the table into 80 columns
         print_summary(
-            Console(),
+            Console() if sys.stdout.isatty() else Console(width=120),
             pipeline.name,
             outcome.results,
             unit=unit,

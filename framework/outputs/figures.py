@@ -8,6 +8,7 @@ plan stages also gets ``overview.png`` with one 3D panel per stage.
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -152,7 +153,8 @@ def overview_figure(
     for i, (scene, view) in enumerate(panels):
         ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
         _draw_3d(ax, scene, [view], unit, k, _obstacle_meshes(scene))
-        ax.set_title(f"({chr(ord('a') + i)}) {view.title or view.label}", fontsize=9)
+        title = textwrap.fill(f"({chr(ord('a') + i)}) {view.title or view.label}", width=60)
+        ax.set_title(title, fontsize=9)
     if title:
         fig.suptitle(title, fontsize=12)
     fig.tight_layout()

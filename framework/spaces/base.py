@@ -65,6 +65,15 @@ class Space(ABC):
     def interpolate(self, q1, q2, t) -> np.ndarray:
         """Configurations a fraction ``t`` of the way from q1 to q2 (the local planner)."""
 
+    @property
+    def coordinate_weights(self) -> np.ndarray | None:
+        """Per-coordinate scales when :meth:`distance` is a weighted Euclidean metric, else None.
+
+        Lets external planners (OMPL) that only know plain Euclidean distance
+        plan in scaled coordinates with the same metric.
+        """
+        return None
+
     def within_limits(self, q) -> np.ndarray:
         q = np.atleast_2d(q)
         return np.all((q >= self.low - 1e-12) & (q <= self.high + 1e-12), axis=1)
@@ -85,16 +94,16 @@ class Space(ABC):
     def motion_is_clear(self, q1, q2, margin: float = 0.0) -> np.ndarray:
         """Certified: True only if the body keeps ``margin`` along every motion q1[i] → q2[i].
 
-        The default steps along each motion by the remaining slack over
-        :meth:`motion_speed_bound` (:func:`certify_by_stepping`); spaces with
-        an exact swept-volume test override it.
+        The default covers each motion with balls whose radius is the slack
+        over :meth:`motion_speed_bound` (:func:`certify_by_covering`); spaces
+        with an exact swept-volume test override it.
         """
         q1 = np.atleast_2d(np.asarray(q1, float))
         q2 = np.atleast_2d(np.asarray(q2, float))
         ok = self.within_limits(q1) & self.within_limits(q2)  # the limits are convex
         if np.any(ok):
             tiny = 1e-12 if margin <= 0 else 0.0  # margin 0: touching is not clear
-            ok[ok] = certify_by_stepping(
+            ok[ok] = certify_by_covering(
                 lambda q, enough: self.motion_slack(q, margin, enough) + tiny,
                 self.interpolate,
                 q1[ok],
@@ -198,48 +207,71 @@ class Space(ABC):
     def settings_spec(self) -> dict: ...
 
 
-def certify_by_stepping(
+def certify_by_covering(
     value,
     interpolate,
     q1: np.ndarray,
     q2: np.ndarray,
     lipschitz: np.ndarray,
     *,
-    min_fraction: float = 1e-7,
-    max_iterations: int = 20_000,
+    initial_samples: int = 5,
+    min_gap: float = 1e-7,
+    max_rounds: int = 60,
 ) -> np.ndarray:
-    """Certify motions by stepping no farther than the remaining clearance allows.
+    """Certify motions by covering each one with balls of known clearance.
 
-    ``value(q, enough)`` is a slack that must stay positive (clearance minus
-    margin, in metres); it may return any lower bound of at least ``enough``
-    (the slack that covers the rest of the motion) when the true slack
-    exceeds it, which lets far obstacles be skipped. ``lipschitz[i]`` bounds how fast any point of the body moves,
-    in metres per unit of the motion parameter t ∈ [0, 1]. From a
-    configuration with slack c the body cannot lose its margin within
-    ``c / lipschitz`` in t, so stepping by that much covers the whole motion
-    with balls: a motion accepted is clear everywhere. A motion whose slack
-    drops to zero, or whose steps shrink below ``min_fraction``, or that needs
-    more than ``max_iterations`` steps (a motion grazing its margin), is
-    rejected: conservative, never optimistic. Vectorised over motions.
+    ``lipschitz[i]`` bounds how fast any point of the body moves, in metres
+    per unit of the motion parameter t ∈ [0, 1]. At a sample t_k with slack
+    c_k (clearance beyond the margin) the body cannot lose its margin within
+    ``r_k = c_k / lipschitz`` of t_k. A motion is accepted when the intervals
+    [t_k - r_k, t_k + r_k] cover [0, 1]: it is then clear everywhere, not only
+    at the samples. Where two neighbouring intervals leave a gap, a sample is
+    added in the gap, for all motions at once in each round, so the rounds
+    number about log2(lipschitz / slack) and each is one vectorised call.
+
+    ``value(q, enough)`` returns the slack (m) at configurations q; where the
+    true slack exceeds ``enough`` it may return any lower bound of at least
+    ``enough`` (far obstacles need not be measured exactly). A motion whose
+    slack reaches zero at a sample is rejected; so is one whose gaps shrink
+    below ``min_gap`` or that is not covered after ``max_rounds`` (a motion
+    grazing its margin): conservative, never optimistic.
     """
     q1 = np.atleast_2d(q1)
     q2 = np.atleast_2d(q2)
     n = len(q1)
-    ok = np.ones(n, dtype=bool)
-    t = np.zeros(n)
-    active = np.arange(n)
     lipschitz = np.maximum(np.asarray(lipschitz, dtype=float), 1e-300)
-    for _ in range(max_iterations):
-        if not active.size:
-            break
-        q = interpolate(q1[active], q2[active], t[active])
-        slack = value(q, lipschitz[active] * (1.0 - t[active]))
-        failed = slack <= 0.0
-        step = np.where(failed, 0.0, slack / lipschitz[active])
-        failed |= step < min_fraction
-        ok[active[failed]] = False
-        t[active] += step
-        done = failed | (t[active] >= 1.0)
-        active = active[~done]
-    ok[active] = False
+    ok = np.ones(n, dtype=bool)
+    # samples to evaluate: motion index, parameter, and the reach that would be enough
+    grid = np.linspace(0.0, 1.0, initial_samples)
+    new_motion = np.repeat(np.arange(n), initial_samples)
+    new_t = np.tile(grid, n)
+    new_reach = np.full(len(new_t), grid[1] - grid[0])
+    motion = np.empty(0, dtype=np.int64)
+    t = np.empty(0)
+    radius = np.empty(0)
+    for _ in range(max_rounds):
+        if not new_t.size:
+            return ok
+        slack = value(interpolate(q1[new_motion], q2[new_motion], new_t), lipschitz[new_motion] * new_reach)
+        failed = new_motion[slack <= 0.0]
+        ok[failed] = False
+        motion = np.concatenate([motion, new_motion])
+        t = np.concatenate([t, new_t])
+        radius = np.concatenate([radius, np.maximum(slack, 0.0) / lipschitz[new_motion]])
+        keep = ok[motion]
+        motion, t, radius = motion[keep], t[keep], radius[keep]
+        order = np.lexsort((t, motion))
+        motion, t, radius = motion[order], t[order], radius[order]
+        # a gap between consecutive samples of one motion that their balls do not cover
+        same = motion[1:] == motion[:-1]
+        right = t[:-1] + radius[:-1]
+        left = t[1:] - radius[1:]
+        gap = same & (right < left)
+        too_fine = gap & (t[1:] - t[:-1] < min_gap)
+        ok[motion[1:][too_fine]] = False
+        gap &= ok[motion[1:]]
+        new_motion = motion[1:][gap]
+        new_t = 0.5 * (right[gap] + left[gap])
+        new_reach = 0.5 * (left[gap] - right[gap])
+    ok[new_motion] = False  # still uncovered after max_rounds
     return ok

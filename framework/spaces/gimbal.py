@@ -95,6 +95,10 @@ class CastGimbalSpace(Space):
     def high(self):
         return self._high
 
+    @property
+    def coordinate_weights(self):
+        return self._weights
+
     def sample(self, rng, n):
         return rng.uniform(self._low, self._high, size=(n, 4))
 

@@ -49,6 +49,10 @@ class R3Space(Space):
     def high(self) -> np.ndarray:
         return self.scene.bounds_max
 
+    @property
+    def coordinate_weights(self):
+        return np.ones(3)
+
     def sample(self, rng, n):
         return rng.uniform(self.low, self.high, size=(n, 3))
 

@@ -75,6 +75,10 @@ class _Session:
     counters: dict[str, int]
 
 
+def _weights(space) -> np.ndarray:
+    return np.asarray(space.coordinate_weights, dtype=float)
+
+
 def _ompl():
     from ompl import base as ob
     from ompl import geometric as og
@@ -97,12 +101,15 @@ class OmplPlanner(Planner):
                 bounds.setHigh(i, float(space.high[i]))
             state_space.setBounds(bounds)
             return state_space
+        if space.coordinate_weights is None:
+            raise ValueError(f"the OMPL bridge cannot plan in the '{space.kind}' space (no Euclidean coordinates)")
         dim = space.dimension
+        weights = _weights(space)
         state_space = ob.RealVectorStateSpace(dim)
         bounds = ob.RealVectorBounds(dim)
         for i in range(dim):
-            bounds.setLow(i, float(space.low[i]))
-            bounds.setHigh(i, float(space.high[i]))
+            bounds.setLow(i, float(space.low[i] * weights[i]))
+            bounds.setHigh(i, float(space.high[i] * weights[i]))
         state_space.setBounds(bounds)
         return state_space
 
@@ -111,7 +118,8 @@ class OmplPlanner(Planner):
         if space.kind == "se3":
             r = state.rotation()
             return np.array([state.getX(), state.getY(), state.getZ(), r.x, r.y, r.z, r.w])
-        return np.array([state[i] for i in range(space.dimension)])
+        # OMPL's coordinates are scaled so that its Euclidean metric is the space's
+        return np.array([state[i] for i in range(space.dimension)]) / _weights(space)
 
     @staticmethod
     def _to_state(q, state, space) -> None:
@@ -120,8 +128,9 @@ class OmplPlanner(Planner):
             r = state.rotation()
             r.x, r.y, r.z, r.w = (float(v) for v in q[3:7])
             return
+        scaled = np.asarray(q, float) * _weights(space)
         for i in range(space.dimension):
-            state[i] = float(q[i])
+            state[i] = float(scaled[i])
 
     # ------------------------------------------------------------------ phases
     def build(self, problem: PlanningProblem) -> _Session:
