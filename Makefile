@@ -5,7 +5,7 @@
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
-MAIN_JOB ?= configs/block_world_ompl.yaml
+MAIN_JOB ?= configs/block_world_proficiency.yaml
 
 .PHONY: run test lint bench clean
 

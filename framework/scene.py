@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .geometry import primitives as prim
+from .geometry.groups import ShapeGroup, centre_inside, group_obstacles
 from .geometry.shapes import Obstacle
 
 
@@ -84,22 +85,36 @@ class Scene:
         return np.all((points >= self.bounds_min) & (points <= self.bounds_max), axis=1)
 
     # ------------------------------------------------------------------ distances
-    def signed_distance(self, points, cutoff: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    def _prepare(self) -> None:
+        """Bounding spheres and shape groups, built once (obstacles do not change)."""
+        if getattr(self, "_groups", None) is not None:
+            return
+        spheres = [o.bounding_sphere for o in self.obstacles]
+        self._centres = np.array([c for c, _ in spheres]).reshape(-1, 3)
+        self._radii = np.array([r for _, r in spheres], dtype=float)
+        # the distance to a point inside an obstacle bounds the distance to the obstacle from above
+        self._upper_ok = np.array([centre_inside(o) for o in self.obstacles], dtype=bool)
+        self._groups = group_obstacles(self.obstacles)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        for cached in ("_groups", "_centres", "_radii", "_upper_ok"):
+            state.pop(cached, None)
+        return state
+
+    def signed_distance(self, points, cutoff: float | np.ndarray = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """Signed distance (m) from points (N, 3) to the nearest obstacle.
 
         Returns ``(distance, index)``; ``index`` is the obstacle's position in
         :attr:`obstacles` (``-1`` and ``inf`` when there are none). Distances
         below ``cutoff`` are exact; above it, the value is a lower bound that is
-        itself at least ``cutoff`` (all a clear/not-clear decision needs).
+        itself at least ``cutoff`` (all a clear/not-clear decision needs), and
+        the index is then not necessarily the nearest obstacle.
         """
         points = np.asarray(points, dtype=float).reshape(-1, 3)
-        lower = [
-            np.linalg.norm(points - centre, axis=1) - radius
-            for centre, radius in (o.bounding_sphere for o in self.obstacles)
-        ]
-        return self._nearest(lower, lambda k, sel: self.obstacles[k].sdf(points[sel]), len(points), cutoff)
+        return self._nearest(points, None, cutoff)
 
-    def segment_distance(self, a, b, cutoff: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    def segment_distance(self, a, b, cutoff: float | np.ndarray = np.inf) -> tuple[np.ndarray, np.ndarray]:
         """Minimum signed distance (m) to the obstacles along segments ``a[i] → b[i]``.
 
         Positive values are the exact segment-to-obstacle distance. Returns
@@ -109,33 +124,51 @@ class Scene:
         a = np.asarray(a, dtype=float).reshape(-1, 3)
         b = np.asarray(b, dtype=float).reshape(-1, 3)
         a, b = np.broadcast_arrays(a, b)
-        lower = [
-            prim.point_segment_distance(centre, a, b) - radius
-            for centre, radius in (o.bounding_sphere for o in self.obstacles)
-        ]
-        return self._nearest(lower, lambda k, sel: self.obstacles[k].segment_sd(a[sel], b[sel]), len(a), cutoff)
+        return self._nearest(a, b, cutoff)
 
-    def _nearest(self, lower: Sequence[np.ndarray], exact, n: int, cutoff: float):
-        best = np.full(n, np.inf)
-        index = np.full(n, -1, dtype=np.int64)
-        if not self.obstacles:
-            return best, index
-        floor = np.full(n, np.inf)  # smallest lower bound among obstacles skipped
-        # nearest-looking obstacles first, so later ones are pruned more often
-        order = np.argsort([np.median(lb) for lb in lower])
-        for k in order:
-            lb = lower[k]
-            need = lb < np.minimum(best, cutoff)
-            skipped = ~need
-            floor[skipped] = np.minimum(floor[skipped], lb[skipped])
-            if not np.any(need):
+    _CHUNK = 1_000_000  # (point, obstacle) pairs per block
+
+    def _nearest(self, a: np.ndarray, b: np.ndarray | None, cutoff) -> tuple[np.ndarray, np.ndarray]:
+        n = len(a)
+        if not self.obstacles or n == 0:
+            return np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
+        self._prepare()
+        cutoff = np.broadcast_to(np.asarray(cutoff, dtype=float), (n,))
+        block = max(1, self._CHUNK // len(self.obstacles))
+        if n > block:
+            parts = [
+                self._nearest(a[s : s + block], None if b is None else b[s : s + block], cutoff[s : s + block])
+                for s in range(0, n, block)
+            ]
+            return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+        # broad phase on bounding spheres: lower bounds for every pair, an upper bound per query
+        if b is None:
+            centre_distance = np.linalg.norm(a[:, None, :] - self._centres[None], axis=2)
+        else:
+            centre_distance = prim.point_segment_distance(self._centres[None], a[:, None, :], b[:, None, :])
+        lower = centre_distance - self._radii
+        upper = np.min(np.where(self._upper_ok, centre_distance, np.inf), axis=1)
+        need = lower < np.minimum(upper, cutoff)[:, None]
+        exact = np.full(lower.shape, np.inf)
+        # vectorised groups first (self._groups lists one-obstacle groups, e.g. meshes, last);
+        # what they find prunes the costly one-at-a-time obstacles further
+        for group in self._groups:
+            if len(group.members) == 1 and not isinstance(group, ShapeGroup):
+                best_so_far = np.min(exact, axis=1)
+                need[:, group.members[0]] &= lower[:, group.members[0]] < np.minimum(best_so_far, cutoff)
+            rows, cols = np.nonzero(need[:, group.members])
+            if not rows.size:
                 continue
-            sel = np.flatnonzero(need)
-            d = exact(k, sel)
-            better = d < best[sel]
-            best[sel[better]] = d[better]
-            index[sel[better]] = k
-        # where nothing was computed exactly (all beyond cutoff) report the bound
+            if b is None:
+                d = group.sdf(a[rows], cols)
+            else:
+                d = group.segment_sd(a[rows], b[rows], cols)
+            exact[rows, group.members[cols]] = d
+        index = np.argmin(exact, axis=1)
+        best = exact[np.arange(n), index]
+        # pairs skipped by the broad phase are at least their lower bound away
+        floor = np.min(np.where(need, np.inf, lower), axis=1)
+        index = np.where(np.isfinite(best), index, -1)
         return np.minimum(best, floor), index
 
     # ------------------------------------------------------------------ decisions

@@ -5,6 +5,9 @@ capsule) along local z. Two families of functions:
 
 * ``*_sdf(points, ...)``: signed distance of points (N, 3) to the shape,
   negative inside (metres).
+Shape parameters may be scalars or arrays with one value (or row) per point
+or segment, so the scene can evaluate many obstacles of one kind in one call.
+
 * ``*_segment_sd(a, b, ...)``: the minimum of the signed distance over the
   straight segments ``a[i] -> b[i]`` (N, 3 each). Positive values are the
   exact segment-to-shape distance (what coal returns for a zero-radius capsule);
@@ -98,13 +101,19 @@ def sphere_segment_sd(a, b, radius: float) -> np.ndarray:
 # ----------------------------------------------------------------------------- capsule
 
 
-def capsule_sdf(points, radius: float, half_length: float) -> np.ndarray:
-    axis = np.array([0.0, 0.0, half_length])
+def _z_axis(half_length) -> np.ndarray:
+    half_length = np.asarray(half_length, dtype=float)
+    zero = np.zeros_like(half_length)
+    return np.stack([zero, zero, half_length], axis=-1)
+
+
+def capsule_sdf(points, radius, half_length) -> np.ndarray:
+    axis = _z_axis(half_length)
     return point_segment_distance(points, -axis, axis) - radius
 
 
-def capsule_segment_sd(a, b, radius: float, half_length: float) -> np.ndarray:
-    axis = np.array([0.0, 0.0, half_length])
+def capsule_segment_sd(a, b, radius, half_length) -> np.ndarray:
+    axis = _z_axis(half_length)
     return segment_segment_distance(a, b, -axis, axis) - radius
 
 
@@ -132,7 +141,8 @@ def box_segment_sd(a, b, half_extents) -> np.ndarray:
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     a, b = np.broadcast_arrays(a, b)
-    h = np.asarray(half_extents, dtype=float)
+    h = np.broadcast_to(np.asarray(half_extents, dtype=float), a.shape)
+    hb = h[:, None, :]  # against (N, pieces, 3)
     d = b - a
     n = a.shape[0]
 
@@ -143,9 +153,9 @@ def box_segment_sd(a, b, half_extents) -> np.ndarray:
     lo, hi = knots[:, :-1], knots[:, 1:]  # (N, 7) intervals
     mid = 0.5 * (lo + hi)
     p_mid = a[:, None, :] + mid[..., None] * d[:, None, :]  # (N, 7, 3)
-    below = p_mid < -h
-    above = p_mid > h
-    target = np.where(below, -h, np.where(above, h, 0.0))
+    below = p_mid < -hb
+    above = p_mid > hb
+    target = np.where(below, -hb, np.where(above, hb, 0.0))
     active = below | above
     offset = np.where(active, a[:, None, :] - target, 0.0)
     slope = np.where(active, d[:, None, :], 0.0)
@@ -158,13 +168,13 @@ def box_segment_sd(a, b, half_extents) -> np.ndarray:
     t_star = np.clip(t_star, lo, hi)
     # evaluate the true distance at each candidate: robust to misclassified empty intervals
     p_star = a[:, None, :] + t_star[..., None] * d[:, None, :]
-    unsigned = np.min(np.linalg.norm(np.maximum(np.abs(p_star) - h, 0.0), axis=-1), axis=1)
+    unsigned = np.min(np.linalg.norm(np.maximum(np.abs(p_star) - hb, 0.0), axis=-1), axis=1)
 
     result = unsigned
     hits = unsigned <= 0.0
     if np.any(hits):
         result = unsigned.copy()
-        result[hits] = _box_segment_interior_min(a[hits], d[hits], h)
+        result[hits] = _box_segment_interior_min(a[hits], d[hits], h[hits])
     return result
 
 
@@ -179,13 +189,13 @@ def _box_segment_interior_min(a: np.ndarray, d: np.ndarray, h: np.ndarray) -> np
     m = a.shape[0]
     candidates = np.clip(np.concatenate([np.zeros((m, 1)), np.ones((m, 1)), t_cross], axis=1), 0, 1)
     points = a[:, None, :] + candidates[..., None] * d[:, None, :]
-    return np.min(box_sdf(points, h), axis=1)
+    return np.min(box_sdf(points, h[:, None, :]), axis=1)
 
 
 # ----------------------------------------------------------------------------- cylinder
 
 
-def cylinder_sdf(points, radius: float, half_height: float) -> np.ndarray:
+def cylinder_sdf(points, radius, half_height) -> np.ndarray:
     """Signed distance to a solid cylinder centred at the origin, axis along z."""
     p = np.asarray(points, dtype=float)
     q = np.stack([np.linalg.norm(p[..., :2], axis=-1) - radius, np.abs(p[..., 2]) - half_height], axis=-1)
@@ -196,6 +206,9 @@ def cylinder_sdf(points, radius: float, half_height: float) -> np.ndarray:
 
 def convex_segment_sd(sdf, a, b) -> np.ndarray:
     """Minimum of a convex shape's signed distance along segments, certified.
+
+    ``sdf(points, rows)``: the signed distance of ``points`` (one per
+    segment in ``rows``, an index array into the batch).
 
     The signed distance of a convex set is a convex, 1-Lipschitz function of
     position, so along a segment it is convex in the parameter and golden-
@@ -210,12 +223,13 @@ def convex_segment_sd(sdf, a, b) -> np.ndarray:
     a, b = np.broadcast_arrays(a, b)
     d = b - a
     n = a.shape[0]
+    every = np.arange(n)
     lo = np.zeros(n)
     hi = np.ones(n)
     x1 = hi - _INV_PHI * (hi - lo)
     x2 = lo + _INV_PHI * (hi - lo)
-    f1 = sdf(a + x1[:, None] * d)
-    f2 = sdf(a + x2[:, None] * d)
+    f1 = sdf(a + x1[:, None] * d, every)
+    f2 = sdf(a + x2[:, None] * d, every)
     for _ in range(_GOLDEN_ITERATIONS):
         left = f1 <= f2  # a minimiser lies in [lo, x2]
         hi = np.where(left, x2, hi)
@@ -224,19 +238,22 @@ def convex_segment_sd(sdf, a, b) -> np.ndarray:
         new_x2 = np.where(left, x1, lo + _INV_PHI * (hi - lo))
         new_f1 = np.where(left, np.nan, f2)
         new_f2 = np.where(left, f1, np.nan)
-        need1 = left
-        need2 = ~left
-        if np.any(need1):
-            new_f1[need1] = sdf(a[need1] + new_x1[need1, None] * d[need1])
-        if np.any(need2):
-            new_f2[need2] = sdf(a[need2] + new_x2[need2, None] * d[need2])
+        need1 = np.flatnonzero(left)
+        need2 = np.flatnonzero(~left)
+        if need1.size:
+            new_f1[need1] = sdf(a[need1] + new_x1[need1, None] * d[need1], need1)
+        if need2.size:
+            new_f2[need2] = sdf(a[need2] + new_x2[need2, None] * d[need2], need2)
         x1, x2, f1, f2 = new_x1, new_x2, new_f1, new_f2
     centre = 0.5 * (lo + hi)
-    value = sdf(a + centre[:, None] * d)
-    ends = np.minimum(sdf(a), sdf(b))
+    value = sdf(a + centre[:, None] * d, every)
+    ends = np.minimum(sdf(a, every), sdf(b, every))
     bound = np.linalg.norm(d, axis=-1) * 0.5 * (hi - lo)
     return np.minimum(value - bound, ends)
 
 
-def cylinder_segment_sd(a, b, radius: float, half_height: float) -> np.ndarray:
-    return convex_segment_sd(lambda p: cylinder_sdf(p, radius, half_height), a, b)
+def cylinder_segment_sd(a, b, radius, half_height) -> np.ndarray:
+    n = len(np.atleast_2d(a))
+    radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
+    half_height = np.broadcast_to(np.asarray(half_height, dtype=float), (n,))
+    return convex_segment_sd(lambda p, rows: cylinder_sdf(p, radius[rows], half_height[rows]), a, b)

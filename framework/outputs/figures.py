@@ -153,8 +153,8 @@ def overview_figure(
     for i, (scene, view) in enumerate(panels):
         ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
         _draw_3d(ax, scene, [view], unit, k, _obstacle_meshes(scene))
-        title = textwrap.fill(f"({chr(ord('a') + i)}) {view.title or view.label}", width=60)
-        ax.set_title(title, fontsize=9)
+        panel = textwrap.fill(f"({chr(ord('a') + i)}) {view.title or view.label}", width=60)
+        ax.set_title(panel, fontsize=9)
     if title:
         fig.suptitle(title, fontsize=12)
     fig.tight_layout()

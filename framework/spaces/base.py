@@ -116,9 +116,14 @@ class Space(ABC):
         """What must stay positive along a motion: clearance beyond ``margin`` (m).
 
         A slack of ``enough`` already finishes the motion in one step, so the
-        value need only be exact below it.
+        value need only be exact below it. The body must also keep inside
+        the workspace: :meth:`workspace_slack` bounds the slack too.
         """
-        return self.clearance(q, cutoff=margin + enough) - margin
+        return np.minimum(self.clearance(q, cutoff=margin + enough) - margin, self.workspace_slack(q))
+
+    def workspace_slack(self, q) -> np.ndarray:
+        """How far (m) the body may move before leaving the workspace; inf where the limits already ensure it."""
+        return np.full(len(np.atleast_2d(q)), np.inf)
 
     def motion_speed_bound(self, q1, q2) -> np.ndarray:
         """Bound (m per unit t) on the speed of any body point along the motions q1 → q2."""
@@ -131,6 +136,13 @@ class Space(ABC):
         if np.any(ok):
             ok[ok] = meets_margin(self.clearance(q[ok]), margin)
         return ok
+
+    def corridor_halfwidths(self, q, slack) -> np.ndarray:
+        """Per-coordinate half-widths (n, dimension) of a box around each q inside which
+        no body point moves farther than ``slack[i]`` (m): a configuration-space corridor
+        that keeps a clearance known at q. Spaces that support path smoothing override it.
+        """
+        raise NotImplementedError(f"space '{self.kind}' does not define a clearance corridor")
 
     def nearest_obstacle(self, q) -> np.ndarray:
         """Index in ``scene.obstacles`` of the obstacle nearest to the body (-1: none)."""

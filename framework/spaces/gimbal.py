@@ -141,6 +141,16 @@ class CastGimbalSpace(Space):
         fulcrum = np.broadcast_to(self.fulcrum, (len(q), 3))
         return self.scene.segment_distance(fulcrum, self.tip(q), cutoff + self.shaft_radius)[0] - self.shaft_radius
 
+    def corridor_halfwidths(self, q, slack):
+        # |d insertion| <= slack/2 and (insertion + slack/2) * |d(yaw, pitch)| <= slack/2 keep every shaft
+        # point within slack (see motion_speed_bound); roll does not move the shaft
+        q = np.atleast_2d(np.asarray(q, float))
+        slack = np.asarray(slack, float)
+        insertion = slack / 2.0
+        angle = slack / (2.0 * np.sqrt(2.0) * (q[:, 2] + insertion))
+        roll = np.full(len(q), np.inf)
+        return np.stack([angle, angle, insertion, roll], axis=1)
+
     def nearest_obstacle(self, q):
         q = np.atleast_2d(np.asarray(q, float))
         return self.scene.segment_distance(np.broadcast_to(self.fulcrum, (len(q), 3)), self.tip(q))[1]
@@ -156,12 +166,11 @@ class CastGimbalSpace(Space):
         reach = np.maximum(np.atleast_2d(q1)[:, 2], np.atleast_2d(q2)[:, 2])
         return np.abs(d[:, 2]) + reach * np.hypot(d[:, 0], d[:, 1])
 
-    def motion_slack(self, q, margin, enough=np.inf):
-        # the margin from obstacles, and the tip (which moves no faster than
-        # the shaft's end) inside the workspace
+    def workspace_slack(self, q):
+        # the tip moves no faster than the shaft's end: its distance to the bounds is a slack too
         tip = self.tip(q)
         inside = np.min(np.concatenate([tip - self.scene.bounds_min, self.scene.bounds_max - tip], axis=1), axis=1)
-        return np.minimum(self.clearance(q, cutoff=margin + enough) - margin, inside + 1e-12)
+        return inside + 1e-12
 
     def configuration(self, value, *, what="point"):
         value = np.asarray(value, dtype=float).reshape(-1)

@@ -74,6 +74,13 @@ class R3Space(Space):
     def motion_is_clear(self, q1, q2, margin=0.0):
         return self.scene.is_motion_clear(np.atleast_2d(q1), np.atleast_2d(q2), self.tip_radius, margin)
 
+    def corridor_halfwidths(self, q, slack):
+        # the cube inscribed in the ball of radius slack
+        return np.repeat(np.asarray(slack, float)[:, None] / np.sqrt(3.0), 3, axis=1)
+
+    def motion_speed_bound(self, q1, q2):
+        return self.distance(q1, q2)
+
     def segment_clearance(self, q1, q2):
         return self.scene.motion_clearance(np.atleast_2d(q1), np.atleast_2d(q2), self.tip_radius)
 

@@ -1,0 +1,301 @@
+"""safe_prm (paper 000): certified roadmaps, repair, critical regions, projection, smoothing, persistence."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import numpy as np
+import pytest
+from conftest import CONFIGS, ROOT
+from helpers import coal_scene_segment_distance, dense_min_clearance
+from surgiplan import PlanningProblem
+from surgiplan.geometry.shapes import Box
+from surgiplan.geometry.transforms import Pose
+from surgiplan.plugins.planners.prm_roadmap import UnionFind
+from surgiplan.plugins.planners.safe_prm import SafePRM, SafePRMSettings
+from surgiplan.scene import Scene
+from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace, R3Space
+
+MM = 1e-3
+
+
+def wall_scene(way_around: bool) -> Scene:
+    """A wall across a 100 x 100 x 40 mm box at x = 50 with one 6 mm gap; optionally open at one end."""
+    top = 80.0 if way_around else 100.0
+    obstacles = [
+        Box("lower", Pose.from_xyz_rpy([0.050, 0.0235, 0.020]), size=(0.010, 0.047, 0.040)),
+        Box("upper", Pose.from_xyz_rpy([0.050, (53 + top) / 2 * MM, 0.020]), size=(0.010, (top - 53) * MM, 0.040)),
+    ]
+    return Scene([0, 0, 0], [0.1, 0.1, 0.04], obstacles, {"a": [0.015, 0.050, 0.020], "b": [0.085, 0.050, 0.020]})
+
+
+def plan(space, start, goal, **settings):
+    planner = SafePRM(SafePRMSettings(**{"milestones": 2500, "seed": 3, **settings}))
+    artifact = planner.build(PlanningProblem(space.scene, space))
+    return planner, artifact, planner.query(artifact, np.asarray(start, float), np.asarray(goal, float))
+
+
+def outside_critical(path_tips, regions, spacing=5e-5):
+    """Dense points of the path, as arc length and positions, with the critical regions cut out."""
+    steps = np.linalg.norm(np.diff(path_tips, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    s = np.arange(0.0, arc[-1], spacing)
+    points = np.stack([np.interp(s, arc, path_tips[:, k]) for k in range(3)], axis=1)
+    keep = np.ones(len(s), dtype=bool)
+    for r in regions:
+        keep &= ~((s >= r["start_m"] - 1e-9) & (s <= r["end_m"] + 1e-9))
+    return points[keep]
+
+
+def test_a_wall_with_one_narrow_gap_is_a_critical_region():
+    scene = wall_scene(way_around=False)
+    space = R3Space(scene)
+    _, _, result = plan(space, scene.points["a"], scene.points["b"], proficiency=4 * MM)
+    assert result.solved
+    regions = result.metrics["critical_regions"]
+    assert len(regions) == 1
+    region = regions[0]
+    assert set(region["obstacles"]) <= {"lower", "upper"}
+    # the gap is 6 mm wide: the best a path can do there is 3 mm, and it is centred
+    assert region["min_clearance_m"] == pytest.approx(3 * MM, abs=0.05 * MM)
+    # the region is where the wall is, give or take the 4 mm virtual boundary
+    tips = result.path
+    steps = np.linalg.norm(np.diff(tips, axis=0), axis=1)
+    arc = np.concatenate([[0], np.cumsum(steps)])
+    x_at = lambda s: np.interp(s, arc, tips[:, 0])  # noqa: E731
+    assert 0.040 < x_at(region["start_m"]) < 0.046 and 0.054 < x_at(region["end_m"]) < 0.060
+    # outside it, every point keeps 4 mm: re-measured with coal
+    points = outside_critical(tips, regions)
+    from helpers import coal_scene_point_distance
+
+    assert coal_scene_point_distance(scene, points).min() >= 4 * MM - 1e-9
+    assert coal_scene_segment_distance(scene, tips[:-1], tips[1:]).min() > 0
+
+
+def test_a_way_around_removes_the_critical_region_and_the_path_detours():
+    scene = wall_scene(way_around=True)
+    space = R3Space(scene)
+    _, _, result = plan(space, scene.points["a"], scene.points["b"], proficiency=4 * MM)
+    assert result.solved
+    assert result.metrics["critical_regions"] == []
+    assert result.metrics["repaired"] >= 1  # R's shortest path went through the gap; repair detoured
+    clearance = dense_min_clearance(scene, result.path[:-1], result.path[1:], spacing=5e-5)
+    assert clearance.min() >= 4 * MM - 1e-9
+    assert np.max(result.path[:, 1]) > 0.080, "the detour goes around the open end of the wall"
+
+
+def test_start_and_goal_in_one_safe_component_are_not_repaired(block_world):
+    space = R3Space(block_world)
+    start, goal = np.array([0.055, 0.030, 0.020]), np.array([0.065, 0.080, 0.020])  # between pairs A and B
+    _, _, smoothed = plan(space, start, goal, proficiency="intermediate")
+    assert smoothed.solved and smoothed.metrics["repaired"] == 0
+    assert smoothed.metrics["critical_regions"] == []
+    # with smoothing off, the answer is R's own shortest path, every edge of it in R_safe
+    raw = SafePRM(SafePRMSettings(proficiency="intermediate", milestones=2500, seed=3, smoothing={"enabled": False}))
+    result = raw.query(raw.build(PlanningProblem(block_world, space)), start, goal)
+    assert result.metrics["repaired"] == 0
+    assert coal_scene_segment_distance(block_world, result.path[:-1], result.path[1:]).min() >= 4 * MM - 1e-9
+
+
+def test_no_path_is_a_status_not_an_exception():
+    sealed = Scene(
+        [0, 0, 0], [0.1, 0.1, 0.04], [Box("wall", Pose.from_xyz_rpy([0.05, 0.05, 0.02]), size=(0.01, 0.1, 0.04))]
+    )
+    space = R3Space(sealed)
+    _, _, result = plan(space, [0.02, 0.05, 0.02], [0.08, 0.05, 0.02], milestones=800)
+    assert result.status.value == "no_path" and len(result.path) == 0
+    assert "different components" in result.message
+
+
+def test_invalid_start_is_a_status(block_world):
+    _, _, result = plan(R3Space(block_world), [0.040, 0.020, 0.020], block_world.points["target"], milestones=500)
+    assert result.status.value == "invalid_start"
+
+
+def test_same_seed_same_path_and_reload_gives_the_same_answer(block_world):
+    space = R3Space(block_world)
+    problem = PlanningProblem(block_world, space)
+    settings = SafePRMSettings(proficiency="intermediate", milestones=2000, seed=11)
+    first = SafePRM(settings)
+    artifact = first.build(problem)
+    a = first.query(artifact, block_world.points["entry"], block_world.points["target"])
+    b = SafePRM(settings).query(
+        SafePRM(settings).build(problem), block_world.points["entry"], block_world.points["target"]
+    )
+    np.testing.assert_array_equal(a.path, b.path)
+    stored = first.save_artifact(artifact)
+    reloaded = first.load_artifact(stored, problem)
+    c = first.query(reloaded, block_world.points["entry"], block_world.points["target"])
+    np.testing.assert_array_equal(a.path, c.path)
+
+
+def test_every_edge_is_certified(block_world):
+    """No R edge touches an obstacle, no R_safe edge crosses the 4 mm virtual boundary: re-measured with coal."""
+    space = R3Space(block_world, tip_radius=0.5 * MM)
+    planner = SafePRM(SafePRMSettings(proficiency="intermediate", milestones=1500, seed=5))
+    roadmap = planner.build(PlanningProblem(block_world, space)).roadmap
+    a = roadmap.milestones[roadmap.edges[:, 0]]
+    b = roadmap.milestones[roadmap.edges[:, 1]]
+    pick = np.random.default_rng(0).choice(len(a), size=min(3000, len(a)), replace=False)
+    clearance = coal_scene_segment_distance(block_world, a[pick], b[pick], 0.5 * MM)
+    assert clearance.min() > 0
+    safe = roadmap.edge_safe[pick]
+    assert safe.sum() > 100 and (~safe).sum() > 20
+    assert clearance[safe].min() >= 4 * MM - 1e-9
+    # covering balls certified most edges without a distance query
+    assert roadmap.covered_edges > 0.5 * len(roadmap.edges)
+
+
+def test_start_in_the_risk_region_is_projected_and_linked(block_world):
+    space = R3Space(block_world)
+    start = np.array([0.031, 0.020, 0.020])  # 4 mm from block A1: inside the 8 mm boundary
+    _, _, result = plan(space, start, block_world.points["entry"], proficiency="beginner")
+    assert result.solved
+    regions = result.metrics["critical_regions"]
+    assert len(regions) == 1 and regions[0]["start_m"] == 0.0  # only the link out of the risk region
+    assert regions[0]["obstacles"] == ["A1"]
+    # from 4 mm out to the nearest safe milestone, which lies beyond the 8 mm boundary
+    assert 4 * MM <= regions[0]["length_m"] < 10 * MM
+
+
+def test_gimbal_space_keeps_the_whole_shaft_clear(block_world):
+    settings = CastGimbalSettings.model_validate(
+        {
+            "fulcrum": {"xyz": [0.075, -0.06, 0.12], "rpy": [0, 0, np.pi / 2]},
+            "shaft_radius": 0.001,
+            "roll": {"min": 0, "max": 0},
+        }
+    )
+    space = CastGimbalSpace(block_world, settings)
+    start = space.configuration(np.array([0.055, 0.030, 0.020]))
+    goal = space.configuration(np.array([0.095, 0.030, 0.020]))
+    _, _, result = plan(space, start, goal, proficiency=2 * MM, milestones=2000)
+    assert result.solved, result.message
+    dense = space.densify(result.path, 1e-4)
+    fulcrum = np.broadcast_to(space.fulcrum, (len(dense), 3))
+    shaft = coal_scene_segment_distance(block_world, fulcrum, space.tip(dense), 0.001)
+    regions = result.metrics["critical_regions"]
+    assert shaft.min() > 0
+    if not regions:
+        assert shaft.min() >= 2 * MM - 2e-5  # dense sampling between certified motions
+
+
+def test_union_find_matches_scipy_components():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(1)
+    n = 300
+    edges = rng.integers(0, n, size=(250, 2))
+    uf = UnionFind(n)
+    for i, j in edges:
+        uf.union(int(i), int(j))
+    _, labels = connected_components(coo_matrix((np.ones(len(edges)), edges.T), shape=(n, n)), directed=False)
+    for i, j in rng.integers(0, n, size=(2000, 2)):
+        assert uf.same(int(i), int(j)) == (labels[i] == labels[j])
+    seeded = UnionFind.from_labels(labels)
+    for i, j in rng.integers(0, n, size=(2000, 2)):
+        assert seeded.same(int(i), int(j)) == (labels[i] == labels[j])
+
+
+def test_d_thresh_from_recorded_attempts(tmp_path):
+    rng = np.random.default_rng(2)
+    suggested = np.stack([np.linspace(0, 100, 21), np.full(21, 50.0), np.full(21, 20.0)], axis=1)
+    rows = ["attempt,x_mm,y_mm,z_mm"] + [f"suggested,{x},{y},{z}" for x, y, z in suggested]
+    deviations = []
+    for attempt in range(3):
+        offsets = rng.normal(0, 2.0, size=40)  # mm, sideways in y
+        for x, dy in zip(np.linspace(2, 98, 40), offsets, strict=True):
+            rows.append(f"{attempt},{x},{50 + dy},20")
+            deviations.append(abs(dy))
+    (tmp_path / "attempts.csv").write_text("\n".join(rows) + "\n")
+    settings = SafePRMSettings.model_validate(
+        {"proficiency": {"from_attempts": "attempts.csv", "percentile": 90}},
+        context={"base_dir": tmp_path, "length_scale": 1e-3},
+    )
+    assert settings.d_thresh == pytest.approx(np.percentile(deviations, 90) * MM, rel=1e-9)
+    assert settings.proficiency.attempts == 3 and settings.proficiency.points == 120
+
+
+@pytest.mark.parametrize(
+    ("proficiency", "message"),
+    [
+        ("intermediat", "unknown proficiency level 'intermediat'; did you mean 'intermediate'?"),
+        ({"from_attempts": "missing.csv"}, "cannot read"),
+        (-2, "non-negative"),
+    ],
+)
+def test_bad_proficiency_settings_are_clear_errors(tmp_path, proficiency, message):
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match=message):
+        SafePRMSettings.model_validate(
+            {"proficiency": proficiency}, context={"base_dir": tmp_path, "length_scale": 1e-3}
+        )
+
+
+def test_paper_fig4_pipeline(cli, tmp_path, block_world):
+    """configs/block_world_proficiency.yaml: the four panels of paper 000 Fig. 4."""
+    config = (
+        (CONFIGS / "block_world_proficiency.yaml")
+        .read_text()
+        .replace("out/block-world-proficiency", str(tmp_path / "out"))
+    )
+    config = config.replace("scene: scenes/block_world.yaml", f"scene: {ROOT}/configs/scenes/block_world.yaml")
+    path = tmp_path / "fig4.yaml"
+    path.write_text(config)
+    code, _, err = cli("run", path, "--quiet")
+    assert code == 0, err
+    stages = {s["name"]: s for s in json.loads((tmp_path / "out" / "result.json").read_text())["stages"]}
+    straight = 0.130
+    expert = stages["expert"]
+    assert expert["metrics"]["length_m"] <= 1.05 * straight and expert["metrics"]["critical_regions"] == []
+    for name, around in (("intermediate", ("C1", "C2")), ("beginner", ("B1", "B2", "C1", "C2"))):
+        stage = stages[name]
+        regions = stage["metrics"]["critical_regions"]
+        assert len(regions) == 1 and set(regions[0]["obstacles"]) <= {"A1", "A2"}, regions
+        waypoints = np.array(stage["path"])
+        # the passages of the pairs it detours around are not used: the path leaves y = 35..65 there
+        for pair in {o[0] for o in around}:
+            x = {"B": 0.075, "C": 0.110}[pair]
+            y = np.interp(x, waypoints[:, 0], waypoints[:, 1])
+            assert not 0.035 < y < 0.065, f"{name} goes through pair {pair}"
+    assert np.interp(
+        0.075, np.array(stages["intermediate"]["path"])[:, 0], np.array(stages["intermediate"]["path"])[:, 1]
+    ) == pytest.approx(0.050, abs=0.004)
+    tall = stages["beginner-tall-box"]
+    assert tall["metrics"]["critical_regions"] == [] and tall["metrics"]["min_clearance_m"] >= 0.008 - 1e-9
+    assert (tmp_path / "out" / "overview.png").is_file()
+    # the roadmaps were stored; a second run loads them
+    code, _, err = cli("run", path, "--quiet")
+    assert code == 0, err
+    again = json.loads((tmp_path / "out" / "result.json").read_text())["stages"]
+    assert all(s["metrics"]["artifact"] == "loaded" for s in again)
+    assert [s["path"] for s in again] == [stages[s["name"]]["path"] for s in again]
+
+
+def test_pipeline_settings_accept_units_and_files(cli, tmp_path):
+    (tmp_path / "attempts.csv").write_text(
+        "attempt,x,y,z\nsuggested,10,50,20\nsuggested,140,50,20\n1,20,52,20\n1,40,53,20\n1,60,49,20\n"
+    )
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        textwrap.dedent(f"""\
+        name: units
+        length_unit: mm
+        scene: {ROOT}/configs/scenes/block_world.yaml
+        pipeline:
+          - {{stage: plan, name: custom, plugin: safe_prm, settings: {{proficiency: "0.5 cm", milestones: 800}},
+             start: entry, goal: target}}
+          - {{stage: plan, name: data, plugin: safe_prm,
+             settings: {{proficiency: {{from_attempts: attempts.csv, percentile: 100}}, milestones: 800}},
+             start: entry, goal: target}}
+        output: {{dir: {tmp_path}/out, figures: false, gltf: false}}
+        """)
+    )
+    code, _, err = cli("run", path, "--quiet")
+    assert code == 0, err
+    stages = json.loads((tmp_path / "out" / "result.json").read_text())["stages"]
+    assert stages[0]["metrics"]["d_thresh_m"] == pytest.approx(0.005)
+    assert stages[1]["metrics"]["d_thresh_m"] == pytest.approx(0.003)  # the largest deviation: 3 mm
