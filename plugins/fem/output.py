@@ -1,0 +1,51 @@
+"""Writing equilibrium states as VTK unstructured grids (``.vtu``) for ParaView or any VTK viewer.
+
+The file holds the deformed mesh (points at the deformed positions, linear
+``tetra`` cells) with, per node, ``displacement`` (m) and ``reaction_force``
+(N, non-zero on held nodes) and, per element, ``max_principal_stress``
+(Pa, the largest absolute principal second Piola-Kirchhoff stress),
+``volume_ratio`` (J = deformed / rest volume) and ``youngs_modulus`` (Pa).
+Warp by ``displacement`` with a factor of -1 to see the rest shape.
+Written atomically: a temporary file in the same directory, then renamed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def write_vtu(
+    path: str | Path,
+    rest: np.ndarray,
+    tets: np.ndarray,
+    positions: np.ndarray,
+    point_data: dict[str, np.ndarray] | None = None,
+    cell_data: dict[str, np.ndarray] | None = None,
+) -> Path:
+    """Write the deformed mesh to ``path`` (.vtu) atomically; returns the path."""
+    import meshio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    points = {"displacement": np.asarray(positions) - np.asarray(rest)}
+    points.update({k: np.asarray(v, dtype=float) for k, v in (point_data or {}).items()})
+    cells = {k: [np.asarray(v, dtype=float)] for k, v in (cell_data or {}).items()}
+    mesh = meshio.Mesh(
+        np.asarray(positions, dtype=float), [("tetra", np.asarray(tets))], point_data=points, cell_data=cells
+    )
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".vtu", dir=path.parent)
+    os.close(fd)
+    try:
+        meshio.write(tmp, mesh, file_format="vtu")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    return path

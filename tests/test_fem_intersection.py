@@ -1,0 +1,78 @@
+"""Self-intersection of the deformed surface, checked against coal's triangle-triangle collision."""
+
+from __future__ import annotations
+
+import coal
+import numpy as np
+from fem_support import model
+from surgiplan.plugins.fem.intersection import candidate_pairs, self_intersections
+from surgiplan.plugins.fem.mesh import box_mesh
+
+PLATE = (0.03, 0.01, 0.001)
+
+
+def rolled(nodes, turn: float) -> np.ndarray:
+    """The plate with its part beyond x = 0.01 rolled up around a cylinder by ``turn`` (radians).
+
+    The bottom surface keeps its length (radius R = 0.02 / turn); past about 1.9 pi the
+    rolled end comes back down through the flat part.
+    """
+    x = nodes.copy()
+    if turn == 0:
+        return x
+    radius = 0.02 / turn
+    s = x[:, 0] - 0.01
+    rolled = s > 0
+    phi = s[rolled] / radius
+    r = radius - x[rolled, 2]
+    x[rolled, 0] = 0.01 + r * np.sin(phi)
+    x[rolled, 2] = radius - r * np.cos(phi)
+    x[rolled, 1] += 3.1e-4 * np.sin(phi) ** 2  # off the grid lines: no exactly touching or coplanar pairs
+    return x
+
+
+def coal_crossings(x, triangles) -> set[tuple[int, int]]:
+    """Vertex-disjoint triangle pairs that coal says collide (brute force over all pairs)."""
+    shapes = [coal.TriangleP(*x[t]) for t in triangles]
+    identity = coal.Transform3s()
+    found = set()
+    for i in range(len(triangles)):
+        for j in range(i + 1, len(triangles)):
+            if set(triangles[i]) & set(triangles[j]):
+                continue
+            result = coal.CollisionResult()
+            if coal.collide(shapes[i], identity, shapes[j], identity, coal.CollisionRequest(), result):
+                found.add((i, j))
+    return found
+
+
+def test_rolling_through_itself_is_detected_and_agrees_with_coal():
+    mesh = box_mesh(PLATE, (24, 2, 1))
+    triangles = mesh.surface
+    for turn, crossing in ((0.0, False), (np.pi, False), (1.5 * np.pi, False), (1.95 * np.pi, True)):
+        x = rolled(mesh.nodes, turn)
+        pairs = self_intersections(x, triangles)
+        assert (len(pairs) > 0) == crossing
+        ours = {tuple(sorted(p)) for p in pairs.tolist() if not set(triangles[p[0]]) & set(triangles[p[1]])}
+        assert ours == coal_crossings(x, triangles)
+
+
+def test_candidate_pairs_are_exactly_the_overlapping_boxes():
+    rng = np.random.default_rng(2)
+    lower = rng.uniform(0, 1, (300, 3)) * [1, 1, 0.1]
+    upper = lower + rng.uniform(0, 0.08, (300, 3))
+    pairs = candidate_pairs(lower, upper)
+    overlap = np.all((lower[:, None] <= upper[None]) & (lower[None] <= upper[:, None]), axis=2)
+    i, j = np.triu_indices(300, 1)
+    expected = set(zip(i[overlap[i, j]].tolist(), j[overlap[i, j]].tolist(), strict=True))
+    assert {tuple(sorted(p)) for p in pairs.tolist()} == expected
+    assert len(pairs) == len(expected)  # no duplicates
+
+
+def test_a_state_that_passes_through_itself_is_invalid():
+    m = model(PLATE, (24, 2, 1), gravity=[0, 0, 0])
+    crossing = m.evaluate_state(rolled(m.rest_nodes, 1.95 * np.pi))
+    assert crossing.data["inverted_elements"] == 0
+    assert not crossing.valid and crossing.data["self_intersections"] > 0
+    assert "crosses itself" in crossing.message
+    assert m.evaluate_state(rolled(m.rest_nodes, 1.5 * np.pi)).valid

@@ -1,0 +1,136 @@
+"""The stvk element kernel and sparse assembly: invariances, derivatives, definiteness (paper 002 §V)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
+from surgiplan.plugins.fem.assembly import TangentPattern
+from surgiplan.plugins.fem.loads import BasePlane, ExternalLoads, lumped_masses
+from surgiplan.plugins.fem.mesh import box_mesh
+from surgiplan.plugins.fem.newton import EquilibriumSolver
+from surgiplan.plugins.fem.stvk import StVKElements, symmetric_eigenvalues
+
+
+@pytest.fixture
+def cube():
+    mesh = box_mesh((0.01, 0.012, 0.008), (2, 2, 1), pattern="five")
+    rng = np.random.default_rng(3)
+    m = mesh.n_elements
+    kernel = StVKElements(mesh.nodes, mesh.tets, rng.uniform(1e5, 3e5, m), rng.uniform(2e4, 6e4, m), 5e4)
+    return mesh, kernel
+
+
+def dense_tangent(kernel: StVKElements, x, definite=False) -> np.ndarray:
+    h = kernel.evaluate(x, hessian=True, definite=definite).hessian
+    d = kernel.dofs.reshape(12, -1)
+    m = d.shape[1]
+    rows = np.broadcast_to(d[:, None, :], (12, 12, m)).ravel()
+    cols = np.broadcast_to(d[None, :, :], (12, 12, m)).ravel()
+    n = 3 * kernel.n_nodes
+    return sp.coo_matrix((h.ravel(), (rows, cols)), shape=(n, n)).toarray()
+
+
+def test_rigid_motion_has_no_energy_and_no_internal_force(cube):
+    mesh, kernel = cube
+    rotation = Rotation.from_rotvec([0.7, -1.9, 0.4]).as_matrix()
+    x = mesh.nodes @ rotation.T + np.array([0.3, -0.2, 0.05])
+    result = kernel.evaluate(x)
+    scale = float(kernel.mu.mean() * kernel.volume.sum() / 0.01)  # force of a unit strain, N
+    assert result.energy == pytest.approx(0.0, abs=1e-18)
+    assert np.abs(result.gradient).max() < 1e-11 * scale
+    # the six rigid modes are in the tangent's null space at rest
+    k = dense_tangent(kernel, mesh.nodes)
+    modes = [np.tile(e, mesh.n_nodes) for e in np.eye(3)]
+    modes += [np.cross(axis, mesh.nodes).ravel() for axis in np.eye(3)]
+    for mode in modes:
+        assert np.abs(k @ mode).max() < 1e-9 * np.abs(k).max() * np.abs(mode).max()
+
+
+def test_gradient_and_tangent_match_finite_differences(cube):
+    mesh, kernel = cube
+    rng = np.random.default_rng(4)
+    x = mesh.nodes @ np.array([[1.1, 0.2, 0.0], [-0.1, 0.9, 0.15], [0.05, 0.0, 0.8]]).T
+    x += 4e-4 * rng.standard_normal(x.shape)
+    masses = lumped_masses(mesh.n_nodes, mesh.tets, kernel.volume, np.full(mesh.n_elements, 1000.0))
+    plane = BasePlane(np.array([0, 0, 0.003]), np.array([0.1, 0.0, 1.0]), 500.0)  # some nodes below it
+    loads = ExternalLoads(mesh.nodes, masses, (0, 0, -9.8), rng.normal(0, 0.01, (mesh.n_nodes, 3)), plane)
+    solver = EquilibriumSolver(kernel, loads, TangentPattern(kernel.dofs, 3 * mesh.n_nodes), 1e-3, 1e-9)
+    flat = x.ravel()
+    _, grad, data = solver.tangent(flat, definite=False)
+    assert len(loads.evaluate(x).contact_nodes) > 0
+    h = 1e-7
+    fd_grad = np.array(
+        [(solver.energy(flat + h * e) - solver.energy(flat - h * e)) / (2 * h) for e in np.eye(len(flat))]
+    )
+    assert np.abs(fd_grad - grad).max() < 1e-6 * np.abs(grad).max()
+    k = solver.pattern.matrix(data).toarray()[np.ix_(solver.pattern.new_of_old, solver.pattern.new_of_old)]
+    fd_k = np.column_stack(
+        [(solver.gradient(flat + h * e)[1] - solver.gradient(flat - h * e)[1]) / (2 * h) for e in np.eye(len(flat))]
+    )
+    assert np.abs(fd_k - k).max() < 1e-6 * np.abs(k).max()
+    assert np.abs(k - k.T).max() < 1e-12 * np.abs(k).max()
+
+
+def test_definite_surrogate_is_positive_semidefinite_under_compression(cube):
+    mesh, kernel = cube
+    rng = np.random.default_rng(5)
+    x = mesh.nodes * np.array([0.6, 0.7, 1.3]) + 3e-4 * rng.standard_normal(mesh.nodes.shape)
+    exact = kernel.evaluate(x, hessian=True).hessian.copy()
+    surrogate = kernel.evaluate(x, hessian=True, definite=True).hessian
+    exact_low = min(np.linalg.eigvalsh(exact[:, :, e]).min() for e in range(exact.shape[2]))
+    surrogate_low = min(np.linalg.eigvalsh(surrogate[:, :, e]).min() for e in range(exact.shape[2]))
+    scale = np.abs(exact).max()
+    assert exact_low < -1e-3 * scale  # compressed StVK is not convex: the case the surrogate is for
+    assert surrogate_low > -1e-10 * scale
+
+
+def test_closed_form_eigenvalues_match_lapack():
+    rng = np.random.default_rng(6)
+    a = rng.standard_normal((300, 3, 3))
+    a = a + a.transpose(0, 2, 1)
+    a[0] = np.diag([2.0, 2.0, -1.0])  # repeated eigenvalues
+    a[1] = 3.0 * np.eye(3)
+    low, middle, high = symmetric_eigenvalues(a.transpose(1, 2, 0))
+    reference = np.linalg.eigvalsh(a)
+    assert np.abs(np.column_stack([low, middle, high]) - reference).max() < 1e-7
+
+
+def test_second_piola_kirchhoff_matches_the_stvk_formula(cube):
+    mesh, kernel = cube
+    f = np.array([[1.2, 0.1, 0.0], [0.0, 0.9, 0.2], [0.1, 0.0, 1.05]])
+    s = kernel.second_piola_kirchhoff(mesh.nodes @ f.T)
+    c = f.T @ f
+    e = 0.5 * (c - np.eye(3))
+    for k in (0, 5):
+        lam, mu, kappa = kernel.lam[k], kernel.mu[k], kernel.kappa[k]
+        expected = lam * np.trace(e) * np.eye(3) + 2 * mu * e + kappa * np.log(np.linalg.det(f)) * np.linalg.inv(c)
+        assert np.allclose(s[k], expected, rtol=1e-12, atol=1e-9 * np.abs(expected).max())
+
+
+def test_assembly_and_constrained_solve_match_dense_algebra(cube):
+    mesh, kernel = cube
+    rng = np.random.default_rng(7)
+    x = mesh.nodes + 2e-4 * rng.standard_normal(mesh.nodes.shape)
+    pattern = TangentPattern(kernel.dofs, 3 * mesh.n_nodes)
+    data = pattern.assemble(kernel.evaluate(x, hessian=True).hessian)
+    dense = dense_tangent(kernel, x)
+    v = rng.standard_normal(3 * mesh.n_nodes)
+    assert np.allclose(pattern.matvec(data, v), dense @ v, rtol=1e-12, atol=1e-12 * np.abs(dense @ v).max())
+    prescribed = np.zeros(3 * mesh.n_nodes, dtype=bool)
+    prescribed[: 3 * 9] = True  # the nodes of the face z = 0
+    b = rng.standard_normal(3 * mesh.n_nodes)
+    b[prescribed] = 0.0
+    solution = pattern.factorize(pattern.constrain(data, prescribed)).solve(b)
+    free = ~prescribed
+    reference = np.linalg.solve(dense[np.ix_(free, free)], b[free])
+    assert np.allclose(solution[free], reference, rtol=1e-9, atol=1e-9 * np.abs(reference).max())
+    assert np.all(solution[prescribed] == 0.0)
+
+
+def test_lumped_masses_carry_the_whole_mass(cube):
+    mesh, kernel = cube
+    masses = lumped_masses(mesh.n_nodes, mesh.tets, kernel.volume, np.full(mesh.n_elements, 1000.0))
+    assert masses.sum() == pytest.approx(1000.0 * 0.01 * 0.012 * 0.008, rel=1e-12)
+    assert np.all(masses > 0)

@@ -1,0 +1,142 @@
+"""The stvk simulate stage from pipeline files, bad input, and equilibria in worker processes."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import meshio
+import numpy as np
+import pytest
+from conftest import CONFIGS, write
+from fem_support import model
+from surgiplan.executors import LocalExecutor, TaskStore, run_tasks
+from surgiplan.plugins.fem.tasks import grasp_sequence_task
+from surgiplan.registry import default_registry
+
+CANTILEVER = """
+name: small-cantilever
+length_unit: mm
+scene:
+  bounds: {{min: [-10, -10, -60], max: [110, 20, 20]}}
+pipeline:
+  - stage: simulate
+    name: beam
+    plugin: stvk
+    settings:
+      mesh: {{box: {{size: [100, 10, 10], divisions: [10, 1, 1]}}}}
+      material: {{youngs_modulus: 1.0e6, poisson_ratio: 0.3}}
+      gravity: [0, 0, -9.8]
+      anchored: [{{region: {{min: [0, 0, 0], max: [0, 10, 10]}}}}]
+      loads: [{{region: {{min: [100, 0, 0], max: [100, 10, 10]}}, total_force: [0, 0, -0.02]}}]
+      solver: {{max_iterations: {iterations}}}
+{extra}
+output: {{dir: out}}
+"""
+
+
+def test_the_stage_writes_a_vtu_and_the_metrics(tmp_path, cli):
+    path = write(tmp_path / "beam.yaml", CANTILEVER.format(iterations=60, extra=""))
+    code, _, err = cli("run", path, "--out", tmp_path / "out")
+    assert code == 0, err
+    stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
+    assert stage["status"] == "converged" and stage["files"] == ["beam.vtu"]
+    metrics = stage["metrics"]
+    for key in ("energy_J", "max_stress_Pa", "max_displacement_m", "newton_iterations", "residual", "converged"):
+        assert key in metrics
+    # the same equilibrium from Python (SI), independently of the pipeline's mm
+    size = (0.1, 0.01, 0.01)
+    m = model(
+        size,
+        (10, 1, 1),
+        material={"youngs_modulus": 1e6, "poisson_ratio": 0.3},
+        anchored=[{"region": {"min": [0, 0, 0], "max": [0, 0.01, 0.01]}}],
+        loads=[{"region": {"min": [0.1, 0, 0], "max": [0.1, 0.01, 0.01]}, "total_force": [0, 0, -0.02]}],
+    )
+    state = m.solve(m.stage_constraints())
+    displacement = np.linalg.norm(state.positions - m.rest_nodes, axis=1)
+    assert metrics["max_displacement_m"] == pytest.approx(displacement.max(), rel=1e-6)
+    assert metrics["energy_J"] == pytest.approx(state.energy, rel=1e-6)
+    assert metrics["max_stress_Pa"] == pytest.approx(state.stress.max(), rel=1e-5)
+    assert metrics["converged"] is True and metrics["residual"] < 1e-6 * 0.2  # N
+    vtu = meshio.read(tmp_path / "out" / "beam.vtu")
+    assert np.allclose(vtu.points, state.positions, atol=1e-9)
+    assert np.allclose(vtu.point_data["displacement"], state.positions - m.rest_nodes, atol=1e-9)
+    assert np.allclose(vtu.cell_data["max_principal_stress"][0], state.stress, rtol=1e-5)
+    # the gripper-free tip load and gravity are carried by the clamp
+    clamp = vtu.point_data["reaction_force"].sum(axis=0)
+    weight = 1000 * 0.1 * 0.01 * 0.01 * 9.8
+    assert clamp == pytest.approx([0, 0, 0.02 + weight], abs=1e-6)
+
+
+def test_non_convergence_is_a_failed_stage_with_the_reason(tmp_path, cli):
+    path = write(tmp_path / "beam.yaml", CANTILEVER.format(iterations=1, extra=""))
+    code, _, _ = cli("run", path, "--out", tmp_path / "out")
+    assert code == 1
+    stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
+    assert stage["status"] == "failed"
+    assert "did not converge in 1 Newton iterations" in stage["message"]
+    assert stage["metrics"]["converged"] is False
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ("divisions: [10, 1, 1]}}", "divisions: [10, 1, 1]}, file: nowhere.vtu}"),
+        ("max: [0, 10, 10]}}]", "max: [-1, 10, 10]}}]"),
+        ("poisson_ratio: 0.3", "poisson_ratio: 0.5"),
+        ("total_force: [0, 0, -0.02]", "total_force: [0, 0]"),
+    ],
+)
+def test_bad_settings_are_clear_errors(tmp_path, cli, change, message):
+    text = CANTILEVER.format(iterations=60, extra="").replace(change, message)
+    code, _, err = cli("run", write(tmp_path / "beam.yaml", text), "--out", tmp_path / "out")
+    assert code == 2
+    assert "pipeline[0].settings" in err or "settings" in err
+    assert "Traceback" not in err
+
+
+def test_a_region_without_nodes_names_the_setting(tmp_path, cli):
+    nowhere = "{region: {min: [200, 0, 0], max: [300, 1, 1]}}"
+    text = CANTILEVER.format(iterations=60, extra="").replace("10, 10]}}]", "10, 10]}}, " + nowhere + "]")
+    code, _, err = cli("run", write(tmp_path / "beam.yaml", text), "--out", tmp_path / "out")
+    assert code == 2
+    assert "settings.anchored[1].region" in err and "no node" in err
+
+
+def test_shipped_configs_validate_and_the_plugin_is_registered(cli):
+    assert "stvk" in default_registry().names("deformable_model")
+    for name in ("flap_simulate.yaml", "cantilever_simulate.yaml"):
+        code, _, err = cli("validate", CONFIGS / name)
+        assert code == 0, err
+
+
+def test_models_pickle_and_solve_the_same_in_worker_processes(tmp_path):
+    size = (0.03, 0.03, 0.002)
+    m = model(
+        size,
+        (6, 6, 2),
+        pattern="five",
+        anchored=[{"region": {"min": [0, 0, 0], "max": [0, 0.03, 0.002]}}],
+        grasp={"region": {"min": [0.0275, 0.0125, 0], "max": [0.03, 0.0175, 0.002]}},
+        base_plane={},
+    )
+    lifts = np.repeat(np.eye(4)[None], 3, axis=0)
+    lifts[:, 2, 3] = [0.002, 0.004, 0.006]
+    tasks = {
+        f"chunk-{k}": {"settings": m.settings.model_dump(mode="json"), "transforms": lifts[k:], "positions": True}
+        for k in range(2)
+    }
+    with LocalExecutor(2) as executor:
+        results = run_tasks(executor, grasp_sequence_task, tasks, store=TaskStore(tmp_path / "store"))
+    copy = pickle.loads(pickle.dumps(m))
+    state = None
+    for k, lift in enumerate(lifts):
+        state = copy.solve(copy.grasp_constraints(copy.grasped_nodes(), lift), initial=state)
+        assert results["chunk-0"]["converged"][k] and state.converged
+        assert np.abs(results["chunk-0"]["positions"][k] - state.positions).max() < 1e-6 * size[0]
+        assert results["chunk-0"]["energy"][k] == pytest.approx(state.energy, rel=1e-5)
+    assert results["chunk-1"]["energy"][-1] == pytest.approx(state.energy, rel=1e-5)
+    # resumed: everything comes from the store
+    again = run_tasks(LocalExecutor(1), lambda _: pytest.fail("recomputed"), tasks, store=TaskStore(tmp_path / "store"))
+    assert np.array_equal(again["chunk-1"]["energy"], results["chunk-1"]["energy"])

@@ -1,0 +1,194 @@
+"""stvk against independent answers: analytic StVK, a patch test, the elastica, and solver behaviour."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fem_support import elastica_tip, face, model, on, uniaxial_stvk
+from surgiplan.plugins.fem import AxisConstraints
+
+SIZE = (0.02, 0.01, 0.01)
+
+
+def roller_constraints(m, stretch=None):
+    """Symmetry planes x = 0, y = 0, z = 0 (held along their normal), and the face x = L moved to ``stretch`` L."""
+    nodes, axes, targets = [], [], []
+    for axis in range(3):
+        ids = on(m, face(axis, 0.0, SIZE))
+        held = np.zeros((len(ids), 3), dtype=bool)
+        held[:, axis] = True
+        nodes.append(ids), axes.append(held), targets.append(m.rest_nodes[ids])
+    if stretch is not None:
+        ids = on(m, face(0, SIZE[0], SIZE))
+        held = np.zeros((len(ids), 3), dtype=bool)
+        held[:, 0] = True
+        nodes.append(ids), axes.append(held), targets.append(m.rest_nodes[ids] * [stretch, 1, 1])
+    return np.concatenate(nodes), np.concatenate(targets), np.concatenate(axes)
+
+
+@pytest.mark.parametrize("volume_penalty", [0.0, 0.5])
+def test_uniaxial_stretch_matches_the_analytic_stvk_answer(volume_penalty):
+    e, nu, a = 1e6, 0.3, 1.3
+    material = {"youngs_modulus": e, "poisson_ratio": nu, "volume_penalty": volume_penalty}
+    m = model(SIZE, (2, 1, 1), material=material, gravity=[0, 0, 0], solver={"residual_tol": 1e-11})
+    nodes, targets, axes = roller_constraints(m, stretch=a)
+    state = m.solve(AxisConstraints(nodes, targets, None, axes))
+    lam, mu = m.material.lame
+    kappa = volume_penalty * (lam[0] + 2 * mu[0] / 3)
+    b, nominal = uniaxial_stvk(a, e, nu, kappa)
+    assert state.converged and state.valid
+    f = np.linalg.lstsq(np.c_[m.rest_nodes, np.ones(m.mesh.n_nodes)], state.positions, rcond=None)[0][:3].T
+    assert np.allclose(f, np.diag([a, b, b]), atol=1e-9)
+    end = on(m, face(0, SIZE[0], SIZE))
+    force = state.data["reaction_field"][end, 0].sum()  # N, pulled by the moving face
+    assert force == pytest.approx(nominal * SIZE[1] * SIZE[2], rel=1e-8)
+    assert np.allclose(state.stress, abs(nominal / a), rtol=1e-8)  # S_11 = P_11 / a; S_22 = S_33 = 0
+
+
+def test_uniaxial_dead_load_gives_the_analytic_stretch():
+    e, nu = 1e6, 0.45
+    a = 1.15
+    m = model(
+        SIZE,
+        (2, 1, 1),
+        material={"youngs_modulus": e, "poisson_ratio": nu},
+        gravity=[0, 0, 0],
+        solver={"residual_tol": 1e-11},
+    )
+    lam, mu = m.material.lame
+    _, nominal = uniaxial_stvk(a, e, nu, 0.1 * (lam[0] + 2 * mu[0] / 3))
+    nodes, targets, axes = roller_constraints(m)
+    end = on(m, face(0, SIZE[0], SIZE))
+    # a uniform traction: each boundary triangle of the face gives a third of its share to each corner
+    triangles = m.surface_triangles[np.all(np.isin(m.surface_triangles, end), axis=1)]
+    corners = m.rest_nodes[triangles]
+    areas = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1) / 2
+    assert areas.sum() == pytest.approx(SIZE[1] * SIZE[2], rel=1e-12)
+    forces = np.zeros((m.mesh.n_nodes, 3))
+    np.add.at(forces[:, 0], triangles.ravel(), np.repeat(nominal * areas / 3, 3))
+    state = m.solve(AxisConstraints(nodes, targets, forces, axes))
+    assert state.converged
+    assert state.positions[end, 0] == pytest.approx(np.full(len(end), a * SIZE[0]), rel=1e-8)
+
+
+def test_patch_test_reproduces_an_affine_deformation_on_an_irregular_mesh():
+    m = model(SIZE, (3, 3, 3), gravity=[0, 0, 0], solver={"residual_tol": 1e-11})
+    rng = np.random.default_rng(11)
+    boundary = np.unique(m.surface_triangles)
+    interior = np.setdiff1d(np.arange(m.mesh.n_nodes), boundary)
+    irregular = m.mesh.nodes.copy()
+    irregular[interior] += rng.uniform(-0.2, 0.2, (len(interior), 3)) * np.array(SIZE) / 3
+    m = type(m)(m.settings, mesh=type(m.mesh)(irregular, m.mesh.tets))  # same topology, distorted elements
+    f = np.array([[1.25, 0.1, -0.05], [0.02, 0.85, 0.1], [0.0, -0.1, 1.1]])
+    exact = irregular @ f.T + [0.001, -0.002, 0.003]
+    state = m.solve(m.grasp_constraints(boundary, (f, [0.001, -0.002, 0.003]), anchored=False))
+    assert state.converged
+    assert np.abs(state.positions - exact).max() < 1e-9 * SIZE[0]
+    s = m.kernel.second_piola_kirchhoff(state.positions)
+    assert np.abs(s - s[0]).max() < 1e-6 * np.abs(s[0]).max()  # uniform stress
+
+
+def test_cantilever_tip_deflection_converges_to_the_elastica():
+    length, height, e = 0.1, 0.01, 1e6
+    alpha = 1.0
+    load = alpha * e * height**4 / 12 / length**2  # N
+    reference, _ = elastica_tip(alpha)
+    assert reference == pytest.approx(0.3017, abs=5e-4)  # Bisshopp & Drucker's table
+    size = (length, height, height)
+    errors = []
+    for k in (1, 2, 4):
+        m = model(
+            size,
+            (10 * k, k, k),
+            material={"youngs_modulus": e, "poisson_ratio": 0.0, "volume_penalty": 0.0},
+            gravity=[0, 0, 0],
+            anchored=[{"region": face(0, 0.0, size)}],
+            loads=[{"region": face(0, length, size), "total_force": [0, 0, -load]}],
+        )
+        state = m.solve(m.stage_constraints())
+        assert state.converged and state.valid
+        tip = on(m, face(0, length, size))
+        deflection = -(state.positions[tip, 2] - m.rest_nodes[tip, 2]).mean() / length
+        errors.append((reference - deflection) / reference)
+    # linear tetrahedra lock in bending: too stiff, converging from below as h -> 0
+    assert all(err > 0 for err in errors)
+    assert errors[0] > 1.7 * errors[1] and errors[1] > 2.5 * errors[2]
+    assert errors[2] < 0.16
+
+
+def test_energy_never_increases_during_a_solve():
+    size = (0.05, 0.05, 0.0025)
+    m = model(
+        size,
+        (8, 8, 2),
+        pattern="five",
+        material={"youngs_modulus": 2e5},
+        anchored=[{"region": face(0, 0.0, size)}],
+        loads=[{"region": face(0, size[0], size), "total_force": [0, 0, 0.05]}],
+        base_plane={},
+    )
+    state = m.solve(m.stage_constraints())
+    history = np.array(state.data["energy_history"])
+    assert state.converged and len(history) >= 4
+    assert np.all(np.diff(history) <= 1e-12 * np.abs(history).max())
+    assert history[-1] == pytest.approx(state.energy, rel=1e-12)
+    assert state.energy == pytest.approx(
+        state.data["elastic_energy"] + state.data["contact_energy"] - state.data["external_work"]
+    )
+
+
+def test_stiffer_veins_deflect_less_and_softer_tissue_more():
+    size = (0.04, 0.02, 0.004)
+    base = {
+        "anchored": [{"region": face(0, 0.0, size)}],
+        "gravity": [0, 0, -9.8],
+        "loads": [{"region": face(0, size[0], size), "total_force": [0, 0, -0.02]}],
+    }
+    vein = {"region": {"min": [0, 0.007, 0], "max": [0.04, 0.013, 0.004]}}
+
+    def tip_drop(material):
+        m = model(size, (16, 8, 2), material=material, **base)
+        state = m.solve(m.stage_constraints())
+        assert state.converged
+        tip = on(m, face(0, size[0], size))
+        return -(state.positions[tip, 2] - m.rest_nodes[tip, 2]).mean()
+
+    tissue = tip_drop({"youngs_modulus": 2.5e5})
+    veins = tip_drop({"youngs_modulus": 2.5e5, "regions": [{**vein, "youngs_modulus": 1e6}]})
+    softer = tip_drop({"youngs_modulus": 2.5e5, "regions": [{**vein, "youngs_modulus": 5e4}]})
+    uniform_stiff = tip_drop({"youngs_modulus": 1e6})
+    assert uniform_stiff < veins < tissue < softer
+    assert veins < 0.9 * tissue
+
+
+def test_warm_start_reaches_the_cold_solution_in_fewer_iterations():
+    size = (0.05, 0.05, 0.0025)
+    m = model(size, (10, 10, 2), pattern="five", anchored=[{"region": face(0, 0.0, size)}], base_plane={})
+    jaws = m.nodes_in_region([0.0475, 0.02, 0], [0.05, 0.03, 0.0025])
+    previous = None
+    for lift in (0.004, 0.006):
+        pose = np.eye(4)
+        pose[2, 3] = lift
+        warm = m.solve(m.grasp_constraints(jaws, pose), initial=previous)
+        previous = warm
+    cold = m.solve(m.grasp_constraints(jaws, pose))
+    assert warm.converged and cold.converged
+    assert warm.iterations < cold.iterations
+    assert np.abs(warm.positions - cold.positions).max() < 1e-6 * size[0]
+    assert warm.energy == pytest.approx(cold.energy, rel=1e-6)
+    assert np.allclose(warm.positions[jaws], m.rest_nodes[jaws] + [0, 0, 0.006], atol=1e-15)
+
+
+def test_non_convergence_is_reported_not_hidden():
+    size = (0.05, 0.01, 0.01)
+    m = model(
+        size,
+        (10, 2, 2),
+        anchored=[{"region": face(0, 0.0, size)}],
+        loads=[{"region": face(0, size[0], size), "total_force": [0, 0, -2.0]}],
+        solver={"max_iterations": 2},
+    )
+    state = m.solve(m.stage_constraints())
+    assert not state.converged
+    assert "did not converge in 2 Newton iterations" in state.message
+    assert state.residual > 0
