@@ -127,12 +127,14 @@ def _cmd_plugins(args) -> int:
     from rich.table import Table
 
     table = Table(title="surgiplan plugins", title_justify="left")
-    for column in ("name", "kind", "package", "version", "description"):
-        table.add_column(column)
+    for column in ("name", "kind", "package", "version"):
+        table.add_column(column, no_wrap=True)
+    table.add_column("description")
     for row in rows:
         description = row["description"] if row["available"] else f"[yellow]unavailable: {row['unavailable']}[/yellow]"
         table.add_row(row["name"], row["kind"], row["package"], row["version"], description)
-    console = Console()
+    # a pipe or a CI log is not a terminal: do not squeeze the table into 80 columns
+    console = Console() if sys.stdout.isatty() else Console(width=160)
     console.print(table)
     for failure in registry.failures:
         console.print(f"[red]failed:[/red] {failure.error}")
