@@ -1,0 +1,433 @@
+"""What the CiA 402 device plugins share: settings, lifecycle, and the execution pipeline.
+
+Lifecycle (ros2_control's, :class:`surgiplan.Device`):
+
+* ``configure``: the kinematic model is loaded, the bus opened (the simulated
+  drives started on it), every node configured by SDO and started; states are
+  readable. A bus that cannot be opened or a node that does not answer is a
+  :class:`~.bus.BusError` here, before anything moves.
+* ``activate``: every drive is brought to OPERATION ENABLED holding its
+  position (a fault reset first where a drive is in FAULT). In real-time mode
+  SYNC keeps running between trajectories.
+* ``execute``: the path is mapped to joints (inverse kinematics), refused
+  with the reason if any waypoint is out of reach or outside the joint
+  limits, time-parameterised at the control rate (:mod:`.timing`) and run
+  (:mod:`.control`); the report says what the hardware actually did.
+* ``deactivate``: drives disabled, brakes hold; ``cleanup``/``shutdown``:
+  NMT pre-operational, bus released.
+
+Subclasses say how a path becomes joint waypoints (:meth:`Cia402Device.joint_path`)
+and how clearance is measured (:meth:`Cia402Device.clearance_along`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
+from surgiplan.devices import Device, ExecutionReport, Trajectory
+from surgiplan.errors import ConfigError
+from surgiplan.units import PositiveLength
+
+from . import cia402
+from .bus import ArmedFaults, BusSettings, MonitoredBus, bus_load_percent, open_bus, worst_case_bits
+from .clock import RealTimeClock, SimulatedClock
+from .control import Controller, Supervision
+from .drives import AxisHardware, DriveSimulator, MotorModel
+from .kinematics import KinematicModel
+from .master import AxisConfig, DriveMaster
+from .network import SimulationLink
+from .timing import time_parameterize
+
+#: encoder resolution defaults: a 17-bit absolute encoder (revolute), 1 um per count (prismatic)
+REVOLUTE_COUNTS = 2**17 / (2 * math.pi)
+PRISMATIC_COUNTS = 1e6
+
+
+class SimulationSettings(BaseModel):
+    """The simulated drives (``bus.interface: virtual``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    #: joint positions at power-up (SI); None: the first trajectory's start, as if placed there by hand
+    initial: list[float] | None = None
+    position_gain: PositiveFloat = 150.0
+    velocity_gain: PositiveFloat = 1000.0
+    #: each drive's current limit, as a multiple of the trajectory's acceleration limit
+    peak_acceleration_factor: float = Field(default=3.0, gt=1.0)
+    #: each motor's speed limit, as a multiple of the joint velocity limit
+    velocity_factor: float = Field(default=1.5, ge=1.0)
+    #: an enabled drive without SYNC for this long quick-stops by itself (s)
+    sync_timeout: PositiveFloat = 0.05
+
+
+class IKSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    #: position tolerance (m)
+    tolerance: PositiveLength = 1e-7
+    #: orientation tolerance (rad)
+    rotation_tolerance: PositiveFloat = 1e-6
+    max_iterations: PositiveInt = 100
+
+
+class Cia402DeviceSettings(BaseModel):
+    """Settings every CiA 402 device shares. Per-joint lists are in SI joint units (rad or m)."""
+
+    model_config = ConfigDict(extra="forbid")
+    bus: BusSettings = Field(default_factory=BusSettings)
+    #: auto: simulated for the virtual bus, real time otherwise
+    clock: Literal["auto", "simulated", "realtime"] = "auto"
+    #: SYNC rate (Hz); its period must be a whole number of 1e-6 s steps (0x60C2)
+    control_rate: PositiveFloat = 250.0
+    #: CAN node ids per joint (default 1, 2, ...)
+    node_ids: list[int] | None = None
+    #: heartbeat producer period (s); the master times out after 1.5 periods
+    heartbeat_period: PositiveFloat = 0.1
+    #: fraction of the URDF velocity limits the trajectories use
+    velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0)
+    #: per joint (rad/s^2 or m/s^2); default: the device's
+    acceleration_limits: list[PositiveFloat] | None = None
+    #: encoder counts per rad or per m, per joint; default 2^17 per turn, 1 per um
+    counts_per_unit: list[PositiveFloat] | None = None
+    #: following error window per joint (rad or m); default 0.01 rad, 1 mm
+    following_error_window: list[PositiveFloat] | None = None
+    following_error_timeout: PositiveFloat = 0.01
+    #: quick-stop deceleration as a multiple of the acceleration limit
+    quick_stop_factor: float = Field(default=2.0, ge=1.0)
+    #: tip spacing (m) at which the path is resampled before inverse kinematics
+    path_resolution: PositiveLength = 0.0005
+    #: move from the current configuration to the path's start (checked clear) when they differ
+    approach: bool = True
+    sdo_timeout: PositiveFloat = 0.2
+    pdo_timeout_cycles: PositiveInt = 5
+    settle_time: PositiveFloat = 0.5
+    stop_timeout: PositiveFloat = 1.0
+    enable_timeout: PositiveFloat = 1.0
+    simulation: SimulationSettings = Field(default_factory=SimulationSettings)
+    ik: IKSettings = Field(default_factory=IKSettings)
+
+
+class Refusal(Exception):
+    """A trajectory the device will not start; the message says why."""
+
+
+@dataclass
+class JointPath:
+    """Joint waypoints (n, nq) from a path, and what the mapping measured."""
+
+    q: np.ndarray
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+
+class Cia402Device(Device):
+    """Base of the CiA 402 devices (``cast_gimbal``, ``gripper6``)."""
+
+    Settings = Cia402DeviceSettings
+    #: defaults per device, overridden by subclasses
+    default_acceleration: tuple[float, ...] = ()
+    urdf_name: str = ""
+    tip_frame: str = ""
+
+    def __init__(self, settings: Cia402DeviceSettings) -> None:
+        super().__init__(settings)
+        self.model: KinematicModel | None = None
+        self.clock = None
+        self.bus: MonitoredBus | None = None
+        self.simulator: DriveSimulator | None = None
+        self.master: DriveMaster | None = None
+        self.controller: Controller | None = None
+        self.faults: ArmedFaults | None = None
+        self.placed = False
+        self.channel = ""
+
+    # ------------------------------------------------------------------ for subclasses
+    def build_model(self, base=None) -> KinematicModel:
+        raise NotImplementedError
+
+    def joint_path(self, trajectory: Trajectory, current: np.ndarray) -> JointPath:
+        """Joint waypoints for the trajectory's path; raise :class:`Refusal` if impossible."""
+        raise NotImplementedError
+
+    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> dict[str, float]:
+        """Clearance metrics (m) of the executed joint path ``q`` (n, nq), re-measured on the scene."""
+        raise NotImplementedError
+
+    def approach_is_clear(self, q_from: np.ndarray, q_to: np.ndarray, trajectory: Trajectory) -> bool:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ settings
+    def _per_joint(self, values, default, what: str) -> np.ndarray:
+        nq = self.model.nq
+        if values is None:
+            return np.asarray(default, dtype=float)
+        if len(values) != nq:
+            raise ConfigError(f"{what}: give {nq} values, one per joint {self.model.joint_names}; got {len(values)}")
+        return np.asarray(values, dtype=float)
+
+    def limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity and acceleration limits the trajectories use (SI per joint)."""
+        s = self.settings
+        velocity = self.model.velocity_limit * s.velocity_scale
+        acceleration = self._per_joint(s.acceleration_limits, self.default_acceleration, "acceleration_limits")
+        return velocity, acceleration
+
+    def _axes(self) -> tuple[list[AxisConfig], list[AxisHardware]]:
+        s = self.settings
+        model = self.model
+        nq = model.nq
+        ids = s.node_ids or list(range(1, nq + 1))
+        if len(ids) != nq or len(set(ids)) != nq or not all(1 <= i <= 127 for i in ids):
+            raise ConfigError(f"node_ids: give {nq} distinct CAN node ids (1-127), one per joint {model.joint_names}")
+        cpu = self._per_joint(
+            s.counts_per_unit, np.where(model.prismatic, PRISMATIC_COUNTS, REVOLUTE_COUNTS), "counts_per_unit"
+        )
+        window = self._per_joint(
+            s.following_error_window, np.where(model.prismatic, 0.001, 0.01), "following_error_window"
+        )
+        velocity, acceleration = self.limits()
+        initial = s.simulation.initial
+        if initial is not None:
+            initial = self._per_joint(initial, None, "simulation.initial")
+            if not model.within_limits(initial[None])[0]:
+                raise ConfigError(f"simulation.initial {list(initial)} is outside the joint limits")
+        start = initial if initial is not None else model.neutral()
+        config, hardware = [], []
+        for j in range(nq):
+            config.append(
+                AxisConfig(
+                    model.joint_names[j],
+                    ids[j],
+                    float(cpu[j]),
+                    float(model.lower[j]),
+                    float(model.upper[j]),
+                    float(window[j]),
+                    float(velocity[j] * s.simulation.velocity_factor),
+                    float(acceleration[j] * s.quick_stop_factor),
+                )
+            )
+            hardware.append(
+                AxisHardware(
+                    ids[j],
+                    float(cpu[j]),
+                    float(acceleration[j] * s.simulation.peak_acceleration_factor),
+                    float(model.velocity_limit[j] * s.simulation.velocity_factor),
+                    float(start[j]),
+                )
+            )
+        return config, hardware
+
+    def _check_bus_load(self, axes: list[AxisConfig]) -> None:
+        """Refuse a control rate whose cyclic frames alone cannot fit on the bus."""
+        s = self.settings
+        per_cycle = worst_case_bits(0) + len(axes) * 2 * worst_case_bits(6)
+        load = per_cycle * s.control_rate / s.bus.bitrate
+        if load > 1.0:
+            raise ConfigError(
+                f"control_rate {s.control_rate:g} Hz with {len(axes)} drives needs {100 * load:.0f}% of the "
+                f"{s.bus.bitrate / 1e6:g} Mbit/s bus (SYNC + RPDO + TPDO per drive, worst-case stuffing); "
+                f"lower control_rate to at most {s.control_rate / load:.0f} Hz"
+            )
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, context) -> None:
+        s = self.settings
+        if s.bus.faults and not s.bus.simulated:
+            raise ConfigError("bus.faults are injected by the simulated bus: use them with interface: virtual")
+        realtime = s.clock == "realtime" or (s.clock == "auto" and not s.bus.simulated)
+        if not realtime and not s.bus.simulated:
+            raise ConfigError(
+                f"clock: simulated needs the simulated bus; interface '{s.bus.interface}' is real hardware"
+            )
+        period = 1.0 / s.control_rate
+        try:
+            cia402.interpolation_period(period)
+        except ValueError as exc:
+            raise ConfigError(f"control_rate {s.control_rate:g} Hz: {exc}") from None
+        if s.heartbeat_period < 10 * period:
+            raise ConfigError(
+                f"heartbeat_period {s.heartbeat_period:g} s must be at least 10 control periods ({10 * period:g} s) "
+                "so that a lost node is detected within two heartbeat periods"
+            )
+        self.model = self.build_model()
+        config, hardware = self._axes()
+        self._check_bus_load(config)
+        self.clock = RealTimeClock() if realtime else SimulatedClock()
+        self.faults = ArmedFaults(s.bus.faults, self.clock.now)
+        inner, self.channel = open_bus(s.bus)
+        self.bus = MonitoredBus(inner, self.clock.now, self.faults)
+        description = f"{s.bus.interface} channel '{self.channel}'"
+        try:
+            link = None if realtime else SimulationLink()
+            if s.bus.simulated:
+                model = MotorModel(
+                    s.simulation.position_gain, s.simulation.velocity_gain, sync_timeout=s.simulation.sync_timeout
+                )
+                self.simulator = DriveSimulator(self.channel, hardware, model, self.clock, self.faults, link)
+                if realtime:
+                    self.simulator.start()
+            self.master = DriveMaster(
+                self.bus,
+                config,
+                self.clock,
+                period=period,
+                heartbeat_period=s.heartbeat_period,
+                following_error_timeout=s.following_error_timeout,
+                sdo_timeout=s.sdo_timeout,
+                link=link,
+                description=description,
+            )
+            self.master.start()
+            self.controller = Controller(
+                self.master,
+                self.clock,
+                Supervision(1.5 * s.heartbeat_period, s.pdo_timeout_cycles, s.stop_timeout, s.settle_time),
+            )
+            self.placed = s.simulation.initial is not None or not s.bus.simulated
+        except BaseException:
+            self._release()
+            raise
+
+    def on_activate(self) -> None:
+        self.controller.enable(self.settings.enable_timeout)
+        self.controller.start_holding()
+
+    def on_deactivate(self) -> None:
+        self.controller.disable()
+
+    def on_cleanup(self) -> None:
+        self._release()
+
+    def on_shutdown(self) -> None:
+        if self.controller is not None and self.state.value == "active":
+            self.controller.disable()
+        self._release()
+
+    def _release(self) -> None:
+        if self.controller is not None:
+            self.controller.stop_holding()
+        if self.master is not None:
+            try:
+                self.master.close()
+            except Exception:  # releasing must not hide the error that brought us here
+                pass
+        if self.simulator is not None:
+            self.simulator.close()
+        if self.bus is not None:
+            self.bus.shutdown()
+        self.master = self.simulator = self.bus = self.controller = None
+
+    # ------------------------------------------------------------------ state
+    def joint_positions(self) -> np.ndarray:
+        """The drives' positions (SI) as the master last read them."""
+        counts = self.controller.hold if self.controller is not None else self.master.read_state()[0]
+        return counts / np.array([a.counts_per_unit for a in self.master.axes])
+
+    def reset_faults(self) -> None:
+        """Fault reset and re-enable every drive (CiA 402 transition 15, then 2-4)."""
+        self.controller.enable(self.settings.enable_timeout)
+        self.controller.start_holding()
+
+    # ------------------------------------------------------------------ execution
+    def _refused(self, reason: str) -> ExecutionReport:
+        return ExecutionReport(
+            "stopped",
+            {"cycles": 0, "refused": True, "faults": []},
+            message=f"refused before any motion: {reason}",
+        )
+
+    def run(self, trajectory: Trajectory) -> ExecutionReport:
+        s = self.settings
+        model = self.model
+        current = self.joint_positions()
+        try:
+            joint_path = self.joint_path(trajectory, current)
+        except Refusal as exc:
+            return self._refused(str(exc))
+        q = joint_path.q
+        outside = ~model.within_limits(q, 1e-9)
+        if np.any(outside):
+            i = int(np.argmax(outside))
+            j = int(np.argmax((q[i] < model.lower - 1e-9) | (q[i] > model.upper + 1e-9)))
+            return self._refused(
+                f"waypoint {i} needs joint '{model.joint_names[j]}' at {q[i, j]:.4g}, outside its limits "
+                f"[{model.lower[j]:.4g}, {model.upper[j]:.4g}]"
+            )
+        if self.simulator is not None and not self.placed:
+            self.controller.stop_holding()
+            self.simulator.place(q[0])
+            self.controller.hold = np.round(q[0] * self.controller.cpu).astype(np.int64)
+            current = q[0].copy()
+            self.placed = True
+        metrics: dict[str, Any] = dict(joint_path.metrics)
+        gap = np.abs(q[0] - current)
+        if np.any(gap > 1e-4 * np.maximum(1.0, np.abs(current))):
+            if not s.approach:
+                return self._refused(f"the device is at {np.round(current, 5).tolist()}, the path starts elsewhere")
+            if not self.approach_is_clear(current, q[0], trajectory):
+                return self._refused(
+                    "the straight joint motion from the current configuration to the path start is not clear"
+                )
+            q = np.concatenate([current[None], q])
+            metrics["approach"] = True
+        velocity, acceleration = self.limits()
+        planned = time_parameterize(q, velocity, acceleration, 1.0 / s.control_rate)
+        metrics["planned_duration_s"] = planned.duration
+        metrics["optimal_duration_s"] = planned.optimal_duration
+        metrics["max_joint_velocity_ratio"] = float(np.max(np.abs(planned.velocity()) / velocity, initial=0.0))
+        metrics["max_joint_acceleration_ratio"] = float(
+            np.max(np.abs(planned.acceleration()) / acceleration, initial=0.0)
+        )
+
+        def arm(t0: float) -> None:
+            self.faults.arm(t0)
+            if self.simulator is not None:
+                self.simulator.arm(t0)
+
+        log = self.controller.run(planned.q, on_start=arm)
+        return self._report(log, trajectory, metrics)
+
+    def _report(self, log, trajectory: Trajectory, metrics: dict[str, Any]) -> ExecutionReport:
+        s = self.settings
+        model = self.model
+        metrics["cycles"] = log.cycles
+        metrics["control_rate_hz"] = s.control_rate
+        metrics["duration_s"] = log.end - log.start
+        metrics["samples_missing"] = log.samples_missing
+        tips = None
+        if len(log.measured):
+            tips = model.tip_positions(log.measured)
+            metrics.update(self.clearance_along(log.measured, trajectory))
+        tracked = log.tracking
+        if np.any(tracked):
+            reference = model.tip_positions(log.reference[tracked])
+            error = np.linalg.norm(tips[tracked] - reference, axis=1)
+            metrics["tracking_error_max_m"] = float(error.max())
+            metrics["tracking_error_rms_m"] = float(np.sqrt(np.mean(error**2)))
+            joint_error = np.abs(log.measured[tracked] - log.reference[tracked])
+            names = model.joint_names
+            metrics["joint_tracking_error_max"] = dict(zip(names, joint_error.max(axis=0).tolist(), strict=True))
+            metrics["joint_tracking_error_rms"] = dict(
+                zip(names, np.sqrt(np.mean(joint_error**2, axis=0)).tolist(), strict=True)
+            )
+            metrics["tracked_samples"] = int(np.count_nonzero(tracked))
+            if log.status == "completed":
+                metrics["final_error_m"] = float(error[-1])
+        frames = self.bus.frames_between(log.start, log.end + 1e-12)
+        exact, worst = bus_load_percent(frames, max(log.end - log.start, 1e-9), s.bus.bitrate)
+        metrics["bus_load_percent"] = exact
+        metrics["bus_load_worst_case_percent"] = worst
+        metrics["frames"] = len(frames)
+        dropped = 0
+        simulator = self.simulator
+        for dropper in (
+            self.bus.dropper,
+            getattr(simulator, "frame_drop", None),
+            getattr(simulator, "sync_drop", None),
+        ):
+            if dropper is not None:
+                dropped += len(dropper.dropped)
+        metrics["frames_dropped"] = dropped
+        metrics["faults"] = log.faults
+        return ExecutionReport(log.status, metrics, tips, log.faults, log.reason if log.status != "completed" else "")
