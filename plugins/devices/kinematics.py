@@ -31,6 +31,7 @@ value of the initial guess, because only the step is damped.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -41,12 +42,13 @@ from scipy.spatial.transform import Rotation
 from surgiplan.errors import ConfigError
 from surgiplan.geometry.transforms import Pose
 
-URDF_DIR = Path(__file__).resolve().parent / "urdf"
-
-
 def urdf_path(name: str) -> Path:
-    """Path of a URDF file shipped with the device plugins (``cast_gimbal``, ``gripper6``)."""
-    return URDF_DIR / f"{name}.urdf"
+    """Path of a URDF file shipped with the device plugins (``cast_gimbal``, ``gripper6``).
+
+    The files are package data of ``surgiplan.plugins.devices.urdf`` (see pyproject.toml),
+    found through importlib.resources, so installed wheels and editable installs alike have them.
+    """
+    return Path(str(resources.files("surgiplan.plugins.devices.urdf").joinpath(f"{name}.urdf")))
 
 
 class KinematicModel:
