@@ -211,7 +211,8 @@ class StageModel(_Strict):
     def _keys_for_stage(self):
         plan_only = ("space", "start", "goal", "artifact", "bounds", "clearance_threshold")
         if self.stage == "plan":
-            missing = [k for k in ("start", "goal") if getattr(self, k) is None]
+            # goal: checked in pass 2, where the planner is known (Planner.requires_goal)
+            missing = [k for k in ("start",) if getattr(self, k) is None]
             if missing:
                 raise ValueError(f"a plan stage needs {' and '.join(missing)}")
             if self.path_from is not None:

@@ -369,6 +369,8 @@ def _resolve_stage(index, stage: StageModel, raw, registry, scene, file, lines, 
     if stage.stage != "plan":
         spec.path_from = stage.path_from
         return spec
+    if stage.goal is None and getattr(info.cls, "requires_goal", True):
+        raise ConfigError("a plan stage needs goal", file=file, location=location, line=line_of(lines, where))
 
     if stage.bounds is not None:
         spec.scene = scene.with_bounds(stage.bounds.min, stage.bounds.max)
@@ -417,6 +419,8 @@ def _resolve_endpoints(spec: StageSpec, stage: StageModel, file: Path, lines: Li
         location = format_path(where)
         line = line_of(lines, where)
         value = getattr(stage, key)
+        if value is None:  # a goal the planner does not need (Planner.requires_goal)
+            continue
         if isinstance(value, str):
             if value not in scene.points:
                 raise PlanningInputError(

@@ -51,6 +51,13 @@ class PlanningProblem:
     progress: Progress = field(default_factory=NullProgress)
     #: a directory the planner may use to checkpoint long offline work (resumable)
     workdir: Path | None = None
+    #: the stage's start and goal (SI), for planners whose build depends on them (e.g. the
+    #: retraction planner samples equilibria for the grasp at ``start``); such a planner must
+    #: also check them when it loads a stored artifact (the artifact key does not hash them)
+    start: np.ndarray | None = None
+    goal: np.ndarray | None = None
+    #: the run's output directory, for planners that write files of their own (see PlanResult.files)
+    output_dir: Path | None = None
 
 
 @dataclass
@@ -72,6 +79,8 @@ class PlanResult:
     clearance_threshold: float | None = None
     #: extra data for figures, e.g. {"critical_regions": [...]} (JSON-able)
     annotations: dict[str, Any] = field(default_factory=dict)
+    #: files the planner wrote into ``PlanningProblem.output_dir`` (relative to it)
+    files: list[str] = field(default_factory=list)
 
     @property
     def solved(self) -> bool:
@@ -92,6 +101,10 @@ class Planner(ABC):
     Settings: ClassVar[type[BaseModel]]
     #: bump when the stored artifact layout changes, so old files are rebuilt
     artifact_version: ClassVar[int] = 1
+    #: False for planners whose goal is a condition rather than a configuration (the retraction
+    #: planner's goal is "the area of interest is visible"): a plan stage may then omit ``goal``,
+    #: and ``query`` gets ``goal=None``
+    requires_goal: ClassVar[bool] = True
 
     def __init__(self, settings: BaseModel) -> None:
         self.settings = settings

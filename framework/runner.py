@@ -112,7 +112,16 @@ def path_metrics(space, path: np.ndarray, threshold: float | None) -> tuple[dict
 
 def run_plan_stage(spec: StageSpec, context: StageContext) -> tuple[StageResult, PathView | None]:
     planner = _plugin_call(spec, "construction", spec.plugin.cls, spec.settings)
-    problem = PlanningProblem(spec.scene, spec.space, context.executor, context.progress, context.workdir)
+    problem = PlanningProblem(
+        spec.scene,
+        spec.space,
+        context.executor,
+        context.progress,
+        context.workdir,
+        start=spec.start,
+        goal=spec.goal,
+        output_dir=context.output_dir,
+    )
     started = time.perf_counter()
     artifact = None
     origin = "built"
@@ -157,6 +166,7 @@ def run_plan_stage(spec: StageSpec, context: StageContext) -> tuple[StageResult,
         space=spec.space.kind,
         clearance_threshold=threshold,
         annotations=dict(result.annotations),
+        files=list(result.files),
     )
     view = None
     if result.solved and len(result.path) >= 1:
@@ -175,7 +185,7 @@ def run_plan_stage(spec: StageSpec, context: StageContext) -> tuple[StageResult,
             clearance,
             threshold,
             spec.space.tip(spec.start[None])[0],
-            spec.space.tip(spec.goal[None])[0],
+            spec.space.tip(spec.goal[None])[0] if spec.goal is not None else None,
             highlights=highlights,
         )
     stage.metrics = metrics
@@ -292,7 +302,10 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
     if pipeline.model.output.gltf:
         paths = [(r.name, r.tip_path) for r in results if r.tip_path is not None and len(r.tip_path) >= 2]
         endpoints = [
-            (f"{s.name}:{k}", s.space.tip(getattr(s, k)[None])[0]) for s, _ in views for k in ("start", "goal")
+            (f"{s.name}:{k}", s.space.tip(getattr(s, k)[None])[0])
+            for s, _ in views
+            for k in ("start", "goal")
+            if getattr(s, k) is not None
         ]
         write_scene_glb(out / "scene.glb", pipeline.scene, paths, endpoints)
         files.append("scene.glb")
