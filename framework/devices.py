@@ -65,6 +65,8 @@ class ExecutionReport:
     executed_tip_path: np.ndarray | None = None
     faults: list[dict[str, Any]] = field(default_factory=list)
     message: str = ""
+    #: files the device wrote (figures, logs), relative to the stage context's output directory
+    files: list[str] = field(default_factory=list)
 
 
 class Device(ABC):

@@ -238,8 +238,11 @@ def run_execute_stage(
         spec.name,
         spec.plugin.name,
         report.status,
+        # the executed tip path is the stage's path (r3, SI), so result.json and scene.glb both show it
+        path=report.executed_tip_path,
         metrics=metrics,
         message=report.message,
+        files=list(report.files),
         tip_path=report.executed_tip_path,
         space="r3",
     )
