@@ -23,7 +23,8 @@ start of the trajectory (when the device starts executing it):
 * ``{kind: dead_node, node: 3}``: the drive never answers (with ``at_s``: it
   dies then, silencing heartbeats, PDOs and SDO);
 * ``{kind: bus_off, at_s: 0.3}``: the master's CAN controller goes bus-off:
-  every later send fails.
+  every later send fails (without ``at_s``: from power-up, so configuring the
+  device fails with a clear error before anything moves).
 
 Bus load (:func:`frame_bits`): each classic CAN data frame with an 11-bit
 identifier and n data bytes is 47 + 8n bits (SOF, identifier, RTR, IDE, r0,
@@ -91,7 +92,8 @@ class DeadNode(_Fault):
 
 class BusOff(_Fault):
     kind: Literal["bus_off"]
-    at_s: NonNegativeFloat = 0.0
+    #: None: bus-off from power-up
+    at_s: NonNegativeFloat | None = None
 
 
 Fault = Annotated[HeartbeatLoss | FrameLoss | FollowingErrorFault | DeadNode | BusOff, Field(discriminator="kind")]
@@ -202,8 +204,11 @@ class MonitoredBus(can.BusABC):
         self.faults = faults
         self.dropper = faults.frame_loss(stream=0)
         bus_off = faults.of("bus_off")
-        self.bus_off_at: float | None = bus_off[0].at_s if bus_off else None
+        self.bus_off: BusOff | None = bus_off[0] if bus_off else None
         self.log_lock = threading.Lock()
+        #: COB-IDs only this master sends (NMT, SYNC, its RPDOs and SDO requests): received ones are
+        #: echoes of its own frames (interfaces such as udp_multicast loop them back), not new traffic
+        self.own_ids: set[int] = set()
         #: (time s, arbitration id, data bytes)
         self.frames: list[tuple[float, int, bytes]] = []
         super().__init__(channel=getattr(inner, "channel_info", "can"))
@@ -216,9 +221,11 @@ class MonitoredBus(can.BusABC):
             self.frames.append((self.now(), msg.arbitration_id, bytes(msg.data)))
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if self.bus_off_at is not None:
+        if self.bus_off is not None:
+            if self.bus_off.at_s is None:
+                raise can.CanOperationError("CAN controller is bus-off (injected fault, from power-up)")
             elapsed = self.faults.elapsed()
-            if elapsed is not None and elapsed >= self.bus_off_at:
+            if elapsed is not None and elapsed >= self.bus_off.at_s:
                 raise can.CanOperationError("CAN controller is bus-off (injected fault)")
         self.inner.send(msg, timeout)
         self._log(msg)
@@ -228,6 +235,8 @@ class MonitoredBus(can.BusABC):
             msg = self.inner.recv(timeout)
             if msg is None:
                 return None, False
+            if msg.arbitration_id in self.own_ids:
+                continue  # our own frame looped back: already logged when sent
             self._log(msg)
             if self.dropper is not None and self.dropper.drop(msg.arbitration_id):
                 continue  # lost at this receiver; look for the next frame

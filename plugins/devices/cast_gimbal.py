@@ -14,9 +14,12 @@ the fulcrum pose as the URDF base placement). It executes
   (:meth:`CastGimbalSpace.inverse`) cross-checks every solution
   (``ik_closed_form_deviation_m``).
 
-The executed clearance is the whole shaft's (a capsule of ``shaft_radius``
-from the fulcrum to the tip), re-measured against the scene along the
-executed joint path (certified to 1e-5 m between samples,
+Executed clearance, re-measured on the scene from the measured joints:
+``executed_min_clearance_m`` is the executed tip path's (a sphere of the
+shaft radius, or of the r3 plan's tip radius, swept exactly along straight
+lines between the samples); ``executed_shaft_min_clearance_m`` the whole
+shaft's (a capsule of ``shaft_radius`` through the fulcrum to the tip, as the
+gimbal space plans it; certified to 1e-5 m between samples,
 :meth:`Space.segment_clearance`).
 """
 
@@ -145,13 +148,26 @@ class CastGimbalDevice(Cia402Device):
     def approach_is_clear(self, q_from, q_to, trajectory: Trajectory) -> bool:
         return bool(self.space.motion_is_clear(q_from[None], q_to[None], 0.0)[0])
 
-    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> dict[str, float]:
+    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
         space = self.space
+        scene = trajectory.space.scene
+        # the tip path: a sphere of the plan's tip radius (r3) or of the shaft radius (the shaft's end)
+        radius = trajectory.space.tip_radius if trajectory.space.kind == "r3" else space.shaft_radius
+        tips = space.tip(q)
+        shaft = space.clearance(q)
         if len(q) >= 2:
-            lowest = float(np.min(space.segment_clearance(q[:-1], q[1:])))
+            tip_lowest = float(np.min(scene.motion_clearance(tips[:-1], tips[1:], radius)))
+            shaft_lowest = float(np.min(space.segment_clearance(q[:-1], q[1:])))
         else:
-            lowest = float(space.clearance(q).min())
-        return {"executed_min_clearance_m": lowest, "shaft_radius_m": space.shaft_radius}
+            tip_lowest = float(scene.clearance(tips, radius).min())
+            shaft_lowest = float(shaft.min())
+        metrics = {
+            "executed_min_clearance_m": tip_lowest,
+            "executed_shaft_min_clearance_m": shaft_lowest,
+            "tip_radius_m": float(radius),
+            "shaft_radius_m": space.shaft_radius,
+        }
+        return metrics, shaft
 
 
 def _resample(points: np.ndarray, spacing: float) -> np.ndarray:

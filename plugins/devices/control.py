@@ -87,6 +87,8 @@ class Controller:
         self.cpu = np.array([a.counts_per_unit for a in master.axes])
         self.n = len(master.axes)
         self._next = None  # clock time of the next cycle
+        #: real time: cycles skipped because the loop woke more than a period late
+        self.missed_cycles = 0
         self.controlword = np.zeros(self.n, dtype=np.int64)
         self.hold = np.zeros(self.n, dtype=np.int64)  # counts
         self._emcy_seen = 0
@@ -100,6 +102,15 @@ class Controller:
     def _wait(self) -> float:
         if self._next is None:
             self._next = self.clock.now()
+        elif self.clock.realtime:
+            late = self.clock.now() - self._next
+            if late > self.period:
+                # more than a period late (the process was descheduled, or computing between
+                # trajectories): skip the missed cycles instead of sending a burst of SYNCs the
+                # drives cannot answer in between
+                missed = int(late // self.period)
+                self._next += missed * self.period
+                self.missed_cycles += missed
         self.clock.sleep_until(self._next)
         now = self._next
         self._next += self.period
@@ -177,17 +188,21 @@ class Controller:
         self.hold = feedback.position.copy()
         deadline = self.clock.now() + timeout
         enabled_cycles = 0
+        answered = np.zeros(self.n, dtype=bool)
         while True:
             self._wait()
             feedback = self.master.feedback()
             states = feedback.states
-            if all(s == cia402.OPERATION_ENABLED for s in states):
+            answered |= feedback.current
+            # only a statusword that answers the last SYNC counts: a silent drive's last one is stale
+            enabled = feedback.current & np.array([s == cia402.OPERATION_ENABLED for s in states])
+            if np.all(enabled):
                 enabled_cycles += 1
                 if enabled_cycles >= 2:
                     break
             else:
                 enabled_cycles = 0
-            not_enabled = [s != cia402.OPERATION_ENABLED for s in states]
+            not_enabled = ~enabled
             # while not enabled, hold targets follow the actual positions (no jump when enabling)
             self.hold = np.where(not_enabled, feedback.position, self.hold)
             words = [cia402.enabling_controlword(s, int(c)) for s, c in zip(states, self.controlword, strict=True)]
@@ -196,13 +211,14 @@ class Controller:
                 raise BusError(f"CAN bus error on {self.master.description} while enabling the drives: {error}")
             if self.clock.now() > deadline:
                 stuck = [
-                    f"node {a.node_id} ('{a.name}') is {s}"
-                    for a, s in zip(self.axes, states, strict=True)
-                    if s != cia402.OPERATION_ENABLED
+                    f"node {a.node_id} ('{a.name}') " + (f"is {s}" if seen else "does not answer SYNC (no TPDO)")
+                    for a, s, seen, ok in zip(self.axes, states, answered, enabled, strict=True)
+                    if not ok
                 ]
                 raise BusError(f"drives did not reach OPERATION ENABLED within {timeout:g} s: {'; '.join(stuck)}")
         self._missing[:] = 0
         self._emcy_seen = len(self.master.emcy)
+        self.pending_faults = []  # enabling (a fault reset) acknowledges what happened while holding
 
     def disable(self, timeout: float = 0.5) -> None:
         """Disable operation (controlword 0x06: READY TO SWITCH ON); the brakes hold the axes."""
@@ -235,10 +251,19 @@ class Controller:
         while not self._hold_stop.is_set():
             now = self._wait()
             feedback = self.master.feedback()
-            self.pending_faults += self._supervise(now, feedback, 0.0, check_states=False)
-            words = np.where(
-                self.controlword == cia402.CW_ENABLE_OPERATION, cia402.CW_ENABLE_OPERATION, self.controlword
-            )
+            seen = {(f["kind"], f.get("node")) for f in self.pending_faults}
+            for fault in self._supervise(now, feedback, 0.0, check_states=False):
+                if (fault["kind"], fault.get("node")) not in seen:
+                    fault["action"] = "quick stop of every axis (while holding)"
+                    self.pending_faults.append(fault)
+                    seen.add((fault["kind"], fault.get("node")))
+            if self.pending_faults:
+                # a fault while holding: quick-stop every axis; the next trajectory will not start
+                words = np.full(self.n, cia402.CW_QUICK_STOP)
+            else:
+                words = np.where(
+                    self.controlword == cia402.CW_ENABLE_OPERATION, cia402.CW_ENABLE_OPERATION, self.controlword
+                )
             if self._send(words, self.hold) is not None:
                 return
 
@@ -289,7 +314,7 @@ class Controller:
                 times.append(now - self.period - origin)
                 measured.append(position.copy())
                 reference.append(trajectory[int(np.clip(k - 2, 0, m - 1))])
-                complete = bool(np.all(feedback.fresh))
+                complete = bool(np.all(feedback.current))
                 tracking.append(complete and phase in ("run", "settle"))
                 missing_cycles += not complete
             new = self._supervise(now, feedback, origin, check_states=phase in ("run", "settle") and k >= 2)
@@ -320,7 +345,7 @@ class Controller:
             if phase == "settle":
                 words = [cia402.CW_ENABLE_OPERATION] * self.n
                 send = targets[-1]
-                if np.all(feedback.fresh) and np.all(np.abs(position - trajectory[-1]) <= tolerance):
+                if np.all(feedback.current) and np.all(np.abs(position - trajectory[-1]) <= tolerance):
                     break
                 if now - settle_start > sup.settle_time:
                     status = "stopped"

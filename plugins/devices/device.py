@@ -23,20 +23,24 @@ and how clearance is measured (:meth:`Cia402Device.clearance_along`).
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
+import can
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
-from surgiplan.devices import Device, ExecutionReport, Trajectory
+from surgiplan.devices import Device, ExecutionReport, LifecycleError, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.units import PositiveLength
 
 from . import cia402
-from .bus import ArmedFaults, BusSettings, MonitoredBus, bus_load_percent, open_bus, worst_case_bits
+from .bus import ArmedFaults, BusError, BusSettings, MonitoredBus, open_bus, worst_case_bits
 from .clock import RealTimeClock, SimulatedClock
-from .control import Controller, Supervision
+from .control import Controller, ExecutionLog, Supervision
 from .drives import AxisHardware, DriveSimulator, MotorModel
+from .execution_report import bus_metrics, execution_figure, tracking_metrics, write_log_csv
 from .kinematics import KinematicModel
 from .master import AxisConfig, DriveMaster
 from .network import SimulationLink
@@ -105,6 +109,11 @@ class Cia402DeviceSettings(BaseModel):
     settle_time: PositiveFloat = 0.5
     stop_timeout: PositiveFloat = 1.0
     enable_timeout: PositiveFloat = 1.0
+    #: after a stop, fault-reset and re-enable the drives and report whether they came back
+    #: (``metrics.fault_reset``); the stage still ends "stopped"
+    fault_reset: bool = False
+    #: write <stage>.png (joints, tracking error, clearance over time, faults) and <stage>-execution.csv
+    outputs: bool = True
     simulation: SimulationSettings = Field(default_factory=SimulationSettings)
     ik: IKSettings = Field(default_factory=IKSettings)
 
@@ -150,8 +159,9 @@ class Cia402Device(Device):
         """Joint waypoints for the trajectory's path; raise :class:`Refusal` if impossible."""
         raise NotImplementedError
 
-    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> dict[str, float]:
-        """Clearance metrics (m) of the executed joint path ``q`` (n, nq), re-measured on the scene."""
+    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
+        """Clearance metrics (m) of the executed joint path ``q`` (n, nq), re-measured on the scene,
+        and the body's clearance at each sample (for the figure)."""
         raise NotImplementedError
 
     def approach_is_clear(self, q_from: np.ndarray, q_to: np.ndarray, trajectory: Trajectory) -> bool:
@@ -264,7 +274,8 @@ class Cia402Device(Device):
                 model = MotorModel(
                     s.simulation.position_gain, s.simulation.velocity_gain, sync_timeout=s.simulation.sync_timeout
                 )
-                self.simulator = DriveSimulator(self.channel, hardware, model, self.clock, self.faults, link)
+                drives_bus = can.Bus(interface="virtual", channel=self.channel)
+                self.simulator = DriveSimulator(drives_bus, hardware, model, self.clock, self.faults, link)
                 if realtime:
                     self.simulator.start()
             self.master = DriveMaster(
@@ -301,7 +312,10 @@ class Cia402Device(Device):
 
     def on_shutdown(self) -> None:
         if self.controller is not None and self.state.value == "active":
-            self.controller.disable()
+            try:
+                self.controller.disable()
+            except Exception:  # shutting down must release the bus whatever the drives do
+                pass
         self._release()
 
     def _release(self) -> None:
@@ -318,14 +332,27 @@ class Cia402Device(Device):
             self.bus.shutdown()
         self.master = self.simulator = self.bus = self.controller = None
 
-    # ------------------------------------------------------------------ state
+    # ------------------------------------------------------------------ state (inactive or active)
+    def _require_configured(self) -> None:
+        if self.master is None:
+            raise LifecycleError(f"the device's states are readable once configured; it is {self.state.value}")
+
     def joint_positions(self) -> np.ndarray:
-        """The drives' positions (SI) as the master last read them."""
-        counts = self.controller.hold if self.controller is not None else self.master.read_state()[0]
+        """The drives' actual positions (SI), read from them by SDO (readable once configured)."""
+        self._require_configured()
+        counts, _ = self.master.read_state()
         return counts / np.array([a.counts_per_unit for a in self.master.axes])
 
+    def drive_states(self) -> dict[str, str]:
+        """Each joint's CiA 402 state, read from its drive by SDO (readable once configured)."""
+        self._require_configured()
+        _, statuswords = self.master.read_state()
+        return {a.name: cia402.state_of(int(w)) for a, w in zip(self.master.axes, statuswords, strict=True)}
+
     def reset_faults(self) -> None:
-        """Fault reset and re-enable every drive (CiA 402 transition 15, then 2-4)."""
+        """Fault reset and re-enable every drive (CiA 402 transition 15, then 2-4); needs ``active``."""
+        if self.state.value != "active":
+            raise LifecycleError(f"a fault reset needs an active device; it is {self.state.value}")
         self.controller.enable(self.settings.enable_timeout)
         self.controller.start_holding()
 
@@ -337,37 +364,52 @@ class Cia402Device(Device):
             message=f"refused before any motion: {reason}",
         )
 
-    def run(self, trajectory: Trajectory) -> ExecutionReport:
-        s = self.settings
+    def _check_path(self, q: np.ndarray, trajectory: Trajectory) -> None:
+        """Refuse joint waypoints outside the joint limits, or a tip leaving the workspace bounds."""
         model = self.model
-        current = self.joint_positions()
-        try:
-            joint_path = self.joint_path(trajectory, current)
-        except Refusal as exc:
-            return self._refused(str(exc))
-        q = joint_path.q
         outside = ~model.within_limits(q, 1e-9)
         if np.any(outside):
             i = int(np.argmax(outside))
             j = int(np.argmax((q[i] < model.lower - 1e-9) | (q[i] > model.upper + 1e-9)))
-            return self._refused(
+            raise Refusal(
                 f"waypoint {i} needs joint '{model.joint_names[j]}' at {q[i, j]:.4g}, outside its limits "
                 f"[{model.lower[j]:.4g}, {model.upper[j]:.4g}]"
             )
-        if self.simulator is not None and not self.placed:
-            self.controller.stop_holding()
-            self.simulator.place(q[0])
-            self.controller.hold = np.round(q[0] * self.controller.cpu).astype(np.int64)
+        scene = trajectory.space.scene  # the plan's scene: its bounds are the workspace planned in
+        tips = model.tip_positions(q)
+        inside = scene.in_bounds(tips)
+        if not np.all(inside):
+            i = int(np.argmin(inside))
+            raise Refusal(
+                f"waypoint {i} puts the tip at {np.round(tips[i], 5).tolist()} m, outside the workspace bounds "
+                f"{scene.bounds_min.tolist()} to {scene.bounds_max.tolist()} m"
+            )
+
+    def run(self, trajectory: Trajectory) -> ExecutionReport:
+        s = self.settings
+        current = self.joint_positions()
+        try:
+            joint_path = self.joint_path(trajectory, current)
+            q = joint_path.q
+            self._check_path(q, trajectory)
+        except Refusal as exc:
+            return self._refused(str(exc))
+        # the simulated device starts where its first path starts, as if placed there by hand
+        place = self.simulator is not None and not self.placed
+        if place:
             current = q[0].copy()
-            self.placed = True
         metrics: dict[str, Any] = dict(joint_path.metrics)
         gap = np.abs(q[0] - current)
         if np.any(gap > 1e-4 * np.maximum(1.0, np.abs(current))):
             if not s.approach:
-                return self._refused(f"the device is at {np.round(current, 5).tolist()}, the path starts elsewhere")
+                return self._refused(
+                    f"the device is at {np.round(current, 5).tolist()}, the path starts at "
+                    f"{np.round(q[0], 5).tolist()} (approach: false)"
+                )
             if not self.approach_is_clear(current, q[0], trajectory):
                 return self._refused(
-                    "the straight joint motion from the current configuration to the path start is not clear"
+                    "the straight joint motion from the current configuration "
+                    f"{np.round(current, 5).tolist()} to the path start is not clear of the obstacles"
                 )
             q = np.concatenate([current[None], q])
             metrics["approach"] = True
@@ -385,49 +427,63 @@ class Cia402Device(Device):
             if self.simulator is not None:
                 self.simulator.arm(t0)
 
+        if place:
+            # everything is computed: only now stop holding (in real time the drives' SYNC watchdog
+            # would trip during a long computation) and place the axes
+            self.controller.stop_holding()
+            self.simulator.place(q[0])
+            self.controller.hold = np.round(q[0] * self.controller.cpu).astype(np.int64)
+            self.placed = True
+        missed = self.controller.missed_cycles
         log = self.controller.run(planned.q, on_start=arm)
-        return self._report(log, trajectory, metrics)
+        metrics["missed_cycles"] = self.controller.missed_cycles - missed
+        report = self._report(log, trajectory, metrics)
+        if log.status != "completed" and s.fault_reset:
+            report.metrics["fault_reset"] = self._try_fault_reset()
+        return report
 
-    def _report(self, log, trajectory: Trajectory, metrics: dict[str, Any]) -> ExecutionReport:
+    def _try_fault_reset(self) -> dict[str, Any]:
+        """After a stop: fault reset and re-enable; what came back (the rehearsal of a recovery)."""
+        try:
+            self.controller.enable(self.settings.enable_timeout)
+        except BusError as exc:
+            return {"ok": False, "detail": str(exc)}
+        self.controller.start_holding()
+        return {"ok": True, "states": self.drive_states()}
+
+    def _report(self, log: ExecutionLog, trajectory: Trajectory, metrics: dict[str, Any]) -> ExecutionReport:
         s = self.settings
         model = self.model
         metrics["cycles"] = log.cycles
         metrics["control_rate_hz"] = s.control_rate
         metrics["duration_s"] = log.end - log.start
         metrics["samples_missing"] = log.samples_missing
-        tips = None
-        if len(log.measured):
-            tips = model.tip_positions(log.measured)
-            metrics.update(self.clearance_along(log.measured, trajectory))
-        tracked = log.tracking
-        if np.any(tracked):
-            reference = model.tip_positions(log.reference[tracked])
-            error = np.linalg.norm(tips[tracked] - reference, axis=1)
-            metrics["tracking_error_max_m"] = float(error.max())
-            metrics["tracking_error_rms_m"] = float(np.sqrt(np.mean(error**2)))
-            joint_error = np.abs(log.measured[tracked] - log.reference[tracked])
-            names = model.joint_names
-            metrics["joint_tracking_error_max"] = dict(zip(names, joint_error.max(axis=0).tolist(), strict=True))
-            metrics["joint_tracking_error_rms"] = dict(
-                zip(names, np.sqrt(np.mean(joint_error**2, axis=0)).tolist(), strict=True)
-            )
-            metrics["tracked_samples"] = int(np.count_nonzero(tracked))
-            if log.status == "completed":
-                metrics["final_error_m"] = float(error[-1])
-        frames = self.bus.frames_between(log.start, log.end + 1e-12)
-        exact, worst = bus_load_percent(frames, max(log.end - log.start, 1e-9), s.bus.bitrate)
-        metrics["bus_load_percent"] = exact
-        metrics["bus_load_worst_case_percent"] = worst
-        metrics["frames"] = len(frames)
-        dropped = 0
+        tips = model.tip_positions(log.measured) if len(log.measured) else np.zeros((0, 3))
+        clearance = np.zeros(0)
+        if len(tips):
+            metrics["length_m"] = float(np.sum(np.linalg.norm(np.diff(tips, axis=0), axis=1)))
+            clearance_metrics, clearance = self.clearance_along(log.measured, trajectory)
+            metrics.update(clearance_metrics)
+            reference_tips = model.tip_positions(log.reference)
+            metrics.update(tracking_metrics(tips, reference_tips, log, model.joint_names))
         simulator = self.simulator
-        for dropper in (
-            self.bus.dropper,
-            getattr(simulator, "frame_drop", None),
-            getattr(simulator, "sync_drop", None),
-        ):
-            if dropper is not None:
-                dropped += len(dropper.dropped)
-        metrics["frames_dropped"] = dropped
+        droppers = (self.bus.dropper, getattr(simulator, "frame_drop", None), getattr(simulator, "sync_drop", None))
+        metrics.update(bus_metrics(self.bus, log, s.bus.bitrate, droppers))
         metrics["faults"] = log.faults
-        return ExecutionReport(log.status, metrics, tips, log.faults, log.reason if log.status != "completed" else "")
+        message = log.reason if log.status != "completed" else ""
+        report = ExecutionReport(log.status, metrics, tips if len(tips) else None, log.faults, message)
+        if s.outputs and self.context is not None and len(tips):
+            report.files = self._write_outputs(log, tips, model.tip_positions(log.reference), clearance, message)
+        return report
+
+    def _write_outputs(self, log, tips, reference_tips, clearance, message: str) -> list[str]:
+        name = self.context.name
+        out = Path(self.context.output_dir)
+        model = self.model
+        write_log_csv(out / f"{name}-execution.csv", log, model.joint_names, tips)
+        title = f"{name}: {type(self).__name__} {log.status}"
+        if message:
+            title += "\n" + textwrap.shorten(message, 150)
+        error = np.linalg.norm(tips - reference_tips, axis=1)
+        execution_figure(out / f"{name}.png", title, log, model.joint_names, model.lower, model.upper, error, clearance)
+        return [f"{name}.png", f"{name}-execution.csv"]

@@ -35,6 +35,7 @@ from __future__ import annotations
 import functools
 import logging
 import threading
+import time
 from dataclasses import dataclass
 
 import can
@@ -97,11 +98,17 @@ def _locked(method):
 
 
 class DriveSimulator:
-    """Simulated drives on a virtual bus of their own on ``channel``, one LocalNode per axis."""
+    """Simulated drives on a python-can ``bus`` of their own, one LocalNode per axis.
+
+    The bus is usually a second handle on the master's virtual channel; for the
+    stand-alone simulator (:mod:`.sim_drives`) any python-can interface.
+    ``link`` (simulated clock) delivers frames synchronously; without it (real
+    time) call :meth:`start`.
+    """
 
     def __init__(
         self,
-        channel: str,
+        bus: can.BusABC,
         axes: list[AxisHardware],
         model: MotorModel,
         clock: Clock,
@@ -114,7 +121,6 @@ class DriveSimulator:
         self.faults = faults
         self.realtime = link is None
         self._lock = threading.RLock()
-        bus = can.Bus(interface="virtual", channel=channel)
         self.scheduler = Scheduler() if self.realtime else clock.scheduler
         self.frame_drop = frame_drop = faults.frame_loss(stream=1)
         self.sync_drop = faults.frame_loss(stream=2)
@@ -241,6 +247,13 @@ class DriveSimulator:
     @_locked
     def _on_sync(self, can_id, data, timestamp) -> None:
         now = self.clock.now()
+        if self.realtime:
+            # a drive latches and samples at the SYNC's arrival (in hardware); this thread may run
+            # later, so go back by the frame's age (python-can stamps frames with time.time()); an
+            # implausible age (an interface without receive timestamps) is ignored
+            age = time.time() - timestamp
+            if 0.0 < age < self.model.sync_timeout:
+                now = max(self.t, now - age)
         self.advance(now)
         for i, node_id in enumerate(self.ids):
             if not self.alive[i] or not self.pdo_ready[i]:

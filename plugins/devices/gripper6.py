@@ -3,8 +3,13 @@
 The model is ``urdf/gripper6.urdf``, placed in the scene by the ``base``
 setting (the arm's mounting pose). It executes
 
-* a path in the ``se3`` space: poses (x, y, z, qx, qy, qz, qw) of the JAWS
-  frame (z out of the jaws), e.g. a retraction planner's trajectory;
+* a path in the ``se3`` space, from any plan stage that plans in it (OMPL, the
+  ``retraction`` planner, a third-party planner) or handed to
+  :meth:`execute` directly: poses (x, y, z, qx, qy, qz, qw) of the planned
+  body's frame. That frame is the JAWS frame (z out of the jaws, x along the
+  flange's -z) unless ``tool_frame`` says where the planned frame sits in the
+  jaws frame (a planner that grasps with another convention needs only this
+  setting, no code);
 * a path in ``r3``: jaws positions, held at the fixed ``orientation`` setting
   (default: jaws pointing down).
 
@@ -14,10 +19,14 @@ kinematics, warm-started along the path from the current configuration; a
 pose out of reach, or an IK solution that jumps between branches, refuses the
 path before any motion.
 
-Executed clearance: the jaws body of the plan's se3 space (its parts), or a
-sphere of ``tool_radius`` at the jaws for r3 paths, along the executed path
-(certified to 1e-5 m between samples for se3, exact for the r3 sphere); with
-``link_radius`` > 0 the arm's links (capsules between joint origins) too.
+Executed clearance, re-measured on the scene from the measured joints:
+``executed_min_clearance_m`` is the executed tip path's (the jaws origin, as a
+sphere of the r3 plan's tip radius, or a point for se3 plans; exact between
+samples); ``executed_body_min_clearance_m`` the planned body's (the se3
+space's parts, certified to 1e-5 m between samples) or, for r3 paths, a
+sphere of ``tool_radius`` at the jaws; with ``link_radius`` > 0
+``arm_min_clearance_m`` the arm's links (capsules between joint origins, at
+the samples).
 """
 
 from __future__ import annotations
@@ -39,6 +48,8 @@ class Gripper6Settings(Cia402DeviceSettings):
 
     #: the arm's base pose in the scene
     base: PoseModel = Field(default_factory=PoseModel)
+    #: where the planned se3 frame sits in the jaws frame (identity: the plan's poses are the jaws')
+    tool_frame: PoseModel = Field(default_factory=PoseModel)
     #: jaws orientation (roll, pitch, yaw) for r3 paths; default: jaws pointing down
     orientation: tuple[Angle, Angle, Angle] = (np.pi, 0.0, 0.0)
     #: jaws as a sphere of this radius (m) for the clearance of r3 paths
@@ -62,11 +73,30 @@ class Gripper6Device(Cia402Device):
     def build_model(self, base=None) -> KinematicModel:
         return KinematicModel(urdf_path(self.urdf_name), self.tip_frame, base or self.settings.base.to_pose())
 
+    def _tool(self) -> tuple[Rotation, np.ndarray]:
+        pose = self.settings.tool_frame.to_pose()
+        return Rotation.from_matrix(pose.rotation), np.asarray(pose.translation, dtype=float)
+
+    def jaws_from_planned(self, poses: np.ndarray) -> np.ndarray:
+        """Jaws poses (n, 7) for planned-frame poses (n, 7): jaws = planned * tool_frame^-1."""
+        tool_rotation, tool_translation = self._tool()
+        planned = Rotation.from_quat(poses[:, 3:7])
+        jaws = planned * tool_rotation.inv()
+        position = poses[:, :3] - jaws.apply(tool_translation)
+        return np.concatenate([position, canonical_quaternion(jaws.as_quat())], axis=1)
+
+    def planned_from_jaws(self, poses: np.ndarray) -> np.ndarray:
+        """Planned-frame poses (n, 7) for jaws poses (n, 7): planned = jaws * tool_frame."""
+        tool_rotation, tool_translation = self._tool()
+        jaws = Rotation.from_quat(poses[:, 3:7])
+        position = poses[:, :3] + jaws.apply(tool_translation)
+        return np.concatenate([position, canonical_quaternion((jaws * tool_rotation).as_quat())], axis=1)
+
     def _poses(self, trajectory: Trajectory) -> np.ndarray:
         path = np.atleast_2d(np.asarray(trajectory.path, dtype=float))
         kind = trajectory.space.kind
         if kind == "se3":
-            return np.concatenate([path[:, :3], canonical_quaternion(path[:, 3:7])], axis=1)
+            return self.jaws_from_planned(np.concatenate([path[:, :3], canonical_quaternion(path[:, 3:7])], axis=1))
         if kind == "r3":
             quaternion = canonical_quaternion(Rotation.from_euler("xyz", self.settings.orientation).as_quat())
             return np.concatenate([path, np.broadcast_to(quaternion, (len(path), 4))], axis=1)
@@ -126,32 +156,46 @@ class Gripper6Device(Cia402Device):
             },
         )
 
-    def _tool_clearance(self, q: np.ndarray, trajectory: Trajectory) -> float:
+    def _body_clearance(self, q: np.ndarray, trajectory: Trajectory) -> tuple[float, np.ndarray]:
+        """Lowest clearance (m) of the planned body along joint samples q, and at each sample."""
         poses = self.model.tip_poses(q)
         space = trajectory.space
         if space.kind == "se3":
-            if len(poses) >= 2:
-                return float(np.min(space.segment_clearance(poses[:-1], poses[1:])))
-            return float(space.clearance(poses).min())
-        scene = self.context.scene if self.context is not None else space.scene
+            planned = self.planned_from_jaws(poses)
+            at_samples = space.clearance(planned)
+            if len(planned) >= 2:
+                return float(np.min(space.segment_clearance(planned[:-1], planned[1:]))), at_samples
+            return float(at_samples.min()), at_samples
         radius = float(self.settings.tool_radius)
+        at_samples = space.scene.clearance(poses[:, :3], radius)
         if len(poses) >= 2:
-            return float(np.min(scene.motion_clearance(poses[:-1, :3], poses[1:, :3], radius)))
-        return float(scene.clearance(poses[:, :3], radius).min())
+            return float(np.min(space.scene.motion_clearance(poses[:-1, :3], poses[1:, :3], radius))), at_samples
+        return float(at_samples.min()), at_samples
 
     def approach_is_clear(self, q_from, q_to, trajectory: Trajectory) -> bool:
         # sampled every 0.01 rad of the largest joint: not certified (the arm's motion is not a space's)
         count = max(2, int(np.ceil(np.max(np.abs(q_to - q_from)) / 0.01)) + 1)
         q = q_from + np.linspace(0.0, 1.0, count)[:, None] * (q_to - q_from)
-        return self._tool_clearance(q, trajectory) > 0.0
+        return self._body_clearance(q, trajectory)[0] > 0.0
 
-    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> dict[str, float]:
-        out = {"executed_min_clearance_m": self._tool_clearance(q, trajectory)}
+    def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
+        scene = trajectory.space.scene
+        tips = self.model.tip_positions(q)
+        radius = trajectory.space.tip_radius if trajectory.space.kind == "r3" else 0.0
+        if len(tips) >= 2:
+            tip_lowest = float(np.min(scene.motion_clearance(tips[:-1], tips[1:], radius)))
+        else:
+            tip_lowest = float(scene.clearance(tips, radius).min())
+        body_lowest, at_samples = self._body_clearance(q, trajectory)
+        out = {
+            "executed_min_clearance_m": tip_lowest,
+            "executed_body_min_clearance_m": body_lowest,
+            "tip_radius_m": float(radius),
+        }
         if self.settings.link_radius > 0:
-            scene = self.context.scene if self.context is not None else trajectory.space.scene
             origins = self.model.joint_origins(q)  # (n, 6, 3): the links run between joint origins
             a = origins[:, :-1].reshape(-1, 3)
             b = origins[:, 1:].reshape(-1, 3)
             distance = scene.segment_distance(a, b)[0] - float(self.settings.link_radius)
             out["arm_min_clearance_m"] = float(distance.min())
-        return out
+        return out, at_samples

@@ -42,13 +42,14 @@ from scipy.spatial.transform import Rotation
 from surgiplan.errors import ConfigError
 from surgiplan.geometry.transforms import Pose
 
+
 def urdf_path(name: str) -> Path:
     """Path of a URDF file shipped with the device plugins (``cast_gimbal``, ``gripper6``).
 
     The files are package data of ``surgiplan.plugins.devices.urdf`` (see pyproject.toml),
     found through importlib.resources, so installed wheels and editable installs alike have them.
     """
-    return Path(str(resources.files("surgiplan.plugins.devices.urdf").joinpath(f"{name}.urdf")))
+    return Path(str(resources.files("surgiplan.plugins.devices").joinpath("urdf", f"{name}.urdf")))
 
 
 class KinematicModel:

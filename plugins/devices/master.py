@@ -58,11 +58,17 @@ class AxisConfig:
 
 @dataclass
 class Feedback:
-    """The latest TPDO of every axis; ``fresh[i]``: a new one arrived since the previous call."""
+    """The latest TPDO of every axis.
+
+    ``fresh[i]``: a new one arrived since the previous call; ``current[i]``: it
+    arrived after the last SYNC sent, so it answers that SYNC (a drive samples its
+    position when the SYNC arrives).
+    """
 
     statusword: np.ndarray
     position: np.ndarray  # counts
     fresh: np.ndarray
+    current: np.ndarray
 
     @property
     def states(self) -> list[str]:
@@ -98,11 +104,15 @@ class DriveMaster:
         else:
             self.network = canopen.Network(bus)
             self.network.NOTIFIER_CYCLE = 0.02  # a prompt shutdown of the receive thread
+        bus.own_ids = {0x000, 0x080} | {base + a.node_id for a in axes for base in (0x200, 0x600)}
         n = len(axes)
         self._lock = threading.Lock()
         self._statusword = np.zeros(n, dtype=np.int64)
         self._position = np.zeros(n, dtype=np.int64)
         self._fresh = np.zeros(n, dtype=bool)
+        #: SYNCs sent so far, and per axis how many had been sent when its latest TPDO arrived
+        self.syncs_sent = 0
+        self._answered = np.full(n, -1, dtype=np.int64)
         self.last_heartbeat = np.full(n, -np.inf)
         self.heartbeat_state = np.zeros(n, dtype=np.int64)
         #: (time s, node id, EMCY code, error register)
@@ -226,6 +236,7 @@ class DriveMaster:
             self._statusword[i] = statusword
             self._position[i] = position
             self._fresh[i] = True
+            self._answered[i] = self.syncs_sent
 
     def _on_heartbeat(self, i: int, state: int) -> None:
         self.last_heartbeat[i] = self.clock.now()
@@ -238,12 +249,20 @@ class DriveMaster:
     # ------------------------------------------------------------------ cyclic exchange
     def feedback(self) -> Feedback:
         with self._lock:
-            out = Feedback(self._statusword.copy(), self._position.copy(), self._fresh.copy())
+            out = Feedback(
+                self._statusword.copy(),
+                self._position.copy(),
+                self._fresh.copy(),
+                self._answered == self.syncs_sent,
+            )
             self._fresh[:] = False
         return out
 
     def exchange(self, controlwords, targets) -> None:
         """SYNC, then each axis' RPDO (controlword, target counts). Raises ``can.CanError`` on a bus error."""
+        with self._lock:
+            # counted before sending: in real time the answers may arrive before transmit returns
+            self.syncs_sent += 1
         self.network.sync.transmit()
         for (rpdo, controlword, target), cw, tp in zip(self._rpdo, controlwords, targets, strict=True):
             controlword.raw = int(cw)

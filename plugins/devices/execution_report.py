@@ -1,0 +1,143 @@
+"""What an execution reports: metrics, a figure and a CSV log of the measured motion.
+
+The metrics are measured from what the *drives reported* (TPDO positions at the
+SYNC times), never from what was commanded:
+
+* ``tracking_error_max_m``, ``tracking_error_rms_m``: the tip position (forward
+  kinematics of the measured joints) against the tip of the trajectory sample
+  the drives were commanded to be at, over the samples where every axis
+  reported and before any fault; ``joint_tracking_error_max`` and
+  ``joint_tracking_error_rms`` per joint (rad or m);
+* ``executed_min_clearance_m``: the *executed* tip path's minimum clearance,
+  re-measured on the scene (exact for the swept tip sphere between samples);
+  devices add the clearance of their whole body (shaft, jaws, links);
+* ``cycles``, ``bus_load_percent`` (every frame on the bus during the
+  execution, stuff bits counted exactly, in % of the bit rate; the worst case
+  beside it), ``faults``.
+
+The figure (``<stage>.png``) shows the joints (measured against commanded,
+normalised to their limits), the tip tracking error and the executed
+clearance over time, with each fault marked; the CSV (``<stage>-execution.csv``)
+holds every sample.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from surgiplan.storage import atomic_write, write_text_atomic
+
+from .bus import bus_load_percent
+from .control import ExecutionLog
+
+
+def tracking_metrics(tips: np.ndarray, reference_tips: np.ndarray, log: ExecutionLog, names: list[str]) -> dict:
+    """Tip and joint tracking errors over the tracked samples (see the module docstring)."""
+    tracked = log.tracking
+    if not np.any(tracked):
+        return {}
+    error = np.linalg.norm(tips[tracked] - reference_tips[tracked], axis=1)
+    joint_error = np.abs(log.measured[tracked] - log.reference[tracked])
+    out: dict[str, Any] = {
+        "tracking_error_max_m": float(error.max()),
+        "tracking_error_rms_m": float(np.sqrt(np.mean(error**2))),
+        "joint_tracking_error_max": dict(zip(names, joint_error.max(axis=0).tolist(), strict=True)),
+        "joint_tracking_error_rms": dict(zip(names, np.sqrt(np.mean(joint_error**2, axis=0)).tolist(), strict=True)),
+        "tracked_samples": int(np.count_nonzero(tracked)),
+    }
+    if log.status == "completed":
+        out["final_error_m"] = float(np.linalg.norm(tips[-1] - reference_tips[-1]))
+    return out
+
+
+def bus_metrics(bus, log: ExecutionLog, bitrate: int, droppers) -> dict:
+    """Bus load of every frame the master saw on the bus during the execution, and frames lost."""
+    frames = bus.frames_between(log.start, log.end + 1e-12)
+    exact, worst = bus_load_percent(frames, max(log.end - log.start, 1e-9), bitrate)
+    return {
+        "bus_load_percent": exact,
+        "bus_load_worst_case_percent": worst,
+        "frames": len(frames),
+        "frames_dropped": sum(len(d.dropped) for d in droppers if d is not None),
+    }
+
+
+def write_log_csv(path: Path, log: ExecutionLog, names: list[str], tips: np.ndarray) -> None:
+    """Every sample: time (s), measured and commanded joints (SI), tip (m), tracked flag."""
+    header = ["t_s", *(f"measured_{n}" for n in names), *(f"commanded_{n}" for n in names)]
+    header += ["tip_x_m", "tip_y_m", "tip_z_m", "tracked"]
+    table = np.column_stack([log.t, log.measured, log.reference, tips, log.tracking.astype(float)])
+    buffer = io.StringIO()
+    np.savetxt(buffer, table, delimiter=",", header=",".join(header), comments="", fmt="%.9g")
+    write_text_atomic(path, buffer.getvalue())
+
+
+def execution_figure(
+    path: Path,
+    title: str,
+    log: ExecutionLog,
+    names: list[str],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    tip_error: np.ndarray,
+    clearance: np.ndarray,
+) -> None:
+    """Joints, tip tracking error and executed clearance over time, faults marked; PNG, atomically."""
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8.5), sharex=True, constrained_layout=True)
+    t = log.t
+    span = np.where(upper > lower, upper - lower, 1.0)
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    ax = axes[0]
+    for j, name in enumerate(names):
+        colour = colours[j % len(colours)]
+        ax.plot(t, (log.reference[:, j] - lower[j]) / span[j], "--", color=colour, lw=1.0)
+        ax.plot(t, (log.measured[:, j] - lower[j]) / span[j], "-", color=colour, lw=1.4, label=name)
+    ax.set_ylabel("joint position\n(fraction of its range)")
+    ax.legend(loc="upper right", fontsize=8, ncol=min(len(names), 6), title="solid measured, dashed commanded")
+    ax.set_ylim(-0.05, 1.05)
+
+    ax = axes[1]
+    tracked = log.tracking
+    ax.plot(t[tracked], tip_error[tracked] * 1e6, ".", ms=2.5, color="tab:blue")
+    ax.set_ylabel("tip tracking error (µm)")
+    ax.set_ylim(bottom=0)
+
+    ax = axes[2]
+    ax.plot(t, clearance * 1e3, "-", color="tab:green", lw=1.4)
+    ax.axhline(0.0, color="black", lw=0.8)
+    ax.set_ylabel("executed clearance (mm)")
+    ax.set_xlabel("time since the trajectory start (s)")
+
+    for fault in log.faults:
+        if "t_s" not in fault:
+            continue
+        label = fault["kind"].replace("_", " ")
+        if fault.get("node") is not None:
+            label += f" (node {fault['node']})"
+        for a in axes:
+            a.axvline(fault["t_s"], color="tab:red", lw=1.0, alpha=0.7)
+        axes[0].annotate(
+            label,
+            (fault["t_s"], 1.0),
+            xycoords=("data", "axes fraction"),
+            rotation=90,
+            va="top",
+            ha="right",
+            fontsize=8,
+            color="tab:red",
+        )
+    for a in axes:
+        a.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    try:
+        with atomic_write(path, "wb") as handle:
+            fig.savefig(handle, format="png", dpi=110)
+    finally:
+        plt.close(fig)
