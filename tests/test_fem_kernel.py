@@ -7,15 +7,15 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 from surgiplan.plugins.fem.assembly import TangentPattern
-from surgiplan.plugins.fem.loads import BasePlane, ExternalLoads, lumped_masses
+from surgiplan.plugins.fem.loads import BasePlane, ExternalLoads, lumped_masses, work_equivalent_masses
 from surgiplan.plugins.fem.mesh import box_mesh
 from surgiplan.plugins.fem.newton import EquilibriumSolver
 from surgiplan.plugins.fem.stvk import StVKElements, symmetric_eigenvalues
 
 
-@pytest.fixture
-def cube():
-    mesh = box_mesh((0.01, 0.012, 0.008), (2, 2, 1), pattern="five")
+@pytest.fixture(params=[1, 2], ids=["linear", "quadratic"])
+def cube(request):
+    mesh = box_mesh((0.01, 0.012, 0.008), (2, 2, 1), pattern="five", order=request.param)
     rng = np.random.default_rng(3)
     m = mesh.n_elements
     kernel = StVKElements(mesh.nodes, mesh.tets, rng.uniform(1e5, 3e5, m), rng.uniform(2e4, 6e4, m), 5e4)
@@ -24,10 +24,11 @@ def cube():
 
 def dense_tangent(kernel: StVKElements, x, definite=False) -> np.ndarray:
     h = kernel.evaluate(x, hessian=True, definite=definite).hessian
-    d = kernel.dofs.reshape(12, -1)
+    size = 3 * kernel.nodes_per_element
+    d = kernel.dofs.reshape(size, -1)
     m = d.shape[1]
-    rows = np.broadcast_to(d[:, None, :], (12, 12, m)).ravel()
-    cols = np.broadcast_to(d[None, :, :], (12, 12, m)).ravel()
+    rows = np.broadcast_to(d[:, None, :], (size, size, m)).ravel()
+    cols = np.broadcast_to(d[None, :, :], (size, size, m)).ravel()
     n = 3 * kernel.n_nodes
     return sp.coo_matrix((h.ravel(), (rows, cols)), shape=(n, n)).toarray()
 
@@ -52,8 +53,8 @@ def test_gradient_and_tangent_match_finite_differences(cube):
     mesh, kernel = cube
     rng = np.random.default_rng(4)
     x = mesh.nodes @ np.array([[1.1, 0.2, 0.0], [-0.1, 0.9, 0.15], [0.05, 0.0, 0.8]]).T
-    x += 4e-4 * rng.standard_normal(x.shape)
-    masses = lumped_masses(mesh.n_nodes, mesh.tets, kernel.volume, np.full(mesh.n_elements, 1000.0))
+    x += 4e-4 / mesh.order * rng.standard_normal(x.shape)  # quadratic: nodes twice as close
+    masses = nodal_masses(kernel, 1000.0)
     plane = BasePlane(np.array([0, 0, 0.003]), np.array([0.1, 0.0, 1.0]), 500.0)  # some nodes below it
     loads = ExternalLoads(mesh.nodes, masses, (0, 0, -9.8), rng.normal(0, 0.01, (mesh.n_nodes, 3)), plane)
     solver = EquilibriumSolver(kernel, loads, TangentPattern(kernel.dofs, 3 * mesh.n_nodes), 1e-3, 1e-9)
@@ -76,7 +77,7 @@ def test_gradient_and_tangent_match_finite_differences(cube):
 def test_definite_surrogate_is_positive_semidefinite_under_compression(cube):
     mesh, kernel = cube
     rng = np.random.default_rng(5)
-    x = mesh.nodes * np.array([0.6, 0.7, 1.3]) + 3e-4 * rng.standard_normal(mesh.nodes.shape)
+    x = mesh.nodes * np.array([0.6, 0.7, 1.3]) + 3e-4 / mesh.order * rng.standard_normal(mesh.nodes.shape)
     exact = kernel.evaluate(x, hessian=True).hessian.copy()
     surrogate = kernel.evaluate(x, hessian=True, definite=True).hessian
     exact_low = min(np.linalg.eigvalsh(exact[:, :, e]).min() for e in range(exact.shape[2]))
@@ -129,8 +130,31 @@ def test_assembly_and_constrained_solve_match_dense_algebra(cube):
     assert np.all(solution[prescribed] == 0.0)
 
 
-def test_lumped_masses_carry_the_whole_mass(cube):
+def nodal_masses(kernel, density):
+    rho = np.full(kernel.n_elements, density)
+    weights = [p.weight for p in kernel.points]
+    values = kernel.reference.values(kernel.reference.points)
+    return work_equivalent_masses(kernel.n_nodes, kernel.tets, weights, values, rho)
+
+
+def test_nodal_masses_carry_the_whole_mass(cube):
     mesh, kernel = cube
-    masses = lumped_masses(mesh.n_nodes, mesh.tets, kernel.volume, np.full(mesh.n_elements, 1000.0))
+    masses = nodal_masses(kernel, 1000.0)
     assert masses.sum() == pytest.approx(1000.0 * 0.01 * 0.012 * 0.008, rel=1e-12)
-    assert np.all(masses > 0)
+    if mesh.order == 1:  # lumped: a quarter of each element's mass to each of its nodes
+        lumped = lumped_masses(mesh.n_nodes, mesh.tets, kernel.volume, np.full(mesh.n_elements, 1000.0))
+        assert np.allclose(masses, lumped, rtol=1e-12)
+        assert np.all(masses > 0)
+
+
+def test_quadratic_work_equivalent_loads_are_the_analytic_shares():
+    # one straight-sided 10-node tetrahedron: int N dV is -V/20 at each vertex and V/5 at each mid-edge node
+    mesh = box_mesh((0.01, 0.01, 0.01), (1, 1, 1), pattern="six", order=2)
+    kernel = StVKElements(mesh.nodes, mesh.tets[:1], 1.0, 1.0, 0.0)
+    used = np.unique(mesh.tets[0])
+    masses = nodal_masses(kernel, 1.0)
+    volume = kernel.volume[0]
+    assert volume == pytest.approx(1e-6 / 6, rel=1e-12)
+    assert np.allclose(masses[mesh.tets[0, :4]], -volume / 20, rtol=1e-12)
+    assert np.allclose(masses[mesh.tets[0, 4:]], volume / 5, rtol=1e-12)
+    assert np.count_nonzero(masses) == len(used) == 10

@@ -8,8 +8,8 @@ computes once:
   degree on A^T + A), applied to the pattern itself, so that every later
   factorisation skips the ordering (``permc_spec="NATURAL"``);
 * the compressed-column pattern in that order, and for each of the 144
-  entries of every element tangent the position it adds to (assembly is
-  one ``np.bincount``);
+  (linear) or 900 (quadratic) entries of every element tangent the position
+  it adds to (assembly is one ``np.bincount``);
 * the positions of the diagonal and of each node's 3 x 3 diagonal block
   (nodal terms such as base contact).
 
@@ -30,16 +30,17 @@ import scipy.sparse.linalg as sla
 class TangentPattern:
     """The fixed sparsity pattern of a mesh's tangent, and how to fill and factor it.
 
-    ``dofs`` (4, 3, m): global degree of freedom of each element's node and
-    axis (``3 node + axis``); ``n_dofs``: 3 n.
+    ``dofs`` (k, 3, m): global degree of freedom of each element's node and
+    axis (``3 node + axis``), k = 4 or 10 nodes per element; ``n_dofs``: 3 n.
     """
 
     def __init__(self, dofs: np.ndarray, n_dofs: int) -> None:
         self.n_dofs = n_dofs
-        d = dofs.reshape(12, -1)
+        size = 3 * dofs.shape[0]
+        d = dofs.reshape(size, -1)
         m = d.shape[1]
-        rows = np.broadcast_to(d[:, None, :], (12, 12, m)).ravel()
-        cols = np.broadcast_to(d[None, :, :], (12, 12, m)).ravel()
+        rows = np.broadcast_to(d[:, None, :], (size, size, m)).ravel()
+        cols = np.broadcast_to(d[None, :, :], (size, size, m)).ravel()
         order = self._ordering(rows, cols, n_dofs)  # order[old] = new
         self.new_of_old = order
         self.old_of_new = np.argsort(order)
@@ -78,7 +79,7 @@ class TangentPattern:
 
     # ------------------------------------------------------------------ assembly
     def assemble(self, element_matrices: np.ndarray) -> np.ndarray:
-        """CSC values (nnz,) of the sum of element matrices (12, 12, m)."""
+        """CSC values (nnz,) of the sum of element matrices (3k, 3k, m)."""
         return np.bincount(self.element_map, weights=element_matrices.ravel(), minlength=self.nnz)
 
     def add_node_blocks(self, data: np.ndarray, nodes: np.ndarray, blocks: np.ndarray) -> None:

@@ -1,10 +1,14 @@
 """External loads of the ``stvk`` model: lumped-mass gravity, dead loads, base-plane contact.
 
 Patil & Alterovitz §V ("Assembling external forces"): gravity acts through
-a lumped mass matrix (each tetrahedron gives a quarter of its mass rho V to
-each of its nodes), and the tissue rests on an underlying base, a plane,
-held by a penalty: a node that sinks a depth d below the plane is pushed
-back by ``k d`` along the plane's normal. Dead loads (forces of fixed
+a lumped mass matrix (each linear tetrahedron gives a quarter of its mass
+rho V to each of its nodes; for quadratic tetrahedra the work-equivalent
+nodal loads ``rho g int N_a dV`` are used instead, which are exact for a
+uniform field: a quadratic element's vertices then carry -1/20 and its
+mid-edge nodes 1/5 of its weight, see :func:`work_equivalent_masses`),
+and the tissue rests on an underlying base, a plane, held by a penalty: a
+node that sinks a depth d below the plane is pushed back by ``k d`` along
+the plane's normal. Dead loads (forces of fixed
 direction and size, N) may be added per node.
 
 All of these derive from a potential measured from the rest state X (x =
@@ -109,3 +113,15 @@ def lumped_masses(n_nodes: int, tets: np.ndarray, volumes: np.ndarray, density: 
     """Node masses (n,) in kg: a quarter of each tetrahedron's mass rho V to each of its nodes."""
     share = np.repeat(0.25 * np.asarray(density) * np.asarray(volumes), 4)
     return np.bincount(np.asarray(tets).ravel(), weights=share, minlength=n_nodes)
+
+
+def work_equivalent_masses(n_nodes: int, tets: np.ndarray, point_weights, shape_values, density) -> np.ndarray:
+    """Node masses (n,) in kg whose weights are the work-equivalent gravity loads ``rho g int N_a dV``.
+
+    ``point_weights`` (p, m) quadrature weights times Jacobians (m^3),
+    ``shape_values`` (p, k) the shape functions at the quadrature points.
+    For linear tetrahedra this is :func:`lumped_masses`; for quadratic ones
+    the vertices get negative shares (-1/20 of an element's mass each).
+    """
+    share = np.einsum("pm,pk->mk", np.asarray(point_weights), np.asarray(shape_values)) * np.asarray(density)[:, None]
+    return np.bincount(np.asarray(tets).ravel(), weights=share.ravel(), minlength=n_nodes)

@@ -1,7 +1,9 @@
 """Tetrahedral meshes for the ``stvk`` model: structured boxes, files, surfaces.
 
-A :class:`TetMesh` holds rest node positions (n, 3) in metres and linear
-tetrahedra (m, 4) of node indices, every one positively oriented
+A :class:`TetMesh` holds rest node positions (n, 3) in metres and
+tetrahedra of node indices, linear (m, 4) or quadratic (m, 10: the four
+vertices, then the mid-edge nodes of edges 0-1, 1-2, 0-2, 0-3, 1-3, 2-3, the
+VTK/meshio ``tetra10`` order), every one positively oriented
 (``det[x1 - x0, x2 - x0, x3 - x0] > 0``). Three ways to get one:
 
 * :func:`box_mesh` — a structured mesh of an axis-aligned box (a tissue
@@ -12,15 +14,22 @@ tetrahedra (m, 4) of node indices, every one positively oriented
   and 4,000 tetrahedra) is ``box_mesh((0.05, 0.05, 0.0025), (20, 20, 2),
   pattern="five")``: 1,323 nodes, 4,000 tetrahedra.
 * :func:`read_tet_mesh` — any volume mesh meshio reads (``.vtu``, ``.msh``,
-  ``.mesh``, ``.xdmf``, ...) with ``tetra`` cells.
+  ``.mesh``, ``.xdmf``, ...) with ``tetra`` or ``tetra10`` cells.
 * :func:`tetrahedralize_surface` — a closed triangle surface (``.stl``,
   ``.obj``, ``.ply``) filled with tetrahedra by TetGen through the optional
   ``tetgen`` package (``pip install tetgen``); the paper used TetGen too.
 
-Linear tetrahedra are stiff in bending (shear locking): a plate one element
-thick bends far too little. Use at least two layers through the thickness
-of a flap, and check the answer under refinement (the tests show the
-cantilever converging to the elastica as the mesh is refined).
+:meth:`TetMesh.quadratic` (or ``order=2``) adds a node at the middle of
+every edge: 10-node tetrahedra.
+
+Linear tetrahedra are stiff in bending (locking: a constant-strain element
+cannot represent the linear variation of strain through a bent plate's
+thickness, so it stores spurious shear and membrane energy): a plate one
+element thick bends far too little, and even with several layers the
+deflection converges from below, slowly. Use at least two layers through
+the thickness of a flap and check the answer under refinement, or use
+quadratic tetrahedra, which do not lock (the tests and
+``benchmarks/bench_fem.py`` show both on a cantilever against the elastica).
 """
 
 from __future__ import annotations
@@ -32,6 +41,8 @@ from typing import Literal
 
 import numpy as np
 from surgiplan.errors import ConfigError
+
+from .shape import EDGE_NODE, EDGES, SWAP_1_2
 
 #: vertices of each tetrahedron's faces, ordered so that normals point out of a positive tetrahedron
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
@@ -48,26 +59,40 @@ class TetMesh:
 
     def __post_init__(self) -> None:
         self.nodes = np.ascontiguousarray(self.nodes, dtype=float).reshape(-1, 3)
-        self.tets = np.ascontiguousarray(self.tets, dtype=np.int64).reshape(-1, 4)
+        tets = np.asarray(self.tets, dtype=np.int64)
+        width = tets.shape[-1] if tets.ndim == 2 else 4
         where = self.source or "mesh"
+        if width not in (4, 10):
+            raise ConfigError(f"{where}: tetrahedra have 4 (linear) or 10 (quadratic) nodes, not {width}")
+        self.tets = np.ascontiguousarray(tets).reshape(-1, width)
         if len(self.tets) == 0:
             raise ConfigError(f"{where} has no tetrahedra")
         if self.tets.min() < 0 or self.tets.max() >= len(self.nodes):
             raise ConfigError(f"{where}: tetrahedra refer to nodes that do not exist")
         if not np.all(np.isfinite(self.nodes)):
             raise ConfigError(f"{where} has non-finite node coordinates")
-        volumes = signed_volumes(self.nodes, self.tets)
+        volumes = signed_volumes(self.nodes, self.tets[:, :4])
         scale = np.ptp(self.nodes, axis=0).max() ** 3
         flat = np.abs(volumes) <= 1e-12 * scale
         if np.any(flat):
             raise ConfigError(f"{where} has {int(flat.sum())} degenerate (zero-volume) tetrahedra")
         negative = volumes < 0
         if np.any(negative):  # fix the orientation instead of rejecting the file
-            self.tets[negative] = self.tets[negative][:, [0, 2, 1, 3]]
+            self.tets[negative] = self.tets[negative][:, SWAP_1_2[width]]
         used = np.zeros(len(self.nodes), dtype=bool)
         used[self.tets.ravel()] = True
         if not used.all():
             raise ConfigError(f"{where} has {int((~used).sum())} nodes that belong to no tetrahedron")
+
+    @property
+    def order(self) -> int:
+        """Polynomial order of the elements: 1 (4-node) or 2 (10-node tetrahedra)."""
+        return 1 if self.tets.shape[1] == 4 else 2
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """The corner nodes (m, 4) of each tetrahedron."""
+        return self.tets[:, :4]
 
     @property
     def n_nodes(self) -> int:
@@ -79,27 +104,44 @@ class TetMesh:
 
     @property
     def volumes(self) -> np.ndarray:
-        """Rest volume (m,) of each tetrahedron in m^3."""
-        return signed_volumes(self.nodes, self.tets)
+        """Rest volume (m,) of each tetrahedron in m^3 (of its vertices' straight-sided tetrahedron)."""
+        return signed_volumes(self.nodes, self.vertices)
 
     @property
     def centroids(self) -> np.ndarray:
-        """Rest centroid (m, 3) of each tetrahedron in metres."""
-        return self.nodes[self.tets].mean(axis=1)
+        """Rest centroid (m, 3) of each tetrahedron (of its vertices) in metres."""
+        return self.nodes[self.vertices].mean(axis=1)
 
     @property
     def surface(self) -> np.ndarray:
-        """Boundary triangles (t, 3) of node indices, counter-clockwise seen from outside."""
+        """Boundary triangles (t, 3) of node indices, counter-clockwise seen from outside.
+
+        Quadratic meshes: each 6-node boundary face split into four
+        triangles through its mid-edge nodes (for drawing, output and the
+        self-intersection check).
+        """
         if self._surface is None:
             self._surface = boundary_faces(self.tets)
         return self._surface
 
     @property
     def mean_edge_length(self) -> float:
-        """Mean length (m) of the tetrahedra's edges at rest."""
+        """Mean length (m) of the tetrahedra's edges (vertex to vertex) at rest."""
         pairs = np.array(list(itertools.combinations(range(4), 2)))
         edges = self.nodes[self.tets[:, pairs[:, 1]]] - self.nodes[self.tets[:, pairs[:, 0]]]
         return float(np.linalg.norm(edges, axis=-1).mean())
+
+    def quadratic(self) -> TetMesh:
+        """The same mesh with 10-node tetrahedra: a new node at the middle of every edge."""
+        if self.order == 2:
+            return self
+        local = self.tets[:, EDGES]  # (m, 6, 2) global vertices of each element edge
+        key = np.sort(local, axis=2).reshape(-1, 2)
+        unique, inverse = np.unique(key, axis=0, return_inverse=True)
+        middle = 0.5 * (self.nodes[unique[:, 0]] + self.nodes[unique[:, 1]])
+        edge_nodes = self.n_nodes + inverse.reshape(-1, 6)
+        source = f"{self.source} (quadratic)" if self.source else ""
+        return TetMesh(np.vstack([self.nodes, middle]), np.hstack([self.tets, edge_nodes]), source=source)
 
     def nodes_in_box(self, lower, upper, tolerance: float = 1e-9) -> np.ndarray:
         """Indices of the nodes whose rest position lies in the box [lower, upper] (m), sorted."""
@@ -123,13 +165,39 @@ def signed_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 
 def boundary_faces(tets: np.ndarray) -> np.ndarray:
-    """Faces that belong to exactly one tetrahedron, outward-oriented (t, 3)."""
+    """Faces that belong to exactly one tetrahedron, outward-oriented (t, 3).
+
+    Quadratic tetrahedra (m, 10): each boundary face (a, b, c) with mid-edge
+    nodes ab, bc, ca becomes the four triangles (a, ab, ca), (ab, b, bc),
+    (ca, bc, c), (ab, bc, ca), oriented like the face.
+    """
+    tets = np.asarray(tets)
     faces = tets[:, TET_FACES].reshape(-1, 3)
     key = np.sort(faces, axis=1)
     _, index, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     if np.any(counts > 2):
         raise ConfigError("the mesh is not a valid volume mesh: a face is shared by more than two tetrahedra")
-    return faces[np.sort(index[counts == 1])]
+    outer = np.sort(index[counts == 1])
+    if tets.shape[1] == 4:
+        return faces[outer]
+    element, slot = np.divmod(outer, 4)
+    local = TET_FACES[slot]  # (t, 3) local vertices a, b, c
+    a, b, c = local[:, 0], local[:, 1], local[:, 2]
+    row = tets[element]
+    vertex = row[np.arange(len(row))[:, None], local]
+    ab = row[np.arange(len(row)), EDGE_NODE[a, b]]
+    bc = row[np.arange(len(row)), EDGE_NODE[b, c]]
+    ca = row[np.arange(len(row)), EDGE_NODE[c, a]]
+    split = np.stack(
+        [
+            np.column_stack([vertex[:, 0], ab, ca]),
+            np.column_stack([ab, vertex[:, 1], bc]),
+            np.column_stack([ca, bc, vertex[:, 2]]),
+            np.column_stack([ab, bc, ca]),
+        ],
+        axis=1,
+    )
+    return split.reshape(-1, 3)
 
 
 # ----------------------------------------------------------------------------- structured boxes
@@ -141,7 +209,12 @@ def _grid_index(divisions) -> np.ndarray:
 
 
 def box_mesh(
-    size, divisions, origin=(0.0, 0.0, 0.0), pattern: Literal["six", "five"] = "six", source: str = ""
+    size,
+    divisions,
+    origin=(0.0, 0.0, 0.0),
+    pattern: Literal["six", "five"] = "six",
+    source: str = "",
+    order: Literal[1, 2] = 1,
 ) -> TetMesh:
     """A structured tetrahedral mesh of the box ``origin + [0, size]`` (m).
 
@@ -149,6 +222,8 @@ def box_mesh(
     ``pattern="six"``: six tetrahedra per cell around the diagonal from its
     lowest to its highest corner (the same in every cell, so faces match);
     ``"five"``: five per cell, corner cells alternating like a checkerboard.
+    ``order=2``: quadratic (10-node) tetrahedra, mid-edge nodes appended
+    after the grid's nodes.
     """
     size = np.asarray(size, dtype=float)
     divisions = tuple(int(d) for d in divisions)
@@ -190,7 +265,10 @@ def box_mesh(
         cells = np.stack(per_cell, axis=1).reshape(-1, 4)
     else:
         raise ConfigError(f"unknown box mesh pattern '{pattern}'; choose one of: six, five")
-    return TetMesh(nodes, cells, source=source or f"box mesh {tuple(size)} m, {divisions} cells")
+    if order not in (1, 2):
+        raise ConfigError(f"element order must be 1 or 2, not {order}")
+    mesh = TetMesh(nodes, cells, source=source or f"box mesh {tuple(size)} m, {divisions} cells")
+    return mesh.quadratic() if order == 2 else mesh
 
 
 # ----------------------------------------------------------------------------- files
@@ -213,17 +291,22 @@ def read_tet_mesh(path: str | Path, scale: float = 1.0, *, location: str | None 
         data = meshio.read(path)
     except Exception as exc:  # meshio raises many types for bad files
         raise ConfigError(f"cannot read mesh {path}: {type(exc).__name__}: {exc}", location=location) from None
-    blocks = [c.data for c in data.cells if c.type == "tetra"]
+    kinds = sorted({c.type for c in data.cells}) or ["none"]
+    if "tetra" in kinds and "tetra10" in kinds:
+        raise ConfigError(f"mesh {path} mixes linear and quadratic tetrahedra", location=location)
+    cell_type = "tetra10" if "tetra10" in kinds else "tetra"
+    blocks = [c.data for c in data.cells if c.type == cell_type]
     if not blocks:
-        kinds = sorted({c.type for c in data.cells}) or ["none"]
         raise ConfigError(
-            f"mesh {path} has no linear tetrahedra ('tetra' cells); it has: {', '.join(kinds)}", location=location
+            f"mesh {path} has no tetrahedra ('tetra' or 'tetra10' cells); it has: {', '.join(kinds)}",
+            location=location,
         )
     tets = np.concatenate(blocks).astype(np.int64)
+    width = tets.shape[1]
     nodes = np.asarray(data.points, dtype=float)[:, :3] * scale
     used, tets = np.unique(tets, return_inverse=True)  # drop nodes no tetrahedron uses (e.g. of surface cells)
     try:
-        return TetMesh(nodes[used], tets.reshape(-1, 4), source=str(path))
+        return TetMesh(nodes[used], tets.reshape(-1, width), source=str(path))
     except ConfigError as exc:
         raise ConfigError(exc.message, location=location) from None
 
@@ -251,7 +334,7 @@ def tetrahedralize_surface(
         raise ConfigError(f"surface {path} is not a closed (watertight) triangle mesh", location=location)
     generator = tetgen.TetGen(np.asarray(surface.vertices, float) * scale, np.asarray(surface.faces, np.int32))
     options = {"quality": True, "minratio": 1.5}
-    if max_volume is not None:
-        options["maxvolume"] = float(max_volume)
+    if max_volume is not None:  # TetGen ignores maxvolume unless fixedvolume ("-a") is on
+        options.update(maxvolume=float(max_volume), fixedvolume=True)
     nodes, tets = generator.tetrahedralize(**options)[:2]
     return TetMesh(nodes, tets, source=str(path))

@@ -64,7 +64,7 @@ from surgiplan.results import StageContext, StageResult
 
 from .assembly import TangentPattern
 from .intersection import self_intersections
-from .loads import BasePlane, ExternalLoads, lumped_masses
+from .loads import BasePlane, ExternalLoads, work_equivalent_masses
 from .material import ImageMap, MaterialField
 from .mesh import TetMesh, box_mesh, read_tet_mesh, tetrahedralize_surface
 from .newton import EquilibriumSolver, NewtonResult, SolverOptions
@@ -99,16 +99,18 @@ def rigid_transform(transform) -> tuple[np.ndarray, np.ndarray]:
 
 
 def build_mesh(settings: StVKSettings) -> TetMesh:
+    """The settings' mesh: a structured box or a file (volume mesh, or a closed surface for TetGen)."""
     mesh = settings.mesh
     if mesh.box is not None:
         box = mesh.box
-        return box_mesh(box.size, box.divisions, box.origin, box.pattern)
-    suffix = Path(mesh.file).suffix.lower()
-    if suffix in {".stl", ".obj", ".ply", ".off"}:
-        return tetrahedralize_surface(
+        built = box_mesh(box.size, box.divisions, box.origin, box.pattern)
+    elif Path(mesh.file).suffix.lower() in {".stl", ".obj", ".ply", ".off"}:
+        built = tetrahedralize_surface(
             mesh.file, mesh.file_scale, max_volume=mesh.max_tet_volume, location="settings.mesh.file"
         )
-    return read_tet_mesh(mesh.file, mesh.file_scale, location="settings.mesh.file")
+    else:
+        built = read_tet_mesh(mesh.file, mesh.file_scale, location="settings.mesh.file")
+    return built.quadratic() if mesh.order == 2 else built
 
 
 def build_material(settings: StVKSettings, mesh: TetMesh) -> MaterialField:
@@ -146,7 +148,14 @@ class StVKModel(DeformableModel):
             raise ValueError("the material must give one value per element")
         lam, mu = self.material.lame
         self.kernel = StVKElements(self.mesh.nodes, self.mesh.tets, lam, mu, self.material.penalty_modulus)
-        self.node_masses = lumped_masses(self.mesh.n_nodes, self.mesh.tets, self.kernel.volume, self.material.density)
+        kernel = self.kernel
+        self.node_masses = work_equivalent_masses(
+            self.mesh.n_nodes,
+            self.mesh.tets,
+            [p.weight for p in kernel.points],
+            kernel.reference.values(kernel.reference.points),
+            self.material.density,
+        )
         self.edge_length = self.mesh.mean_edge_length
         base = None
         if settings.base_plane is not None:

@@ -1,7 +1,7 @@
 """Writing equilibrium states as VTK unstructured grids (``.vtu``) for ParaView or any VTK viewer.
 
 The file holds the deformed mesh (points at the deformed positions, linear
-``tetra`` cells) with, per node, ``displacement`` (m) and ``reaction_force``
+``tetra`` or quadratic ``tetra10`` cells) with, per node, ``displacement`` (m) and ``reaction_force``
 (N, non-zero on held nodes) and, per element, ``max_principal_stress``
 (Pa, the largest absolute principal second Piola-Kirchhoff stress),
 ``volume_ratio`` (J = deformed / rest volume) and ``youngs_modulus`` (Pa).
@@ -35,9 +35,9 @@ def write_vtu(
     points = {"displacement": np.asarray(positions) - np.asarray(rest)}
     points.update({k: np.asarray(v, dtype=float) for k, v in (point_data or {}).items()})
     cells = {k: [np.asarray(v, dtype=float)] for k, v in (cell_data or {}).items()}
-    mesh = meshio.Mesh(
-        np.asarray(positions, dtype=float), [("tetra", np.asarray(tets))], point_data=points, cell_data=cells
-    )
+    tets = np.asarray(tets)
+    cell_type = "tetra10" if tets.shape[1] == 10 else "tetra"
+    mesh = meshio.Mesh(np.asarray(positions, dtype=float), [(cell_type, tets)], point_data=points, cell_data=cells)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".vtu", dir=path.parent)
     os.close(fd)
     try:

@@ -68,10 +68,16 @@ class BoxMeshModel(_Strict):
 
 
 class MeshSettings(_Strict):
-    """Either a ``box`` or a ``file`` (a volume mesh meshio reads, or a closed surface for TetGen)."""
+    """Either a ``box`` or a ``file`` (a volume mesh meshio reads, or a closed surface for TetGen).
+
+    ``order: 2`` turns linear tetrahedra into quadratic (10-node) ones, which
+    do not lock in bending; a file of ``tetra10`` cells is quadratic anyway.
+    """
 
     box: BoxMeshModel | None = None
     file: str | None = None
+    #: element order: 1 (4-node tetrahedra) or 2 (10-node: a node at the middle of every edge)
+    order: Literal[1, 2] = 1
     #: unit of the file's coordinates (default: the pipeline's length_unit)
     unit: LengthUnit | None = None
     #: TetGen only: largest tetrahedron volume, m^3
