@@ -84,3 +84,88 @@ def test_image_map_selects_dark_pixels_under_element_centroids(tmp_path):
     field.override(veins.select(points), youngs_modulus=1e6)
     assert field.youngs_modulus.tolist() == [1e6, 2.5e5, 2.5e5, 1e6]
     assert field.penalty_modulus[0] == pytest.approx(0.1 * 1e6 / (3 * (1 - 2 * 0.45)), rel=1e-12)
+
+
+def test_a_closed_surface_is_filled_by_tetgen_and_behaves_like_the_analytic_bar(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("tetgen")
+    from fem_support import uniaxial_stvk
+    from surgiplan.plugins.fem import AxisConstraints, StVKModel, StVKSettings
+
+    path = tmp_path / "bar.stl"
+    bar = trimesh.creation.box(extents=(20.0, 10.0, 10.0))  # mm, centred on the origin
+    bar.apply_translation((10.0, 5.0, 5.0))
+    bar.export(path)
+    coarse = StVKModel(
+        StVKSettings.model_validate(
+            {"mesh": {"file": str(path), "unit": "mm"}, "gravity": [0, 0, 0]},
+        )
+    )
+    fine = StVKSettings.model_validate({"mesh": {"file": str(path), "unit": "mm", "max_tet_volume": 2e-8}})
+    refined = StVKModel(fine).mesh
+    assert refined.n_elements > 2 * coarse.mesh.n_elements  # max_tet_volume refines
+    assert refined.volumes.mean() < 2e-8 and refined.volumes.sum() == pytest.approx(2e-6, rel=1e-9)
+    m = coarse
+    assert np.all(m.mesh.volumes > 0)
+    assert m.mesh.volumes.sum() == pytest.approx(2e-6, rel=1e-9)  # 20 x 10 x 10 mm
+    # an unstructured mesh stretched with rollers on three faces reproduces the homogeneous StVK answer
+    a = 1.2
+    nodes, targets, axes = [], [], []
+    for axis in range(3):
+        ids = m.nodes_in_region([0, 0, 0], np.where(np.arange(3) == axis, 0.0, [0.02, 0.01, 0.01]))
+        held = np.zeros((len(ids), 3), dtype=bool)
+        held[:, axis] = True
+        nodes.append(ids), axes.append(held), targets.append(m.rest_nodes[ids])
+    end = m.nodes_in_region([0.02, 0, 0], [0.02, 0.01, 0.01])
+    held = np.zeros((len(end), 3), dtype=bool)
+    held[:, 0] = True
+    nodes.append(end), axes.append(held), targets.append(m.rest_nodes[end] * [a, 1, 1])
+    state = m.solve(AxisConstraints(np.concatenate(nodes), np.concatenate(targets), None, np.concatenate(axes)))
+    assert state.converged and state.valid
+    b, nominal = uniaxial_stvk(a, 1e6, 0.45, m.material.penalty_modulus[0])
+    assert state.data["reaction_field"][end, 0].sum() == pytest.approx(nominal * 1e-4, rel=1e-6)
+    lateral = m.nodes_in_region([0, 0.01, 0], [0.02, 0.01, 0.01])
+    assert np.allclose(state.positions[lateral, 1], b * 0.01, rtol=1e-7)
+
+
+def test_an_open_surface_is_refused_with_its_name(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("tetgen")
+    from surgiplan.plugins.fem.mesh import tetrahedralize_surface
+
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])  # one side missing
+    path = tmp_path / "open.stl"
+    open_box.export(path)
+    with pytest.raises(ConfigError, match=r"open.stl is not a closed \(watertight\)"):
+        tetrahedralize_surface(path)
+
+
+@pytest.mark.parametrize("pattern", ["six", "five"])
+def test_quadratic_meshes_put_a_node_at_the_middle_of_every_edge(tmp_path, pattern):
+    linear = box_mesh((0.03, 0.02, 0.01), (3, 2, 1), pattern=pattern)
+    mesh = box_mesh((0.03, 0.02, 0.01), (3, 2, 1), pattern=pattern, order=2)
+    assert mesh.order == 2 and mesh.tets.shape == (linear.n_elements, 10)
+    edges = np.unique(np.sort(linear.tets[:, list(itertools.combinations(range(4), 2))].reshape(-1, 2), axis=1), axis=0)
+    assert mesh.n_nodes == linear.n_nodes + len(edges)
+    from surgiplan.plugins.fem.shape import EDGES
+
+    middle = 0.5 * (mesh.nodes[mesh.tets[:, EDGES[:, 0]]] + mesh.nodes[mesh.tets[:, EDGES[:, 1]]])
+    assert np.allclose(mesh.nodes[mesh.tets[:, 4:]], middle, atol=1e-15)
+    # the split boundary is closed, outward and covers the box
+    surface = mesh.surface
+    corners = mesh.nodes[surface]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]) / 2
+    assert np.einsum("ij,ij->", corners.mean(axis=1), normals) / 3 == pytest.approx(6e-6, rel=1e-12)
+    e = np.sort(np.concatenate([surface[:, [0, 1]], surface[:, [1, 2]], surface[:, [2, 0]]]), axis=1)
+    assert np.all(np.unique(e, axis=0, return_counts=True)[1] == 2)
+    # a tetra10 file round-trips, and inside-out elements are turned (with their mid-edge nodes)
+    flipped = mesh.tets.copy()
+    from surgiplan.plugins.fem.shape import SWAP_1_2
+
+    flipped[::3] = flipped[::3][:, SWAP_1_2[10]]
+    path = tmp_path / "quadratic.vtu"
+    meshio.write(path, meshio.Mesh(mesh.nodes, [("tetra10", flipped)]))
+    loaded = read_tet_mesh(path)
+    assert loaded.order == 2 and np.array_equal(np.sort(loaded.tets, axis=1), np.sort(mesh.tets, axis=1))
+    assert np.array_equal(loaded.tets, mesh.tets)

@@ -17,7 +17,8 @@ VTK/meshio ``tetra10`` order), every one positively oriented
   ``.mesh``, ``.xdmf``, ...) with ``tetra`` or ``tetra10`` cells.
 * :func:`tetrahedralize_surface` — a closed triangle surface (``.stl``,
   ``.obj``, ``.ply``) filled with tetrahedra by TetGen through the optional
-  ``tetgen`` package (``pip install tetgen``); the paper used TetGen too.
+  ``tetgen`` package (``pip install 'surgiplan[tetmesh]'``); the paper used
+  TetGen too.
 
 :meth:`TetMesh.quadratic` (or ``order=2``) adds a node at the middle of
 every edge: 10-node tetrahedra.
@@ -323,7 +324,7 @@ def tetrahedralize_surface(
         import tetgen
     except ImportError:
         raise ConfigError(
-            f"meshing the closed surface {path} needs TetGen: pip install tetgen "
+            f"meshing the closed surface {path} needs TetGen: pip install 'surgiplan[tetmesh]' "
             "(or give a volume mesh file with tetrahedra: .vtu, .msh, ...)",
             location=location,
         ) from None

@@ -27,8 +27,10 @@ handful of iterations where nonlinear CG needs hundreds:
   never.
 * **Stopping.** Converged when the largest residual force on a free degree
   of freedom is at most ``residual_tol`` times the force scale (the largest
-  applied nodal force or support reaction) and the last corrector step moved
-  no node more than ``step_tol`` times the mean edge length. Otherwise, after
+  applied nodal force or support reaction), or at most the forces' rounding
+  error ``eps max(|K| |x|)`` when that is larger (a tolerance below it cannot
+  be reached), and the last corrector step moved no node more than
+  ``step_tol`` times the mean edge length. Otherwise, after
   ``max_iterations`` or a failed line search, the result says it did not
   converge and why.
 
@@ -189,9 +191,13 @@ class EquilibriumSolver:
             if not moving:
                 if not result.energy_history or result.energy_history[-1] != energy:
                     result.energy_history.append(energy)
-                if residual <= options.residual_tol * scale and last_step <= step_limit:
+                # forces cannot be resolved below their rounding error: a tolerance under it is unreachable
+                floor = factor.rounding if factor is not None else 0.0
+                if residual <= max(options.residual_tol * scale, floor) and last_step <= step_limit:
                     result.converged = True
                     result.message = f"converged in {result.iterations} Newton iterations"
+                    if residual > options.residual_tol * scale:
+                        result.message += f" (residual at the rounding floor of the forces, {floor:.2g} N)"
                     break
             if result.iterations >= options.max_iterations:
                 result.message = (
@@ -276,7 +282,13 @@ class EquilibriumSolver:
             except RuntimeError:
                 lu = None
             if lu is not None:
-                factor = CachedFactor(lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite)
+                # rounding error of the internal forces, about eps |K| |x| (N): F = x g loses eps |x| |g|
+                rounding = float(np.finfo(float).eps) * float(
+                    np.max(self.pattern.matvec(np.abs(data), np.abs(x))[~prescribed], initial=0.0)
+                )
+                factor = CachedFactor(
+                    lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite, rounding
+                )
                 if options.tangent != "auto" or definite or factor.positive_pivots():
                     return factor
             if options.tangent == "exact":
@@ -338,6 +350,8 @@ class CachedFactor:
     diagonal: np.ndarray  # (3n,) diagonal of the constrained matrix, original numbering
     prescribed: np.ndarray  # (3n,) bool
     definite: bool
+    #: N: the rounding error of the internal forces near this state, a floor for the residual
+    rounding: float = 0.0
 
     def positive_pivots(self) -> bool:
         """Whether every pivot is positive: for a symmetric matrix factored without pivoting, definiteness."""

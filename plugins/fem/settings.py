@@ -80,7 +80,7 @@ class MeshSettings(_Strict):
     order: Literal[1, 2] = 1
     #: unit of the file's coordinates (default: the pipeline's length_unit)
     unit: LengthUnit | None = None
-    #: TetGen only: largest tetrahedron volume, m^3
+    #: TetGen only: target largest tetrahedron volume, m^3 (TetGen keeps to it approximately)
     max_tet_volume: PositiveFloat | None = None
     #: metres per file unit; filled in at validation
     file_scale: float = Field(default=1.0, gt=0)
