@@ -73,7 +73,9 @@ def _plugin_call(spec: StageSpec, what: str, fn, *args, **kwargs):
     """Call into a plugin; a crash becomes a :class:`StageError` naming the stage and plugin."""
     try:
         return fn(*args, **kwargs)
-    except SurgiplanError:
+    except SurgiplanError as exc:
+        if exc.location is None:  # say which stage it came from (e.g. a device's bus error)
+            exc.location = f"{spec.location} ({spec.kind} stage '{spec.name}')"
         raise
     except Exception as exc:
         raise StageError(

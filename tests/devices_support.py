@@ -40,13 +40,31 @@ def context(scene, tmp_path: Path) -> StageContext:
     return StageContext("execute", scene, tmp_path, tmp_path)
 
 
+def _settings(device_cls, settings: dict):
+    # figures and CSV logs cost a second each: only the tests about them ask for them
+    return device_cls.Settings.model_validate({"outputs": False, **settings})
+
+
 @contextlib.contextmanager
 def active(device_cls, settings: dict, scene, tmp_path: Path):
     """A configured and activated device; shut down on exit whatever happens."""
-    device = device_cls(device_cls.Settings.model_validate(settings))
+    device = device_cls(_settings(device_cls, settings))
     try:
         device.configure(context(scene, tmp_path))
         device.activate()
+        yield device
+    finally:
+        device.shutdown()
+
+
+@contextlib.contextmanager
+def configured_gimbal(scene, tmp_path: Path, settings: dict | None = None):
+    """A configured (inactive) cast_gimbal on the simulated bus, fulcrum FULCRUM."""
+    from surgiplan.plugins.devices import CastGimbalDevice
+
+    device = CastGimbalDevice(_settings(CastGimbalDevice, {"fulcrum": FULCRUM, **(settings or {})}))
+    try:
+        device.configure(context(scene, tmp_path))
         yield device
     finally:
         device.shutdown()
@@ -56,7 +74,8 @@ def execute(device_cls, settings: dict, path, space, scene, tmp_path: Path):
     """Configure, activate, execute one path, shut down; returns the report and ground truth.
 
     Ground truth (the simulated drives' true state when the run ended): ``positions``, ``velocities``,
-    ``states`` (CiA 402 state names).
+    ``states`` (CiA 402 state names), ``transitions`` (time, node, from, to), ``frames`` (every frame
+    the master saw: time, id, data), ``trajectory_start`` (clock time of the first cycle).
     """
     with active(device_cls, settings, scene, tmp_path) as device:
         report = device.execute(Trajectory(np.asarray(path, dtype=float), space, "test"))
@@ -65,8 +84,13 @@ def execute(device_cls, settings: dict, path, space, scene, tmp_path: Path):
             "positions": simulator.pos.copy(),
             "velocities": simulator.vel.copy(),
             "states": [simulator_state(simulator, i) for i in range(len(simulator.pos))],
+            "transitions": list(simulator.transitions),
+            "frames": list(device.bus.frames),
             "emcy": list(device.master.emcy),
             "measured": device.joint_positions(),
+            "trajectory_start": device.faults.origin,
+            "node_ids": [a.node_id for a in device.master.axes],
+            "period": device.master.period,
         }
     return report, truth
 

@@ -313,7 +313,11 @@ class Controller:
                 # tracking error is taken over the cycles where every axis reported, before any fault
                 times.append(now - self.period - origin)
                 measured.append(position.copy())
-                reference.append(trajectory[int(np.clip(k - 2, 0, m - 1))])
+                # the sample the drives' command equals at that SYNC; none once quick-stopping
+                stopping_then = phase == "stopping" and stop_start is not None and now - self.period > stop_start
+                reference.append(
+                    np.full(trajectory.shape[1], np.nan) if stopping_then else trajectory[int(np.clip(k - 2, 0, m - 1))]
+                )
                 complete = bool(np.all(feedback.current))
                 tracking.append(complete and phase in ("run", "settle"))
                 missing_cycles += not complete

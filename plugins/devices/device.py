@@ -464,7 +464,11 @@ class Cia402Device(Device):
             metrics["length_m"] = float(np.sum(np.linalg.norm(np.diff(tips, axis=0), axis=1)))
             clearance_metrics, clearance = self.clearance_along(log.measured, trajectory)
             metrics.update(clearance_metrics)
-            reference_tips = model.tip_positions(log.reference)
+            # no commanded sample once quick-stopping (NaN rows)
+            commanded = np.all(np.isfinite(log.reference), axis=1)
+            reference_tips = np.full((len(log.reference), 3), np.nan)
+            if np.any(commanded):
+                reference_tips[commanded] = model.tip_positions(log.reference[commanded])
             metrics.update(tracking_metrics(tips, reference_tips, log, model.joint_names))
         simulator = self.simulator
         droppers = (self.bus.dropper, getattr(simulator, "frame_drop", None), getattr(simulator, "sync_drop", None))
@@ -473,7 +477,7 @@ class Cia402Device(Device):
         message = log.reason if log.status != "completed" else ""
         report = ExecutionReport(log.status, metrics, tips if len(tips) else None, log.faults, message)
         if s.outputs and self.context is not None and len(tips):
-            report.files = self._write_outputs(log, tips, model.tip_positions(log.reference), clearance, message)
+            report.files = self._write_outputs(log, tips, reference_tips, clearance, message)
         return report
 
     def _write_outputs(self, log, tips, reference_tips, clearance, message: str) -> list[str]:

@@ -164,6 +164,8 @@ class DriveSimulator:
         self.error_code = np.zeros(n, dtype=np.int64)
         self.last_sync = np.full(n, -np.inf)
         self.pdo_ready = np.zeros(n, dtype=bool)
+        #: ground truth for tests and diagnosis: (time s, node id, from state, to state)
+        self.transitions: list[tuple[float, int, str, str]] = []
         self.nodes: dict[int, canopen.LocalNode] = {}
         for i, axis in enumerate(axes):
             if not self.alive[i]:
@@ -277,6 +279,11 @@ class DriveSimulator:
             tpdo.transmit()
 
     # ------------------------------------------------------------------ state machine
+    def _set_state(self, i: int, code: int, t: float) -> None:
+        if code != self.state[i]:
+            self.transitions.append((t, self.ids[i], _STATES[self.state[i]], _STATES[code]))
+        self.state[i] = code
+
     def _apply_controlword(self, i: int, controlword: int, now: float) -> None:
         state = _STATES[self.state[i]]
         new = cia402.next_state(state, controlword, int(self.controlword[i]))
@@ -299,7 +306,7 @@ class DriveSimulator:
             self.error_code[i] = 0
             self.following_error[i] = False
             self.nodes[self.ids[i]].emcy.reset()
-        self.state[i] = _CODE[new]
+        self._set_state(i, _CODE[new], now)
 
     def _command(self, t) -> tuple[np.ndarray, np.ndarray]:
         """Position command and its rate for every axis at times ``t`` (scalar, or (S, 1) for S times)."""
@@ -369,7 +376,7 @@ class DriveSimulator:
             self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
 
     def _fault(self, i: int, code: int, following_error: bool = False) -> None:
-        self.state[i] = FAULT  # fault reaction: the brake holds the axis
+        self._set_state(i, FAULT, self.t)  # fault reaction: the brake holds the axis
         self.vel[i] = 0.0
         self.error_code[i] = code
         self.following_error[i] = following_error
@@ -383,7 +390,7 @@ class DriveSimulator:
         self.advance(now)
         lost = (self.state == OE) & self.alive & (now - self.last_sync > self.model.sync_timeout)
         for i in np.flatnonzero(lost):
-            self.state[i] = QS
+            self._set_state(i, QS, now)
             self._enter_quick_stop(i, now)
             self.nodes[self.ids[i]].emcy.send(cia402.EMCY_SYNC_LOST, 0x11)
 
@@ -415,7 +422,7 @@ class DriveSimulator:
             node.nmt.stop_heartbeat()
             del self.network[self.ids[i]]
         self.alive[i] = False
-        self.state[i] = _CODE[cia402.NOT_READY]
+        self._set_state(i, _CODE[cia402.NOT_READY], self.t)
         self.vel[i] = 0.0
 
     # ------------------------------------------------------------------ real time

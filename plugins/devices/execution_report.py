@@ -100,7 +100,14 @@ def execution_figure(
         ax.plot(t, (log.reference[:, j] - lower[j]) / span[j], "--", color=colour, lw=1.0)
         ax.plot(t, (log.measured[:, j] - lower[j]) / span[j], "-", color=colour, lw=1.4, label=name)
     ax.set_ylabel("joint position\n(fraction of its range)")
-    ax.legend(loc="upper right", fontsize=8, ncol=min(len(names), 6), title="solid measured, dashed commanded")
+    ax.legend(
+        loc="lower left",
+        fontsize=8,
+        ncol=min(len(names), 6),
+        title="solid: measured, dashed: commanded",
+        title_fontsize=8,
+        framealpha=0.8,
+    )
     ax.set_ylim(-0.05, 1.05)
 
     ax = axes[1]
@@ -123,12 +130,12 @@ def execution_figure(
             label += f" (node {fault['node']})"
         for a in axes:
             a.axvline(fault["t_s"], color="tab:red", lw=1.0, alpha=0.7)
-        axes[0].annotate(
+        axes[2].annotate(
             label,
-            (fault["t_s"], 1.0),
+            (fault["t_s"], 0.03),
             xycoords=("data", "axes fraction"),
             rotation=90,
-            va="top",
+            va="bottom",
             ha="right",
             fontsize=8,
             color="tab:red",
