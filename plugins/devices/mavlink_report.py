@@ -1,0 +1,260 @@
+"""What was flown, measured against the plan and the scene: metrics, the flight log, the figure.
+
+Everything is re-measured from the vehicle's own LOCAL_POSITION_NED reports
+(mapped back into the scene), independently of what the vehicle was told:
+
+* tracking error: the distance of each flown position to the *planned*
+  path (the polyline the planner returned; paper 000's "deviation from the
+  suggested path"), over the stretch between reaching the path's first and
+  last waypoints; in offboard mode also the distance to the setpoint of the
+  same instant;
+* clearance: the flown path is the polyline through the reported positions;
+  its exact minimum clearance (the vehicle a sphere of the plan's
+  ``tip_radius``, each straight piece a capsule) against the scene's
+  obstacles, overall and split into the stretches inside and outside the
+  plan's critical regions (matched by arc length along the planned path);
+* the length flown below the plan's clearance threshold.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from surgiplan.geometry.primitives import point_segment_distance
+from surgiplan.storage import atomic_write, write_text_atomic
+
+
+def project_onto_path(points: np.ndarray, path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (m) of each point (N, 3) to the polyline ``path`` (M, 3), and the arc length of its foot."""
+    points = np.atleast_2d(points)
+    path = np.atleast_2d(path)
+    if len(path) == 1:
+        return np.linalg.norm(points - path[0], axis=1), np.zeros(len(points))
+    a, b = path[:-1], path[1:]
+    ab = b - a
+    length = np.linalg.norm(ab, axis=1)
+    start = np.concatenate([[0.0], np.cumsum(length)])
+    distance = np.empty(len(points))
+    arc = np.empty(len(points))
+    chunk = max(1, 2_000_000 // len(a))
+    for i in range(0, len(points), chunk):
+        p = points[i : i + chunk, None, :]
+        d = point_segment_distance(p, a[None], b[None])
+        best = np.argmin(d, axis=1)
+        distance[i : i + chunk] = d[np.arange(len(best)), best]
+        seg = ab[best]
+        t = np.einsum("ij,ij->i", p[:, 0] - a[best], seg) / np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-300)
+        arc[i : i + chunk] = start[best] + np.clip(t, 0.0, 1.0) * length[best]
+    return distance, arc
+
+
+def flight_metrics(
+    t: np.ndarray,
+    flown: np.ndarray,
+    velocity: np.ndarray,
+    space,
+    planned: np.ndarray,
+    window: tuple[float, float],
+    threshold: float | None,
+    critical: list[tuple[float, float]],
+    setpoints: np.ndarray | None = None,
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Metrics (SI) of a flight, and per-sample arrays (clearance, deviation, in_path) for the log and figure."""
+    metrics: dict[str, Any] = {"samples": len(t)}
+    arrays: dict[str, np.ndarray] = {}
+    if len(t) == 0:
+        return metrics, arrays
+    steps = np.linalg.norm(np.diff(flown, axis=0), axis=1)
+    metrics["flight_time_s"] = float(t[-1] - t[0])
+    metrics["flown_length_m"] = float(steps.sum())
+    metrics["max_speed_mps"] = float(np.max(np.linalg.norm(velocity, axis=1)))
+    deviation, arc = project_onto_path(flown, planned)
+    clearance = space.clearance(flown)
+    arrays.update(clearance=clearance, deviation=deviation, arc=arc)
+    in_path = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+    arrays["in_path"] = in_path
+    metrics["planned_min_clearance_m"] = float(np.min(space.segment_clearance(planned[:-1], planned[1:])))
+    if len(flown) >= 2:
+        segment = space.segment_clearance(flown[:-1], flown[1:])
+        metrics["flight_min_clearance_m"] = float(segment.min())
+    if np.count_nonzero(in_path) >= 2:
+        idx = np.flatnonzero(in_path)
+        a, b = flown[idx[:-1]], flown[idx[1:]]
+        segment = space.segment_clearance(a, b)
+        worst = int(np.argmin(segment))
+        nearest = int(space.scene.segment_distance(a[worst][None], b[worst][None])[1][0])
+        metrics["path_time_s"] = float(t[idx[-1]] - t[idx[0]])
+        metrics["flown_min_clearance_m"] = float(segment[worst])
+        metrics["flown_min_clearance_obstacle"] = space.scene.obstacles[nearest].name if nearest >= 0 else None
+        metrics["flown_min_clearance_point_m"] = [float(x) for x in 0.5 * (a[worst] + b[worst])]
+        metrics["tracking_error_max_m"] = float(deviation[idx].max())
+        metrics["tracking_error_rms_m"] = float(np.sqrt(np.mean(deviation[idx] ** 2)))
+        metrics["tracking_error_p95_m"] = float(np.percentile(deviation[idx], 95))
+        inside = np.zeros(len(idx) - 1, dtype=bool)
+        for lo, hi in critical:
+            pad = 1e-6
+            inside |= (arc[idx[:-1]] >= lo - pad) & (arc[idx[:-1]] <= hi + pad) | (
+                (arc[idx[1:]] >= lo - pad) & (arc[idx[1:]] <= hi + pad)
+            )
+        if critical:
+            metrics["flown_min_clearance_in_critical_m"] = float(segment[inside].min()) if inside.any() else None
+            metrics["flown_min_clearance_outside_critical_m"] = (
+                float(segment[~inside].min()) if (~inside).any() else None
+            )
+        if threshold is not None:
+            pieces = np.linalg.norm(b - a, axis=1)
+            metrics["clearance_threshold_m"] = float(threshold)
+            metrics["flown_length_below_threshold_m"] = float(pieces[segment < threshold].sum())
+            metrics["flown_length_below_threshold_outside_critical_m"] = float(
+                pieces[(segment < threshold) & ~inside].sum()
+            )
+    if setpoints is not None and np.any(in_path):
+        error = np.linalg.norm(flown - setpoints, axis=1)
+        arrays["setpoint_error"] = error
+        metrics["setpoint_error_max_m"] = float(error[in_path].max())
+        metrics["setpoint_error_rms_m"] = float(np.sqrt(np.mean(error[in_path] ** 2)))
+    return metrics, arrays
+
+
+def write_flight_csv(path: Path, t: np.ndarray, flown: np.ndarray, velocity: np.ndarray, arrays) -> None:
+    """The flight log: vehicle time, scene position and velocity, clearance, deviation (SI), atomically."""
+    columns = [t, *flown.T, *velocity.T, arrays["clearance"], arrays["deviation"], arrays["in_path"].astype(float)]
+    header = "t_s,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps,clearance_m,deviation_m,on_path"
+    buffer = io.StringIO()
+    np.savetxt(buffer, np.column_stack(columns), delimiter=",", header=header, comments="", fmt="%.6g")
+    write_text_atomic(path, buffer.getvalue())
+
+
+def flight_figure(
+    path: Path,
+    scene,
+    planned: np.ndarray,
+    route: np.ndarray,
+    t: np.ndarray,
+    flown: np.ndarray,
+    arrays,
+    metrics: dict[str, Any],
+    threshold: float | None,
+    critical: list[tuple[float, float]],
+    title: str,
+) -> None:
+    """Planned versus flown: a top view coloured by clearance, and clearance and deviation over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection, PolyCollection
+
+    fig = plt.figure(figsize=(14, 6.2))
+    grid = fig.add_gridspec(2, 2, width_ratios=[1.7, 1.0], hspace=0.35, wspace=0.18)
+    top = fig.add_subplot(grid[:, 0])
+    for obstacle in scene.obstacles:
+        mesh = obstacle.to_trimesh()
+        top.add_collection(
+            PolyCollection(mesh.vertices[mesh.faces][:, :, :2], facecolor="#9a9a9a", edgecolor="none", alpha=0.8)
+        )
+        centre = mesh.vertices.mean(axis=0)[:2]
+        top.annotate(obstacle.name, centre, ha="center", va="center", fontsize=7, color="#333333")
+    lo, hi = scene.bounds_min, scene.bounds_max
+    top.add_patch(plt.Rectangle(lo[:2], *(hi - lo)[:2], fill=False, edgecolor="black", linewidth=0.8))
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(planned, axis=0), axis=1))])
+    for i, (a, b) in enumerate(critical):
+        dense = np.linspace(a, b, 50)
+        pts = np.column_stack([np.interp(dense, arc, planned[:, k]) for k in range(2)])
+        top.plot(
+            *pts.T,
+            color="orange",
+            linewidth=12,
+            alpha=0.35,
+            solid_capstyle="round",
+            label="critical region" if i == 0 else None,
+        )
+    top.plot(*route[:, :2].T, ":", color="#555555", linewidth=1.0, label="route (take-off, approach, landing)")
+    top.plot(*planned[:, :2].T, "--", color="#1f6fb4", linewidth=1.6, label="planned path")
+    if len(flown) >= 2:
+        segments = np.stack([flown[:-1, :2], flown[1:, :2]], axis=1)
+        value = np.minimum(arrays["clearance"][:-1], arrays["clearance"][1:])
+        upper = max(float(np.nanmax(value)) if len(value) else 1.0, (threshold or 0) * 2, 1e-3)
+        lines = LineCollection(segments, cmap="viridis", linewidths=2.4, label="flown")
+        lines.set_array(np.clip(value, 0, upper))
+        lines.set_clim(0, upper)
+        top.add_collection(lines)
+        bar = fig.colorbar(lines, ax=top, fraction=0.035, pad=0.02)
+        bar.set_label("flown clearance (m)")
+        if threshold is not None:
+            low = value < threshold
+            if np.any(low):
+                top.add_collection(
+                    LineCollection(segments[low], colors="#d62728", linewidths=1.0, label="flown below threshold")
+                )
+    point = metrics.get("flown_min_clearance_point_m")
+    if point is not None:
+        top.plot(
+            point[0],
+            point[1],
+            "x",
+            color="#d62728",
+            markersize=10,
+            mew=2,
+            label=f"min clearance {metrics['flown_min_clearance_m']:.3f} m",
+        )
+    top.plot(*planned[0, :2], "o", color="#2ca02c", label="start")
+    top.plot(*planned[-1, :2], "*", color="black", markersize=12, label="goal")
+    top.set_xlim(lo[0], hi[0])
+    top.set_ylim(lo[1], hi[1])
+    top.set_aspect("equal")
+    top.set_xlabel("x (m)")
+    top.set_ylabel("y (m)")
+    top.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=4, fontsize=7, frameon=False)
+
+    clearance_ax = fig.add_subplot(grid[0, 1])
+    deviation_ax = fig.add_subplot(grid[1, 1], sharex=clearance_ax)
+    if len(t):
+        time = t - t[0]
+        in_path = arrays["in_path"]
+        for ax in (clearance_ax, deviation_ax):
+            if np.any(in_path):
+                ax.axvspan(time[in_path][0], time[in_path][-1], color="#1f6fb4", alpha=0.07, label="on the path")
+        clearance_ax.plot(time, arrays["clearance"], color="#1f6fb4", linewidth=1.2, label="flown clearance")
+        if threshold is not None:
+            clearance_ax.axhline(threshold, color="#d62728", linestyle="--", linewidth=1, label="threshold")
+        planned_min = metrics.get("planned_min_clearance_m")
+        if planned_min is not None:
+            clearance_ax.axhline(planned_min, color="orange", linestyle=":", linewidth=1.2, label="planned minimum")
+        deviation_ax.plot(time, arrays["deviation"], color="#444444", linewidth=1.2, label="distance to planned path")
+        if "setpoint_error" in arrays:
+            deviation_ax.plot(
+                time, arrays["setpoint_error"], color="#9467bd", linewidth=1.0, label="distance to setpoint"
+            )
+    clearance_ax.set_ylabel("clearance (m)")
+    clearance_ax.set_ylim(bottom=0)
+    clearance_ax.legend(fontsize=7, loc="upper right")
+    deviation_ax.set_ylabel("tracking error (m)")
+    deviation_ax.set_xlabel("vehicle time since arming (s)")
+    deviation_ax.set_ylim(bottom=0)
+    deviation_ax.legend(fontsize=7, loc="upper right")
+    fig.suptitle(title, fontsize=10)
+    try:
+        with atomic_write(path, "wb") as handle:
+            fig.savefig(handle, format="png", dpi=110, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+
+
+def describe(metrics: dict[str, Any]) -> str:
+    """One line for the figure's title."""
+    parts = []
+    for key, label in (
+        ("tracking_error_max_m", "tracking error max"),
+        ("tracking_error_rms_m", "rms"),
+        ("flown_min_clearance_m", "flown min clearance"),
+        ("planned_min_clearance_m", "planned"),
+    ):
+        value = metrics.get(key)
+        if isinstance(value, float) and math.isfinite(value):
+            parts.append(f"{label} {value:.3f} m")
+    return ", ".join(parts)
