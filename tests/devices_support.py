@@ -90,7 +90,10 @@ def execute(device_cls, settings: dict, path, space, scene, tmp_path: Path):
             "measured": device.joint_positions(),
             "trajectory_start": device.faults.origin,
             "node_ids": [a.node_id for a in device.master.axes],
+            "counts_per_unit": np.array([a.counts_per_unit for a in device.master.axes]),
             "period": device.master.period,
+            "log": device.last_log,
+            "model": device.model,
         }
     return report, truth
 

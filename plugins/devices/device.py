@@ -149,6 +149,8 @@ class Cia402Device(Device):
         self.controller: Controller | None = None
         self.faults: ArmedFaults | None = None
         self.placed = False
+        #: the last execution's log (times, measured and commanded joints, faults): what the drives did
+        self.last_log: ExecutionLog | None = None
         self.channel = ""
 
     # ------------------------------------------------------------------ for subclasses
@@ -421,6 +423,7 @@ class Cia402Device(Device):
         metrics["max_joint_acceleration_ratio"] = float(
             np.max(np.abs(planned.acceleration()) / acceleration, initial=0.0)
         )
+        metrics["path_deviation_max_m"] = self._path_deviation(planned)
 
         def arm(t0: float) -> None:
             self.faults.arm(t0)
@@ -436,11 +439,29 @@ class Cia402Device(Device):
             self.placed = True
         missed = self.controller.missed_cycles
         log = self.controller.run(planned.q, on_start=arm)
+        self.last_log = log
         metrics["missed_cycles"] = self.controller.missed_cycles - missed
         report = self._report(log, trajectory, metrics)
         if log.status != "completed" and s.fault_reset:
             report.metrics["fault_reset"] = self._try_fault_reset()
         return report
+
+    def _path_deviation(self, planned) -> float:
+        """Largest distance (m) of a commanded tip sample from the straight tip segment between the
+        waypoints it lies between (and their neighbours): how far the smooth timed path rounds the
+        corners of the waypoint polyline (at most about ``path_resolution``)."""
+        if planned.waypoints is None or len(planned.waypoints) < 2:
+            return 0.0
+        corners = self.model.tip_positions(planned.waypoints)
+        tips = self.model.tip_positions(planned.q)
+        segment = planned.segment_of_samples()
+        best = np.full(len(tips), np.inf)
+        for shift in (-1, 0, 1):  # a sample near a knot may be nearest to the neighbouring segment
+            i = np.clip(segment + shift, 0, len(corners) - 2)
+            a, d = corners[i], corners[i + 1] - corners[i]
+            t = np.clip(np.sum((tips - a) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0.0, 1.0)
+            best = np.minimum(best, np.linalg.norm(tips - (a + t[:, None] * d), axis=1))
+        return float(best.max())
 
     def _try_fault_reset(self) -> dict[str, Any]:
         """After a stop: fault reset and re-enable; what came back (the rehearsal of a recovery)."""

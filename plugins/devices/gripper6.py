@@ -127,23 +127,26 @@ class Gripper6Device(Cia402Device):
             tolerance=self.settings.ik.tolerance,
             rotation_tolerance=self.settings.ik.rotation_tolerance,
             max_iterations=self.settings.ik.max_iterations,
+            max_joint_step=self.settings.max_joint_step,
         )
         result = ik.solve_poses(dense, current)
         bad = np.flatnonzero(~result.converged)
         if len(bad):
             i = int(bad[0])
-            raise Refusal(
-                f"jaws pose at {np.round(dense[i, :3], 5).tolist()} m "
-                f"(quaternion {np.round(dense[i, 3:], 4).tolist()}) "
-                f"is out of the arm's reach: residual {result.position_error[i] * 1000:.3g} mm, "
-                f"{np.degrees(result.rotation_error[i]):.3g} deg"
+            where = (
+                f"the jaws pose at {np.round(dense[i, :3], 5).tolist()} m "
+                f"(quaternion {np.round(dense[i, 3:], 4).tolist()}, resampled pose {i} of {len(dense)})"
             )
-        jumps = np.max(np.abs(np.diff(result.q, axis=0)), axis=1) if len(dense) > 1 else np.zeros(0)
-        if np.any(jumps > self.settings.max_joint_step):
-            i = int(np.argmax(jumps > self.settings.max_joint_step))
+            if i in ik.jumps:
+                raise Refusal(
+                    f"the inverse kinematics jumps by more than {self.settings.max_joint_step:g} rad at {where}: "
+                    "a singularity or a branch change on every branch tried"
+                )
+            limits = ik.at_limit(result.q[i])
+            why = f"; joints at their limits: {', '.join(limits)}" if limits else ""
             raise Refusal(
-                f"the inverse kinematics jumps by {jumps[i]:.3g} rad between resampled poses {i} and {i + 1} "
-                f"(near {np.round(dense[i, :3], 5).tolist()} m): a singularity or a branch change"
+                f"{where} is out of the arm's reach on every inverse kinematics branch tried: residual "
+                f"{result.position_error[i] * 1000:.3g} mm, {np.degrees(result.rotation_error[i]):.3g} deg{why}"
             )
         return JointPath(
             result.q,

@@ -176,8 +176,11 @@ class DifferentialIK:
     ``step_time`` (s) bounds each joint's step by its velocity limit;
     ``rotation_weight`` (m/rad) weighs orientation errors against positions;
     ``restarts``: extra initial guesses (deterministic, drawn in the joint
-    limits) tried for the first target of a sequence when the given guess
-    does not converge.
+    limits) for the first target of a sequence when the given guess does not
+    converge or its branch cannot follow the whole sequence; ``branches``: how
+    many distinct solutions of the first target are followed at most;
+    ``max_joint_step`` (rad or m): a larger change between neighbouring targets
+    counts as a failure (the solution jumped to another branch).
     """
 
     def __init__(
@@ -191,6 +194,8 @@ class DifferentialIK:
         rotation_weight: float = 0.1,
         damping: float = 1e-10,
         restarts: int = 16,
+        branches: int = 6,
+        max_joint_step: float | None = None,
     ) -> None:
         self.model = model
         self.tolerance = tolerance
@@ -200,6 +205,10 @@ class DifferentialIK:
         self.rotation_weight = rotation_weight
         self.damping = damping
         self.restarts = restarts
+        self.branches = branches
+        self.max_joint_step = max_joint_step
+        #: indices where the last sequence's attempts failed by a joint jump (a branch change)
+        self.jumps: list[int] = []
         n = model.nq
         # P's sparsity (dense upper triangle) and A = I are fixed; values change per iteration
         self._triu = np.triu_indices(n)
@@ -267,27 +276,82 @@ class DifferentialIK:
         guesses += list(rng.uniform(self.model.lower, self.model.upper, size=(self.restarts, self.model.nq)))
         return guesses
 
-    def _sequence(self, targets: list, q0, orientation: bool) -> IKResult:
-        n = len(targets)
-        nq = self.model.nq
+    def _follow(self, targets: list, first: tuple, orientation: bool) -> tuple[IKResult, int]:
+        """Warm-start along the targets from a solution of the first; stop at the first failure.
+
+        A failure is a target not reached, or (with ``max_joint_step``) a joint jumping by more than
+        that between neighbouring targets (the solution slid onto another branch). Returns the
+        result (targets after the failure: not converged, infinite error) and how many succeeded.
+        """
+        n, nq = len(targets), self.model.nq
         q_out = np.empty((n, nq))
-        position_error = np.empty(n)
-        rotation_error = np.empty(n)
-        iterations = np.empty(n, dtype=int)
-        current = np.clip(np.asarray(q0, dtype=float), self.model.lower, self.model.upper)
-        for i, target in enumerate(targets):
-            solution = self._solve_one(target, current, orientation)
-            if i == 0 and not self._ok(solution):
-                # the first target may be far from the guess: try other starts, keep the
-                # converged solution nearest the guess (the device's current configuration)
-                candidates = [self._solve_one(target, g, orientation) for g in self._restart_guesses(current)[1:]]
-                good = [c for c in candidates if self._ok(c)]
-                if good:
-                    solution = min(good, key=lambda c: float(np.linalg.norm(c[0] - current)))
+        position_error = np.full(n, np.inf)
+        rotation_error = np.full(n, np.inf)
+        iterations = np.zeros(n, dtype=int)
+        q_out[0], position_error[0], rotation_error[0], iterations[0] = first
+        done = 1
+        for i in range(1, n):
+            solution = self._solve_one(targets[i], q_out[i - 1], orientation)
             q_out[i], position_error[i], rotation_error[i], iterations[i] = solution
-            current = q_out[i]
-        converged = (position_error <= self.tolerance * 10) & (rotation_error <= self.rotation_tolerance * 10)
-        return IKResult(q_out, position_error, rotation_error, converged, iterations)
+            jump = self.max_joint_step is not None and np.max(np.abs(q_out[i] - q_out[i - 1])) > self.max_joint_step
+            if not self._ok(solution) or jump:
+                if jump:
+                    self.jumps.append(i)
+                break
+            done += 1
+        if done + 1 < n:
+            q_out[done + 1 :] = q_out[done]  # unsolved; q_out[done] is the failed attempt, for diagnosis
+        converged = np.arange(n) < done
+        return IKResult(q_out, position_error, rotation_error, converged, iterations), done
+
+    def _sequence(self, targets: list, q0, orientation: bool) -> IKResult:
+        """Solutions along the targets, on the branch nearest ``q0`` that reaches all of them.
+
+        The first target is solved from ``q0`` (the device's configuration); if that fails, or the
+        sequence from it fails later (a joint limit or a singularity on that branch), solutions of
+        the first target from other starts are followed in turn, nearest first, up to ``branches``
+        distinct ones. The result says where the best attempt failed when none reaches every target.
+        """
+        q0 = np.clip(np.asarray(q0, dtype=float), self.model.lower, self.model.upper)
+        self.jumps = []
+        first = self._solve_one(targets[0], q0, orientation)
+        candidates = [first] if self._ok(first) else []
+        tried: list[np.ndarray] = []
+        restarted = False
+        best: tuple[IKResult, int] | None = None
+        while len(tried) < self.branches:
+            if not candidates:
+                if restarted:
+                    break
+                restarted = True
+                solutions = [self._solve_one(targets[0], g, orientation) for g in self._restart_guesses(q0)[1:]]
+                candidates = sorted(
+                    (c for c in solutions if self._ok(c)), key=lambda c: float(np.linalg.norm(c[0] - q0))
+                )
+                continue
+            candidate = candidates.pop(0)
+            if any(np.max(np.abs(candidate[0] - t)) < 1e-3 for t in tried):
+                continue  # the same branch again
+            tried.append(candidate[0])
+            attempt = self._follow(targets, candidate, orientation)
+            if attempt[1] == len(targets):
+                return attempt[0]
+            if best is None or attempt[1] > best[1]:
+                best = attempt
+        if best is None:  # not even the first target: report it from the given start
+            n, nq = len(targets), self.model.nq
+            q_out = np.broadcast_to(first[0], (n, nq)).copy()
+            position_error = np.full(n, np.inf)
+            rotation_error = np.full(n, np.inf)
+            position_error[0], rotation_error[0] = first[1], first[2]
+            return IKResult(q_out, position_error, rotation_error, np.zeros(n, dtype=bool), np.zeros(n, dtype=int))
+        return best[0]
+
+    def at_limit(self, q: np.ndarray, tolerance: float = 1e-6) -> list[str]:
+        """Names of the joints of ``q`` at (within ``tolerance`` of) a position limit."""
+        model = self.model
+        hit = (q <= model.lower + tolerance) | (q >= model.upper - tolerance)
+        return [name for name, h in zip(model.joint_names, hit, strict=True) if h]
 
     def _ok(self, solution) -> bool:
         return solution[1] <= self.tolerance * 10 and solution[2] <= self.rotation_tolerance * 10

@@ -54,6 +54,18 @@ class JointTrajectory:
     optimal_duration: float = 0.0
     #: uniform slow-down applied so that the samples respect the limits (1 = none)
     time_scale: float = 1.0
+    #: path parameter of each sample, and of each (distinct) waypoint: sample k lies between the
+    #: waypoints whose ``knots`` bracket ``s[k]`` (None for a single waypoint)
+    s: np.ndarray | None = None
+    knots: np.ndarray | None = None
+    #: the distinct waypoints (one per knot)
+    waypoints: np.ndarray | None = None
+
+    def segment_of_samples(self) -> np.ndarray:
+        """Index i of the waypoint segment [i, i+1] each sample lies on (shape-preserving in between)."""
+        if self.knots is None or len(self.knots) < 2:
+            return np.zeros(len(self.q), dtype=int)
+        return np.clip(np.searchsorted(self.knots, self.s, side="right") - 1, 0, len(self.knots) - 2)
 
     @property
     def duration(self) -> float:
@@ -218,7 +230,7 @@ def time_parameterize(
     times = np.concatenate([[0.0], np.cumsum(dt)])
     accel = (x[1:] - x[:-1]) / (2.0 * delta)
 
-    def sample(scale: float) -> tuple[np.ndarray, np.ndarray]:
+    def sample(scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         end = times[-1] * scale
         count = int(np.ceil(end / period - 1e-9)) + 1
         t = np.arange(count) * period
@@ -227,11 +239,11 @@ def time_parameterize(
         tau = tau_global - times[i]
         s_t = np.clip(grid[i] + sdot[i] * tau + 0.5 * accel[i] * tau**2, grid[i], grid[i + 1])
         s_t[-1] = total
-        return t, path(s_t)
+        return t, s_t, path(s_t)
 
     scale = 1.0
     for _ in range(20):
-        t, q = sample(scale)
+        t, s_samples, q = sample(scale)
         ratio_v = float(np.max(np.abs(np.diff(q, axis=0)) / (vmax * period))) if len(q) > 1 else 0.0
         ratio_a = float(np.max(np.abs(np.diff(q, n=2, axis=0)) / (amax * period**2))) if len(q) > 2 else 0.0
         worst = max(ratio_v, np.sqrt(ratio_a))
@@ -240,4 +252,4 @@ def time_parameterize(
         scale *= worst * 1.0005
     else:  # pragma: no cover - the scaling converges in a few rounds
         raise RuntimeError("time parameterisation did not meet the limits")
-    return JointTrajectory(t, q, period, float(times[-1]), scale)
+    return JointTrajectory(t, q, period, float(times[-1]), scale, s_samples, s, waypoints)
