@@ -100,7 +100,7 @@ def test_executed_joint_velocities_respect_the_limits(block_world, tmp_path):
 def test_gimbal_executes_an_r3_tip_path_through_the_qp_inverse_kinematics(block_world, tmp_path):
     space = R3Space(block_world, tip_radius=0.001)
     tips = np.array(GAP_TIPS)
-    report, truth = execute(CastGimbalDevice, GIMBAL, tips, space, block_world, tmp_path)
+    report, _ = execute(CastGimbalDevice, GIMBAL, tips, space, block_world, tmp_path)
     m = report.metrics
     assert report.status == "completed", report.message
     # the QP solutions agree with the gimbal's closed form, and the tip follows the straight segments
@@ -276,7 +276,7 @@ def test_gripper6_executes_an_r3_path_with_the_jaws_pointing_down(block_world, t
     scene = block_world.with_bounds([0, 0, 0], [0.15, 0.1, 0.1])
     space = R3Space(scene)
     path = np.array([[0.02, 0.05, 0.06], [0.13, 0.05, 0.06]])
-    report, truth = execute(Gripper6Device, {**ARM, "link_radius": 0.015}, path, space, block_world, tmp_path)
+    report, _ = execute(Gripper6Device, {**ARM, "link_radius": 0.015}, path, space, block_world, tmp_path)
     m = report.metrics
     assert report.status == "completed", report.message
     assert polyline_distance(report.executed_tip_path, path).max() < 5e-5

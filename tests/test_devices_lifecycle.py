@@ -86,7 +86,7 @@ def test_a_failed_configure_is_the_error_state_with_everything_released(block_wo
     import can.interfaces.virtual as virtual
 
     device = gimbal(bus={"faults": [{"kind": "dead_node", "node": 3}]})
-    with pytest.raises(BusError, match="node 3 \\(joint 'insertion'\\).*does not answer"):
+    with pytest.raises(BusError, match=r"node 3 \(joint 'insertion'\).*does not answer"):
         device.configure(context(block_world, tmp_path))
     assert device.state is LifecycleState.ERROR
     assert device.bus is None and device.simulator is None
@@ -119,7 +119,7 @@ def test_a_silent_drive_keeps_the_device_from_activating(block_world, tmp_path):
     try:
         device.configure(context(block_world, tmp_path))
         device.simulator._die(1)  # node 2 loses power
-        with pytest.raises(BusError, match="node 2 \\('pitch'\\) does not answer SYNC"):
+        with pytest.raises(BusError, match=r"node 2 \('pitch'\) does not answer SYNC"):
             device.activate()
         assert device.state is LifecycleState.ERROR
     finally:
