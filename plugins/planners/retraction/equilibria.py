@@ -53,6 +53,20 @@ def deformable_model(cls: type[DeformableModel], settings: dict[str, Any]) -> De
     return model
 
 
+def forget_factorization(model: DeformableModel) -> None:
+    """Make the next warm-started solve independent of the solves before it.
+
+    ``stvk`` reuses the tangent factorised by its previous solve for a
+    warm-started one (a speed-up when consecutive solves are close). A chain
+    that starts from a stored state would then depend on whatever the worker
+    solved before (another task, another edge), and results on the executor's
+    scheduling; dropping the cache at each chain's start keeps them
+    reproducible. Models without such a cache are untouched.
+    """
+    if getattr(model, "_factor", None) is not None:
+        model._factor = None
+
+
 def _seconds(state: EquilibriumState) -> tuple[float, float]:
     """(Newton, validity checks) seconds of a solve; all of it is Newton's when the model does not say."""
     total = float(state.data.get("solve_s", 0.0))
@@ -255,6 +269,7 @@ def edge_chain(args: dict[str, Any]) -> dict[str, Any]:
     tolerance = float(args["branch_tolerance"])
     valid, reasons, max_energy, max_stress, energies = [], [], [], [], []
     for edge in args["edges"]:
+        forget_factorization(chain.model)
         state = _initial(chain, edge["start"])
         reason = ""
         top_energy, top_stress, along = -np.inf, -np.inf, []
@@ -306,6 +321,7 @@ def path_chain(args: dict[str, Any]) -> dict[str, Any]:
         "stress": np.zeros((m, elements), dtype=np.float32),
     }
     reasons = []
+    forget_factorization(chain.model)
     state = _initial(chain, args["start"])
     for i, q in enumerate(configurations):
         state = chain.solve(q, state)

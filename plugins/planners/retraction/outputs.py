@@ -57,7 +57,9 @@ def write_outputs(setup, roadmaps, outcome, metrics) -> list[str]:
     out = Path(setup.problem.output_dir)
     name = _stage_name(setup)
     t = outcome.trajectory
-    files = [f"{name}-states.npz", f"{name}-retraction.png", f"{name}-profile.png"]
+    files = [f"{name}-states.npz"]
+    if setup.settings.figures:
+        files += [f"{name}-retraction.png", f"{name}-profile.png"]
     save_bundle(
         out / files[0],
         {
@@ -75,8 +77,9 @@ def write_outputs(setup, roadmaps, outcome, metrics) -> list[str]:
         },
         {"units": "SI (m, J, Pa)", "metric": setup.settings.metric, "grasp": int(outcome.best)},
     )
-    snapshots_figure(out / files[1], setup, roadmaps, outcome, metrics, name)
-    profile_figure(out / files[2], setup, roadmaps, outcome, metrics, name)
+    if setup.settings.figures:
+        snapshots_figure(out / files[1], setup, roadmaps, outcome, metrics, name)
+        profile_figure(out / files[2], setup, roadmaps, outcome, metrics, name)
     return files
 
 

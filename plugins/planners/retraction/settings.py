@@ -221,6 +221,8 @@ class RetractionSettings(_Strict):
     margin: Length = 0.0
     #: check that the instrument does not pass through the tissue away from its jaws
     instrument_tissue_check: bool = True
+    #: write the figures (the states file is always written)
+    figures: bool = True
 
 
 __all__ = [

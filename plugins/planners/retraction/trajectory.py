@@ -42,7 +42,7 @@ class SE3Spline:
         return np.concatenate([self._position(u), canonical_quaternion(self._rotation(u).as_quat())], axis=1)
 
     def velocity(self, u) -> tuple[np.ndarray, np.ndarray]:
-        """Linear (m per unit u) and angular (rad per unit u) rates at ``u``."""
+        """Linear (m per unit u, world frame) and angular (rad per unit u, body frame) rates at ``u``."""
         u = np.atleast_1d(np.asarray(u, dtype=float))
         return self._position(u, 1), self._rotation(u, 1)
 

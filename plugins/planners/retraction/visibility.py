@@ -78,9 +78,12 @@ class Visibility:
             placed = np.asarray(self._gripper.vertices) @ gripper_pose[:3, :3].T + gripper_pose[:3, 3]
             parts_v.append(placed)
             parts_f.append(np.asarray(self._gripper.faces) + count)
-        scene = trimesh.Trimesh(np.concatenate(parts_v), np.concatenate(parts_f), process=False)
-        locations, rays, _ = scene.ray.intersects_location(self.points, self.directions, multiple_hits=False)
+        faces = np.concatenate(parts_f)
         visible = np.ones(len(self.points), dtype=bool)
+        if len(faces) == 0:
+            return visible
+        scene = trimesh.Trimesh(np.concatenate(parts_v), faces, process=False)
+        locations, rays, _ = scene.ray.intersects_location(self.points, self.directions, multiple_hits=False)
         if len(rays):
             hit = np.linalg.norm(locations - self.points[rays], axis=1)
             # a hit beyond the camera is no occluder; the tolerance keeps the camera's own position clear
