@@ -68,8 +68,8 @@ from .loads import BasePlane, ExternalLoads, work_equivalent_masses
 from .material import ImageMap, MaterialField
 from .mesh import TetMesh, box_mesh, read_tet_mesh, tetrahedralize_surface
 from .newton import EquilibriumSolver, NewtonResult, SolverOptions
-from .output import write_vtu
 from .settings import RegionModel, StVKSettings
+from .stage import run_simulate_stage, stage_constraints
 from .stvk import StVKElements
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -275,16 +275,13 @@ class StVKModel(DeformableModel):
             np.concatenate(all_axes),
         )
 
-    def stage_constraints(self) -> AxisConstraints:
-        """Everything the settings prescribe: anchors, the grasp's transform, dead loads."""
-        grasp = self.settings.grasp
-        if grasp is None:
-            return self.grasp_constraints(np.empty(0, dtype=np.int64))
-        nodes = self.grasped_nodes()
-        pose = grasp.transform.to_pose()
-        pivot = np.asarray(grasp.pivot) if grasp.pivot is not None else self.mesh.nodes[nodes].mean(axis=0)
-        translation = pivot + pose.translation - pose.rotation @ pivot
-        return self.grasp_constraints(nodes, (pose.rotation, translation))
+    def stage_constraints(self, fraction: float = 1.0) -> AxisConstraints:
+        """Everything the settings prescribe: anchors, the grasp's transform, dead loads.
+
+        ``fraction`` (0 to 1) of the grasp's motion and of the dead loads, as
+        the ``steps`` of a simulate stage apply them.
+        """
+        return stage_constraints(self, fraction)
 
     def _prescribed(self, constraints: Constraints) -> tuple[np.ndarray, np.ndarray]:
         n = self.mesh.n_nodes
@@ -408,49 +405,5 @@ class StVKModel(DeformableModel):
 
     # ------------------------------------------------------------------ the simulate stage
     def run_stage(self, context: StageContext) -> StageResult:
-        """One equilibrium from the settings; writes ``<stage name>.vtu`` and returns its metrics."""
-        if not self.settings.anchored and self.settings.grasp is None:
-            raise ConfigError(
-                "a simulate stage needs anchored nodes or a grasp to hold the tissue", location="settings"
-            )
-        constraints = self.stage_constraints()
-        with context.progress.task(f"{context.name}: static equilibrium", total=1) as task:
-            state = self.solve(constraints)
-            task.advance(1)
-        x = state.positions
-        displacement = np.linalg.norm(x - self.mesh.nodes, axis=1)
-        metrics = {
-            "energy_J": state.energy,
-            "max_stress_Pa": float(np.max(state.stress)),
-            "max_displacement_m": float(displacement.max()),
-            "newton_iterations": state.iterations,
-            "residual": state.residual,
-            "converged": state.converged,
-            "valid": state.valid,
-            "nodes": self.mesh.n_nodes,
-            "elements": self.mesh.n_elements,
-            "elastic_energy_J": state.data["elastic_energy"],
-            "external_work_J": state.data["external_work"],
-            "min_volume_ratio": state.data["min_volume_ratio"],
-            "self_intersections": state.data["self_intersections"],
-            "grasp_force_N": state.data["reaction_field"][self.grasped_nodes()].sum(axis=0).tolist(),
-            "solve_s": state.data["solve_s"],
-        }
-        name = f"{context.name}.vtu"
-        write_vtu(
-            Path(context.output_dir) / name,
-            self.mesh.nodes,
-            self.mesh.tets,
-            x,
-            point_data={"reaction_force": state.data["reaction_field"]},
-            cell_data={
-                "max_principal_stress": state.stress,
-                "volume_ratio": state.data["volume_ratio"],
-                "youngs_modulus": self.material.youngs_modulus,
-            },
-        )
-        status = "converged" if state.converged and state.valid else "failed"
-        message = state.message
-        if state.converged and not state.valid:
-            message = "the equilibrium is not valid: " + message.split("; ", 1)[-1]
-        return StageResult("simulate", context.name, "stvk", status, metrics=metrics, message=message, files=[name])
+        """The equilibrium (or, with ``steps``, the sequence) the settings describe; see :mod:`.stage`."""
+        return run_simulate_stage(self, context)

@@ -20,11 +20,14 @@ handful of iterations where nonlinear CG needs hundreds:
   ``K_ff d = -g_f`` with a backtracking (Armijo) line search on Π: the
   energy never increases, and a step that would invert an element has
   infinite energy and is cut.
-* **Indefinite tangents.** ``tangent="auto"`` uses the exact tangent and
-  switches to the positive semi-definite surrogate (:meth:`StVKElements._tangent`)
-  for the step when the factorisation fails or the Newton direction is not
-  a descent direction; ``"definite"`` always uses the surrogate; ``"exact"``
-  never.
+* **Indefinite tangents.** ``tangent="auto"`` uses the exact tangent while
+  it is positive definite and, where it is not (a buckling or snapping flap
+  on its way to equilibrium), the exact tangent plus the smallest multiple
+  of its mean diagonal that makes it definite (:meth:`EquilibriumSolver._factor`),
+  so that the step is a descent direction that keeps the exact curvature;
+  the positive semi-definite surrogate (:meth:`StVKElements._tangent`) is
+  the last resort. ``"definite"`` always uses the surrogate; ``"exact"``
+  never modifies the tangent.
 * **Stopping.** Converged when the largest residual force on a free degree
   of freedom is at most ``residual_tol`` times the force scale (the largest
   applied nodal force or support reaction), or at most the forces' rounding
@@ -270,33 +273,60 @@ class EquilibriumSolver:
         return result
 
     def _factor(self, x, prescribed, options, result) -> CachedFactor | None:
-        """Factor the tangent at x: exact, or the surrogate (auto: when the exact one is not definite enough)."""
-        definite = options.tangent == "definite"
-        for attempt in range(3):
+        """Factor the tangent at x (see ``tangent`` in the module docstring); ``None`` if nothing factors.
+
+        ``auto``: the exact tangent when it is positive definite (positive
+        pivots); otherwise the exact tangent plus ``tau`` times its mean free
+        diagonal, tau growing eightfold until the factorisation is definite
+        (Nocedal & Wright, *Numerical Optimization*, 2nd ed., Algorithm 3.3:
+        the step keeps the exact curvature where it is positive and is
+        damped only as much as needed), remembering tau for the next time;
+        the surrogate tangent is the last resort.
+        """
+        if options.tangent == "definite":
+            return self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
+        _, _, data = self.tangent(x, False)
+        constrained = self.pattern.constrain(data, prescribed)
+        factor = self._try_factor(x, prescribed, False, data=data, constrained=constrained)
+        if options.tangent == "exact" or (factor is not None and factor.positive_pivots()):
+            return factor
+        result.definite_steps += 1
+        free_diagonal = self.pattern.diagonal[~prescribed]
+        scale = float(np.abs(constrained[free_diagonal]).mean()) if len(free_diagonal) else 1.0
+        tau = self._shift
+        while tau <= 1.0:
+            shifted = constrained.copy()
+            shifted[free_diagonal] += tau * scale
+            factor = self._try_factor(x, prescribed, True, data=data, constrained=shifted)
+            if factor is not None and factor.positive_pivots():
+                self._shift = max(tau / 8.0, self.MIN_SHIFT)  # start lower next time: the need passes
+                return factor
+            tau *= 8.0
+        return self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
+
+    #: smallest relative diagonal shift tried for an indefinite tangent
+    MIN_SHIFT = 1e-4
+    _shift = MIN_SHIFT
+
+    def _try_factor(
+        self, x, prescribed, definite: bool, data=None, constrained=None, regularise: float = 0.0
+    ) -> CachedFactor | None:
+        """Factor ``constrained`` (default: the tangent at x, the surrogate if ``definite``)."""
+        if data is None:
             _, _, data = self.tangent(x, definite)
-            if attempt == 2:
-                data[self.pattern.diagonal] += 1e-8 * np.abs(data[self.pattern.diagonal]).max()
+            if regularise:
+                data[self.pattern.diagonal] += regularise * np.abs(data[self.pattern.diagonal]).max()
+        if constrained is None:
             constrained = self.pattern.constrain(data, prescribed)
-            try:
-                lu = self.pattern.factorize(constrained)
-            except RuntimeError:
-                lu = None
-            if lu is not None:
-                # rounding error of the internal forces, about eps |K| |x| (N): F = x g loses eps |x| |g|
-                rounding = float(np.finfo(float).eps) * float(
-                    np.max(self.pattern.matvec(np.abs(data), np.abs(x))[~prescribed], initial=0.0)
-                )
-                factor = CachedFactor(
-                    lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite, rounding
-                )
-                if options.tangent != "auto" or definite or factor.positive_pivots():
-                    return factor
-            if options.tangent == "exact":
-                return None
-            if not definite:
-                result.definite_steps += 1
-            definite = True
-        return None
+        try:
+            lu = self.pattern.factorize(constrained)
+        except RuntimeError:
+            return None
+        # rounding error of the internal forces, about eps |K| |x| (N): F = x g loses eps |x| |g|
+        rounding = float(np.finfo(float).eps) * float(
+            np.max(self.pattern.matvec(np.abs(data), np.abs(x))[~prescribed], initial=0.0)
+        )
+        return CachedFactor(lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite, rounding)
 
     def _chord_direction(self, factor: CachedFactor, grad, prescribed, pending) -> np.ndarray | None:
         """The step (3n,) with a factored tangent: free part solved, prescribed part the pending motion."""

@@ -214,6 +214,9 @@ class StVKSettings(_Strict):
     solver: SolverSettings = Field(default_factory=SolverSettings)
     #: check the deformed surface for self-intersection (part of validity)
     self_intersection: bool = True
+    #: simulate stage: apply the grasp's motion and the dead loads in this many equal increments, each
+    #: warm-started from the one before, and write every step (a ParaView .pvd animation)
+    steps: PositiveInt = 1
 
 
 __all__ = [
