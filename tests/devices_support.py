@@ -87,7 +87,7 @@ def execute(device_cls, settings: dict, path, space, scene, tmp_path: Path):
             "transitions": list(simulator.transitions),
             "frames": list(device.bus.frames),
             "emcy": list(device.master.emcy),
-            "measured": device.joint_positions(),
+            "measured": _read_positions(device),
             "trajectory_start": device.faults.origin,
             "node_ids": [a.node_id for a in device.master.axes],
             "counts_per_unit": np.array([a.counts_per_unit for a in device.master.axes]),
@@ -96,6 +96,15 @@ def execute(device_cls, settings: dict, path, space, scene, tmp_path: Path):
             "model": device.model,
         }
     return report, truth
+
+
+def _read_positions(device):
+    from surgiplan.plugins.devices.bus import BusError
+
+    try:
+        return device.joint_positions()
+    except BusError:  # a dead node or a bus-off controller cannot be read
+        return None
 
 
 def simulator_state(simulator, i: int) -> str:

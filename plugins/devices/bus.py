@@ -9,7 +9,7 @@ interface and channel, raised before anything moves.
 
 Fault injection is a setting of the simulated bus (``faults:``), so failures
 can be rehearsed from a pipeline file. Times ``at_s`` are seconds after the
-start of the trajectory (when the device starts executing it):
+start of the device's first trajectory; each fault happens once:
 
 * ``{kind: heartbeat_loss, node: 2, at_s: 0.5}``: the node stops producing
   heartbeats (it keeps following its targets);

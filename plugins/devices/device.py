@@ -426,9 +426,12 @@ class Cia402Device(Device):
         metrics["path_deviation_max_m"] = self._path_deviation(planned)
 
         def arm(t0: float) -> None:
-            self.faults.arm(t0)
-            if self.simulator is not None:
-                self.simulator.arm(t0)
+            # injected faults happen once, timed from the first trajectory's start: a rehearsal of
+            # "fault, reset, carry on" must not meet the same jam again
+            if self.faults.origin is None:
+                self.faults.arm(t0)
+                if self.simulator is not None:
+                    self.simulator.arm(t0)
 
         if place:
             # everything is computed: only now stop holding (in real time the drives' SYNC watchdog
@@ -494,12 +497,35 @@ class Cia402Device(Device):
         simulator = self.simulator
         droppers = (self.bus.dropper, getattr(simulator, "frame_drop", None), getattr(simulator, "sync_drop", None))
         metrics.update(bus_metrics(self.bus, log, s.bus.bitrate, droppers))
+        self._explain_lost_heartbeats(log)
         metrics["faults"] = log.faults
         message = log.reason if log.status != "completed" else ""
         report = ExecutionReport(log.status, metrics, tips if len(tips) else None, log.faults, message)
         if s.outputs and self.context is not None and len(tips):
             report.files = self._write_outputs(log, tips, reference_tips, clearance, message)
         return report
+
+    def _explain_lost_heartbeats(self, log: ExecutionLog) -> None:
+        """Say so when a heartbeat time-out followed an injected frame loss of that node's heartbeat.
+
+        A consumer cannot tell a lost heartbeat from a silent node within its time-out (1.5 periods,
+        so that a silent node stops every axis within two): with frame_loss the device then stops
+        safely although the node is alive. The simulation knows which frames it dropped.
+        """
+        dropper = self.bus.dropper
+        if dropper is None:
+            return
+        for fault in log.faults:  # times relative to the trajectory start, as the dropper's
+            if fault["kind"] != "heartbeat_timeout":
+                continue
+            since = fault.get("last_heartbeat_s", -np.inf)
+            lost = [t for t, can_id in dropper.dropped if can_id == 0x700 + fault["node"] and t >= since]
+            if lost:
+                times = ", ".join(f"{t:.3f}" for t in lost)
+                fault["cause"] = (
+                    f"injected frame_loss dropped this node's heartbeat at {times} s; a lost heartbeat cannot be "
+                    "told from a silent node within the time-out, so the device stopped safely"
+                )
 
     def _write_outputs(self, log, tips, reference_tips, clearance, message: str) -> list[str]:
         name = self.context.name

@@ -78,6 +78,9 @@ class Feedback:
 class DriveMaster:
     """CANopen master of the axes on one bus (see the module docstring)."""
 
+    #: SDO transfers are tried this often before a node counts as not answering
+    SDO_ATTEMPTS = 3
+
     def __init__(
         self,
         bus: MonitoredBus,
@@ -134,7 +137,8 @@ class DriveMaster:
             return action()
         except SdoCommunicationError:
             raise BusError(
-                f"{self._where(i)} does not answer: no SDO response within {self.sdo_timeout:g} s ({what}); "
+                f"{self._where(i)} does not answer: no SDO response within {self.sdo_timeout:g} s, "
+                f"{self.SDO_ATTEMPTS} attempts ({what}); "
                 "is it powered, wired and set to this node id and bit rate?"
             ) from None
         except SdoAbortedError as exc:
@@ -156,6 +160,7 @@ class DriveMaster:
         for i, axis in enumerate(self.axes):
             node = canopen.RemoteNode(axis.node_id, cia402.cia402_object_dictionary(axis.node_id))
             node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout
+            node.sdo.MAX_RETRIES = self.SDO_ATTEMPTS  # a lost frame costs a retry, not the run
             self.network.add_node(node)
             self.nodes.append(node)
             device_type = self._sdo(i, "reading the device type 0x1000", lambda n=node: n.sdo[0x1000].raw)
