@@ -8,13 +8,12 @@ import struct
 
 import numpy as np
 import pytest
+from conftest import CONFIGS
 from devices_support import FULCRUM, GAP_TIPS, active, context, execute, gimbal_path, gimbal_space
 from surgiplan.devices import LifecycleState, Trajectory
 from surgiplan.plugins.devices import CastGimbalDevice
 from surgiplan.plugins.devices import cia402 as p402
 from surgiplan.plugins.devices.bus import BusError
-
-from conftest import CONFIGS
 
 STOPPED = {p402.QUICK_STOP_ACTIVE, p402.FAULT, p402.SWITCH_ON_DISABLED}
 
