@@ -196,6 +196,8 @@ def test_models_pickle_and_solve_the_same_in_worker_processes(tmp_path):
         assert np.abs(results["chunk-0"]["positions"][k] - state.positions).max() < 1e-6 * size[0]
         assert results["chunk-0"]["energy"][k] == pytest.approx(state.energy, rel=1e-5)
     assert results["chunk-1"]["energy"][-1] == pytest.approx(state.energy, rel=1e-5)
+    assert all(m.startswith("converged in") for m in results["chunk-0"]["messages"])
+    assert not results["chunk-0"]["retried"].any()
     # resumed: everything comes from the store
     again = run_tasks(LocalExecutor(1), lambda _: pytest.fail("recomputed"), tasks, store=TaskStore(tmp_path / "store"))
     assert np.array_equal(again["chunk-1"]["energy"], results["chunk-1"]["energy"])

@@ -56,16 +56,21 @@ def grasp_sequence_task(args: dict[str, Any]) -> dict[str, Any]:
     ``args``: ``settings`` (dict), ``transforms`` (s, 4, 4) world transforms
     of the grasped nodes' rest positions, ``grasp_nodes`` (optional; default
     the settings' grasp region), ``positions`` (bool, default true: return
-    them). Returns arrays over the s samples: ``energy`` (J), ``max_stress``
-    (Pa), ``valid``, ``converged``, ``iterations``, ``factorizations``,
-    ``residual`` (N), ``solve_s``, ``grasp_force`` (s, 3) N and, if asked,
-    ``positions`` (s, n, 3) float32 m.
+    them), ``retry_cold`` (bool, default true: a warm-started sample that
+    fails is solved again from rest, which may find an equilibrium the warm
+    start missed, e.g. after the previous one buckled). Returns arrays over
+    the s samples: ``energy`` (J), ``max_stress`` (Pa), ``valid``,
+    ``converged``, ``iterations``, ``factorizations``, ``residual`` (N),
+    ``solve_s``, ``retried`` (solved again from rest), ``grasp_force``
+    (s, 3) N and, if asked, ``positions`` (s, n, 3) float32 m; and
+    ``messages``, the solver's message per sample.
     """
     model = model_for(args["settings"])
     nodes = args.get("grasp_nodes")
     nodes = model.grasped_nodes() if nodes is None else np.asarray(nodes, dtype=np.int64)
     transforms = np.asarray(args["transforms"], dtype=float).reshape(-1, 4, 4)
     keep_positions = bool(args.get("positions", True))
+    retry_cold = bool(args.get("retry_cold", True))
     s = len(transforms)
     out: dict[str, Any] = {
         "energy": np.full(s, np.nan),
@@ -76,15 +81,22 @@ def grasp_sequence_task(args: dict[str, Any]) -> dict[str, Any]:
         "factorizations": np.zeros(s, dtype=np.int64),
         "residual": np.full(s, np.nan),
         "solve_s": np.zeros(s),
+        "retried": np.zeros(s, dtype=bool),
         "grasp_force": np.zeros((s, 3)),
+        "messages": [""] * s,
     }
     if keep_positions:
         out["positions"] = np.zeros((s, model.mesh.n_nodes, 3), dtype=np.float32)
     state = model.solve(model.grasp_constraints(nodes, None))
     for i, transform in enumerate(transforms):
         started = time.perf_counter()
-        new = model.solve(model.grasp_constraints(nodes, transform), initial=state)
+        constraints = model.grasp_constraints(nodes, transform)
+        new = model.solve(constraints, initial=state)
+        if retry_cold and not (new.converged and new.valid):
+            new = model.solve(constraints)
+            out["retried"][i] = True
         out["solve_s"][i] = time.perf_counter() - started
+        out["messages"][i] = new.message
         out["energy"][i] = new.energy
         out["max_stress"][i] = float(np.max(new.stress))
         out["valid"][i] = new.valid
