@@ -1,0 +1,278 @@
+"""The online planner's input graph, built from the segmented pathmap, and A* on it (paper 001 §5).
+
+Paper 001 §5 makes each segment a node and its neighbour references the
+edges. Here the graph is built at the level of points, which is the same
+graph with each segment's points spelled out (so a start or goal can attach
+to the middle of a segment): the vertices are the pathmap's distinct points
+(identical points of different segments are one vertex, which is how the
+pathmap "expands connectivity", paper 001 §3.2); the edges are the motions
+between consecutive points of a segment and the junction motions between
+referenced neighbours (all certified when the pathmap was built). Edge costs
+are lengths (m): the rectifiable-curve approximation of paper 001 §5.
+
+For speed the graph is *contracted*: runs of vertices with exactly two
+neighbours become one weighted edge (a *chain*) between *junction* vertices
+(degree other than two, and every point of interest). A* runs on the
+junctions with the Euclidean heuristic of paper 001 §5,
+h(v) = |x(v) - x_goal|. It is admissible, because every path from v to the
+goal is at least as long as the straight line, and consistent, because every
+edge (a chain) is at least as long as the straight line between its ends;
+so A* returns a shortest path of the graph (Hart, Nilsson & Raphael 1968).
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .pathmap import SegmentedPathmap
+
+
+@dataclass
+class Attachment:
+    """How an endpoint joins the graph: ``cost`` (m) to reach ``junction``, by ``points`` (endpoint first)."""
+
+    junction: int
+    cost: float
+    points: np.ndarray
+
+
+@dataclass
+class SearchOutcome:
+    path: np.ndarray | None
+    cost: float
+    expanded: int
+    junctions: list[int]
+
+
+def pathmap_edges(pathmap: SegmentedPathmap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct points of the pathmap, the undirected edges between them (i < j) and their lengths (m)."""
+    points, inverse = np.unique(pathmap.segment_points, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    starts, ends = pathmap.segment_start[:-1], pathmap.segment_start[1:] - 1
+    # inside segments: consecutive points
+    inner = np.ones(len(pathmap.segment_points) - 1, dtype=bool)
+    inner[ends[:-1]] = False
+    a = [inverse[:-1][inner]]
+    b = [inverse[1:][inner]]
+    # junctions: the end of each referenced segment (as used) to the start of the next one
+    refs = pathmap.path_segments
+    if len(refs) > 1:
+        same_path = np.ones(len(refs) - 1, dtype=bool)
+        same_path[pathmap.path_start[1:-1] - 1] = False
+        u, v = refs[:-1][same_path], refs[1:][same_path]
+        uid, vid = np.where(u >= 0, u, ~u), np.where(v >= 0, v, ~v)
+        u_end = np.where(u >= 0, ends[uid], starts[uid])
+        v_start = np.where(v >= 0, starts[vid], ends[vid])
+        a.append(inverse[u_end])
+        b.append(inverse[v_start])
+    a, b = np.concatenate(a), np.concatenate(b)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    keep = lo != hi
+    n = len(points)
+    keys = np.unique(lo[keep].astype(np.int64) * n + hi[keep])
+    edges = np.stack([keys // n, keys % n], axis=1)
+    length = np.linalg.norm(points[edges[:, 0]] - points[edges[:, 1]], axis=1)
+    return points, edges, length
+
+
+def vertex_graph(n: int, edges: np.ndarray, length: np.ndarray) -> csr_matrix:
+    """Symmetric CSR matrix of the (uncontracted) pathmap graph."""
+    w = np.maximum(length, 1e-15)
+    i, j = edges[:, 0], edges[:, 1]
+    return coo_matrix((np.concatenate([w, w]), (np.concatenate([i, j]), np.concatenate([j, i]))), (n, n)).tocsr()
+
+
+class OnlineGraph:
+    """The contracted pathmap graph with chain bookkeeping for attachments and path expansion."""
+
+    def __init__(self, points: np.ndarray, edges: np.ndarray, length: np.ndarray, forced: np.ndarray) -> None:
+        self.points = points
+        self.edges = edges
+        self.length = length
+        n = len(points)
+        self.graph = vertex_graph(n, edges, length)
+        self.tree = cKDTree(points)
+        degree = np.diff(self.graph.indptr)
+        junction = degree != 2
+        junction[forced] = True
+        # a closed loop of degree-2 vertices has no junction: promote its first vertex
+        interior = ~junction
+        sub = self.graph[interior][:, interior]
+        count, labels = connected_components(sub, directed=False)
+        interior_index = np.flatnonzero(interior)
+        if count:
+            touches = np.zeros(count, dtype=bool)
+            neighbours_junction = np.asarray(self.graph[interior][:, junction].sum(axis=1)).reshape(-1) > 0
+            np.logical_or.at(touches, labels, neighbours_junction)
+            for loop in np.flatnonzero(~touches):
+                junction[interior_index[np.flatnonzero(labels == loop)[0]]] = True
+        self.is_junction = junction
+        self._build_chains()
+
+    def _build_chains(self) -> None:
+        """Walk from every junction along each incident edge to the next junction."""
+        indptr, indices, data = self.graph.indptr, self.graph.indices, self.graph.data
+        junction = self.is_junction
+        chains: list[np.ndarray] = []
+        costs: list[float] = []
+        seen_edge = set()
+        chain_of = np.full(len(self.points), -1, dtype=np.int64)
+        position = np.zeros(len(self.points), dtype=np.int64)
+        for j in np.flatnonzero(junction):
+            for k in range(indptr[j], indptr[j + 1]):
+                first = int(indices[k])
+                if (j, first) in seen_edge:
+                    continue
+                walk = [int(j), first]
+                cost = float(data[k])
+                previous, current = int(j), first
+                while not junction[current]:
+                    a, b = indptr[current], indptr[current + 1]
+                    nxt = int(indices[a]) if int(indices[a]) != previous else int(indices[a + 1])
+                    cost += float(data[a] if int(indices[a]) == nxt else data[a + 1])
+                    previous, current = current, nxt
+                    walk.append(current)
+                seen_edge.add((walk[-1], walk[-2]))
+                seen_edge.add((j, first))
+                c = len(chains)
+                inner = np.asarray(walk[1:-1], dtype=np.int64)
+                chain_of[inner] = c
+                position[inner] = np.arange(1, len(walk) - 1)
+                chains.append(np.asarray(walk, dtype=np.int64))
+                costs.append(cost)
+        self.chains = chains
+        self.chain_cost = np.asarray(costs)
+        self.chain_of = chain_of
+        self.position = position
+        # cumulative length along each chain, for attachments in its middle
+        self.chain_cum = [
+            np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points[c], axis=0), axis=1))])
+            for c in chains
+        ]
+        # adjacency of the junction graph, as plain Python lists (A* runs in pure Python)
+        adjacency: dict[int, list[tuple[int, float, int]]] = {int(j): [] for j in np.flatnonzero(junction)}
+        for c, (chain, cost) in enumerate(zip(chains, costs, strict=True)):
+            a, b = int(chain[0]), int(chain[-1])
+            adjacency[a].append((b, cost, c))
+            if a != b:
+                adjacency[b].append((a, cost, c))
+        self.adjacency = adjacency
+        self.xyz = [tuple(p) for p in self.points.tolist()]
+
+    @property
+    def n_junctions(self) -> int:
+        return len(self.adjacency)
+
+    def stats(self) -> dict:
+        return {
+            "graph_vertices": len(self.points),
+            "graph_edges": len(self.edges),
+            "junctions": self.n_junctions,
+            "chains": len(self.chains),
+        }
+
+    # ------------------------------------------------------------------ attachments
+    def attachments_at_vertex(self, v: int, link: np.ndarray, link_cost: float) -> list[Attachment]:
+        """Ways to a junction from graph vertex ``v`` reached by ``link`` (endpoint first, ending at v)."""
+        if self.is_junction[v]:
+            return [Attachment(int(v), link_cost, link)]
+        c = int(self.chain_of[v])
+        chain, cum, p = self.chains[c], self.chain_cum[c], int(self.position[v])
+        out = []
+        towards_start = self.points[chain[p::-1]]
+        towards_end = self.points[chain[p:]]
+        out.append(Attachment(int(chain[0]), link_cost + cum[p], np.concatenate([link, towards_start[1:]])))
+        out.append(Attachment(int(chain[-1]), link_cost + cum[-1] - cum[p],
+                              np.concatenate([link, towards_end[1:]])))
+        return out
+
+    # ------------------------------------------------------------------ search
+    def astar(self, starts: list[Attachment], goals: list[Attachment], goal_point: np.ndarray,
+              direct: tuple[float, np.ndarray] | None = None) -> SearchOutcome:
+        """Shortest path from any start attachment to any goal attachment (reversed: goal first).
+
+        ``direct``: an optional (cost, points) candidate joining start and goal
+        without the graph. Returns the path (start first), its cost (m), the
+        number of expanded junctions and the junctions visited.
+        """
+        gx, gy, gz = (float(c) for c in goal_point)
+        xyz = self.xyz
+
+        def h(v: int) -> float:
+            x, y, z = xyz[v]
+            return math.sqrt((x - gx) ** 2 + (y - gy) ** 2 + (z - gz) ** 2)
+
+        goal_cost: dict[int, list[tuple[float, int]]] = {}
+        for k, attachment in enumerate(goals):
+            goal_cost.setdefault(attachment.junction, []).append((attachment.cost, k))
+        best: dict[int, float] = {}
+        came: dict[int, tuple[int, int] | tuple[str, int]] = {}
+        heap: list[tuple[float, float, int]] = []
+        for k, attachment in enumerate(starts):
+            v = attachment.junction
+            if attachment.cost < best.get(v, math.inf):
+                best[v] = attachment.cost
+                came[v] = ("start", k)
+                heapq.heappush(heap, (attachment.cost + h(v), attachment.cost, v))
+        found_cost = math.inf
+        found: tuple[int, int] | None = None  # (junction, goal attachment)
+        if direct is not None:
+            found_cost = direct[0]
+        expanded = 0
+        adjacency = self.adjacency
+        closed = set()
+        while heap:
+            f, g, v = heapq.heappop(heap)
+            if f >= found_cost:
+                break
+            if v in closed or g > best.get(v, math.inf):
+                continue
+            closed.add(v)
+            expanded += 1
+            for cost, k in goal_cost.get(v, ()):
+                if g + cost < found_cost:
+                    found_cost = g + cost
+                    found = (v, k)
+            for w, cost, c in adjacency[v]:
+                ng = g + cost
+                if ng < best.get(w, math.inf):
+                    best[w] = ng
+                    came[w] = (v, c)
+                    heapq.heappush(heap, (ng + h(w), ng, w))
+        if found is None:
+            if direct is not None:
+                return SearchOutcome(direct[1], direct[0], expanded, [])
+            return SearchOutcome(None, math.inf, expanded, [])
+        # expand, collecting goal-to-start: the goal attachment, chains back to a start attachment
+        v, k = found
+        pieces = [goals[k].points]
+        junctions = [v]
+        while True:
+            origin = came[v]
+            if origin[0] == "start":
+                pieces.append(starts[origin[1]].points[::-1])
+                break
+            u, c = origin
+            chain = self.chains[c]
+            sequence = chain if (chain[0] == u and chain[-1] == v) else chain[::-1]
+            pieces.append(self.points[sequence[::-1]])
+            v = u
+            junctions.append(v)
+        backwards = np.concatenate(pieces)
+        path = backwards[::-1]
+        keep = np.concatenate([[True], np.any(np.diff(path, axis=0) != 0, axis=1)])
+        return SearchOutcome(path[keep], found_cost, expanded, junctions[::-1])
+
+
+def online_graph(pathmap: SegmentedPathmap) -> OnlineGraph:
+    points, edges, length = pathmap_edges(pathmap)
+    forced = cKDTree(points).query(pathmap.pois, distance_upper_bound=1e-12)[1]
+    forced = forced[forced < len(points)]
+    return OnlineGraph(points, edges, length, forced)
