@@ -142,20 +142,25 @@ def _moment_by_differences(chain: _Chain, state: EquilibriumState, q: np.ndarray
     return gradient
 
 
-def relieve(chain: _Chain, q: np.ndarray, state: EquilibriumState, options: dict[str, Any]):
+def relieve(chain: _Chain, q: np.ndarray, state: EquilibriumState, options: dict[str, Any], alpha: float | None = None):
     """Gradient descent on the gripper's rotation, position fixed, of Π (Fig. 3); Barzilai-Borwein steps.
 
-    Returns (q, state, iterations, total rotation angle in rad). A step that
-    fails (not converged, invalid) or does not lower Π is shrunk.
+    ``alpha`` (rad per N m): the first step's length per unit moment, e.g.
+    the last Barzilai-Borwein value of the previous sample in the chain (a
+    nearby state has a similar rotational stiffness); default: a step of
+    ``max_step``. Returns (q, state, iterations, total rotation angle in rad,
+    the last step length per unit moment). A step that fails (not converged,
+    invalid) or does not lower Π is shrunk.
     """
     gradient = _moment(chain, state, q)
     if gradient is None:
         gradient = _moment_by_differences(chain, state, q)
     norm = float(np.linalg.norm(gradient))
-    if not norm > 0:
-        return q, state, 0, 0.0
     max_step, tolerance = float(options["max_step"]), float(options["tolerance"])
-    alpha = max_step / norm
+    if not norm > 0:
+        return q, state, 0, 0.0, alpha
+    if alpha is None or not alpha > 0:
+        alpha = max_step / norm
     start_rotation = Rotation.from_quat(q[3:])
     iterations = 0
     for _ in range(int(options["max_iterations"])):
@@ -180,7 +185,7 @@ def relieve(chain: _Chain, q: np.ndarray, state: EquilibriumState, options: dict
         alpha = float(step @ step) / curvature if curvature > 0 else 2.0 * alpha
         q, state, gradient = turned, new, new_gradient
     total = float((Rotation.from_quat(q[3:]) * start_rotation.inv()).magnitude())
-    return q, state, iterations, total
+    return q, state, iterations, total, alpha
 
 
 def _near_grasp_stress(chain: _Chain, state: EquilibriumState) -> float:
@@ -220,11 +225,12 @@ def sample_chain(args: dict[str, Any]) -> dict[str, Any]:
     }
     reasons = [""] * s
     previous = chain.rest()
+    alpha = None
     for i, q in enumerate(configurations):  # a chain: each solve starts from the one before
         state = chain.solve(q, previous)
         if state.converged and state.valid and relief["enabled"]:
             out["grasp_stress_before"][i] = _near_grasp_stress(chain, state)
-            q, state, iterations, angle = relieve(chain, q, state, relief)
+            q, state, iterations, angle, alpha = relieve(chain, q, state, relief, alpha)
             out["relief_iterations"][i] = iterations
             out["relief_angle"][i] = angle
             out["grasp_stress_after"][i] = _near_grasp_stress(chain, state)

@@ -166,7 +166,7 @@ def generate(setup: Setup) -> list[GraspRoadmap]:
         roadmaps[-1].relief = {k.removeprefix("relief_"): v for k, v in roadmaps[-1].relief.items()}
 
     started = time.perf_counter()
-    assess(setup, roadmaps)
+    assess(setup, roadmaps, [(key, g, part) for key, (g, part) in zip(tasks, chunks, strict=True)], store)
     assess_s = time.perf_counter() - started
     started = time.perf_counter()
     for roadmap in roadmaps:
@@ -184,47 +184,67 @@ def generate(setup: Setup) -> list[GraspRoadmap]:
     return roadmaps
 
 
-def assess(setup: Setup, roadmaps: list[GraspRoadmap]) -> None:
-    """Gripper clearance (main process), flap and instrument collisions and visibility (workers)."""
-    problem = setup.problem
-    margin = setup.settings.margin
-    jobs, where = [], []
-    for k, roadmap in enumerate(roadmaps):
-        free = problem.space.is_valid(roadmap.q, margin)
+def assess(setup: Setup, roadmaps: list[GraspRoadmap], chunks: list[tuple[str, int, slice]], store) -> None:
+    """Gripper clearance (here, certified by the space), flap and instrument collisions and visibility
+    (workers, checkpointed next to the equilibria: a second stage on the same states and scene reuses them).
+
+    ``chunks``: (equilibrium task key, grasp, slice of its samples) as solved.
+    """
+    problem, settings = setup.problem, setup.settings
+    geometry = _digest(
+        {
+            "scene": problem.scene.spec(),
+            "space": problem.space.spec(),
+            "visibility": settings.visibility.model_dump(mode="json"),
+            "margin": settings.margin,
+            "instrument": settings.instrument_tissue_check,
+        }
+    )
+    for roadmap in roadmaps:
+        free = problem.space.is_valid(roadmap.q, settings.margin)
         for i in np.flatnonzero(roadmap.ok & ~free):
             roadmap.reason[i] = "the gripper touches an obstacle"
         roadmap.ok &= free
-        size = max(1, setup.settings.sampling.chunk * 2)
-        for first in range(0, len(roadmap.q), size):
-            part = slice(first, first + size)
-            jobs.append(
-                {
-                    "collision": setup.collisions[k],
-                    "visibility": setup.visibility,
-                    "triangles": setup.triangles,
-                    "positions": roadmap.positions[part],
-                    "q": roadmap.q[part],
-                    "ok": roadmap.ok[part],
-                }
-            )
-            where.append((k, part))
-    collision_s = np.zeros(len(roadmaps))
-    visibility_s = np.zeros(len(roadmaps))
-    with problem.progress.task("retraction: collisions and visibility", total=len(jobs)) as task:
-        for index, result in problem.executor.imap_unordered(assess_chunk, jobs):
-            k, part = where[index]
-            roadmap = roadmaps[k]
-            for offset, reason in enumerate(result["reason"]):
-                if reason:
-                    roadmap.reason[part.start + offset] = reason
-            roadmap.ok[part] &= np.array([not r for r in result["reason"]], dtype=bool)
-            roadmap.visible[part] = np.nan_to_num(result["visible"], nan=0.0)
-            collision_s[k] += result["collision_s"]
-            visibility_s[k] += result["visibility_s"]
-            task.advance(1)
-    for k, roadmap in enumerate(roadmaps):
-        roadmap.timing["collision_s"] = float(collision_s[k])
-        roadmap.timing["visibility_s"] = float(visibility_s[k])
+    tasks, where = {}, {}
+    for key, k, part in chunks:
+        nodes = slice(part.start + 1, part.stop + 1)  # node 0 is the start
+        roadmap = roadmaps[k]
+        job_key = f"{key}-assess-{geometry}-{_digest(roadmap.ok[nodes])}"
+        tasks[job_key] = {
+            "collision": setup.collisions[k],
+            "visibility": setup.visibility,
+            "triangles": setup.triangles,
+            "positions": roadmap.positions[nodes],
+            "q": roadmap.q[nodes],
+            "ok": roadmap.ok[nodes],
+        }
+        where[job_key] = (k, nodes)
+    for k, roadmap in enumerate(roadmaps):  # the start states, here
+        job = {**next(iter(tasks.values())), "collision": setup.collisions[k]} if tasks else None
+        if job is not None:
+            job.update(positions=roadmap.positions[:1], q=roadmap.q[:1], ok=roadmap.ok[:1])
+            _record(roadmap, slice(0, 1), assess_chunk(job))
+    results = run_tasks(
+        problem.executor,
+        assess_chunk,
+        tasks,
+        store=store,
+        progress=problem.progress,
+        description="retraction: collisions and visibility",
+    )
+    for job_key, result in results.items():
+        k, nodes = where[job_key]
+        _record(roadmaps[k], nodes, result)
+
+
+def _record(roadmap: GraspRoadmap, nodes: slice, result: dict[str, Any]) -> None:
+    for offset, reason in enumerate(result["reason"]):
+        if reason:
+            roadmap.reason[nodes.start + offset] = reason
+    roadmap.ok[nodes] &= np.array([not r for r in result["reason"]], dtype=bool)
+    roadmap.visible[nodes] = np.nan_to_num(np.asarray(result["visible"], dtype=float), nan=0.0)
+    roadmap.timing["collision_s"] = roadmap.timing.get("collision_s", 0.0) + float(result["collision_s"])
+    roadmap.timing["visibility_s"] = roadmap.timing.get("visibility_s", 0.0) + float(result["visibility_s"])
 
 
 def connect(setup: Setup, roadmap: GraspRoadmap) -> None:
