@@ -163,6 +163,17 @@ def test_steps_apply_the_grasp_quasi_statically_and_write_a_paraview_series(tmp_
     assert np.all(meshio.read(tmp_path / "out" / steps[2]).point_data["held"][jaws] == 1)
 
 
+def test_a_step_that_fails_stops_the_sequence_and_names_the_step(tmp_path, cli):
+    text = FLAP_STEPS.replace("steps: 3", "steps: 3\n      solver: {max_iterations: 6}")  # step 0 needs 4
+    code, _, _ = cli("run", write(tmp_path / "flap.yaml", text), "--out", tmp_path / "out")
+    assert code == 1
+    stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
+    assert stage["status"] == "failed"
+    assert stage["message"].startswith("step 1 of 3 (33% of the motion): did not converge in 6 Newton iterations")
+    assert stage["metrics"]["step_converged"] == [True, False]
+    assert stage["files"] == ["flap.vtu", "flap.pvd", "flap/step_000.vtu", "flap/step_001.vtu"]
+
+
 def test_shipped_configs_validate_and_the_plugin_is_registered(cli):
     assert "stvk" in default_registry().names("deformable_model")
     for name in ("flap_simulate.yaml", "cantilever_simulate.yaml", "flap_veins_simulate.yaml"):
