@@ -294,3 +294,40 @@ def test_an_unreachable_pose_is_refused_before_any_motion(block_world, tmp_path)
     settings = {**ARM, "simulation": {"initial": initial}}
     report, truth = execute(Gripper6Device, settings, path, space, block_world, tmp_path)
     refused(report, truth, initial, "out of the arm's reach")
+
+
+# ----------------------------------------------------------------------------- the pipeline
+def test_gimbal_in_the_loop_pipeline_plans_with_safe_prm_and_reports_what_the_hardware_did(tmp_path, block_world):
+    import json
+
+    from conftest import CONFIGS
+    from surgiplan import load_pipeline, run_pipeline
+
+    out = tmp_path / "out"
+    pipeline = load_pipeline(CONFIGS / "gimbal_in_the_loop.yaml", output_dir=out)
+    pipeline.model.output.figures = False  # the plan stage's figure is not what is tested here
+    run_pipeline(pipeline)
+    plan, stage = json.loads((out / "result.json").read_text())["stages"]
+    assert (plan["plugin"], plan["status"], plan["space"]) == ("safe_prm", "solved", "cast_gimbal")
+    assert (stage["plugin"], stage["status"]) == ("cast_gimbal", "completed")
+    m = stage["metrics"]
+    # the metric names, in SI
+    assert m["tracking_error_max_m"] < 5e-5 and m["tracking_error_rms_m"] <= m["tracking_error_max_m"]
+    assert (
+        set(m["joint_tracking_error_max"])
+        == set(m["joint_tracking_error_rms"])
+        == {"yaw", "pitch", "insertion", "roll"}
+    )
+    assert 15 < m["bus_load_percent"] < 30 and m["cycles"] > 100 and m["faults"] == []
+    # the executed tip path is the stage's path; its clearance re-measured with coal from result.json
+    tips = np.array(stage["path"])
+    assert tips.shape == (m["cycles"] - 1, 3)
+    swept = coal_scene_segment_distance(block_world, tips[:-1], tips[1:], m["tip_radius_m"])
+    assert m["executed_min_clearance_m"] == pytest.approx(swept.min(), abs=1e-9)
+    assert m["executed_min_clearance_m"] > 0 and m["executed_shaft_min_clearance_m"] > 0
+    # the executed path stays within tracking and corner rounding of the planned one
+    assert np.linalg.norm(tips[-1] - np.array(plan["tip_path"])[-1]) < 5e-5
+    # what a user looks at: the figure and the log
+    assert set(stage["files"]) == {"gimbal.png", "gimbal-execution.csv"}
+    log = np.genfromtxt(out / "gimbal-execution.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(np.column_stack([log["tip_x_m"], log["tip_y_m"], log["tip_z_m"]]), tips, atol=1e-8)

@@ -204,31 +204,56 @@ def test_fault_reset_after_a_stop_can_be_rehearsed_from_the_settings(block_world
 
 # ----------------------------------------------------------------------------- the pipeline files
 FAULT_PIPELINES = [
-    ("faults_heartbeat_loss.yaml", 1, "heartbeat timeout on node 2"),
-    ("faults_following_error.yaml", 1, "emcy on node 3: following error"),
-    ("faults_frame_loss.yaml", 0, None),
-    ("faults_dead_node.yaml", 2, "CAN node 3 (joint 'insertion')"),
-    ("faults_bus_off.yaml", 1, "CAN bus error"),
-    ("faults_no_bus.yaml", 2, "cannot open CAN bus interface 'socketcan' channel 'can0'"),
+    ("faults_following_error.yaml", "stopped", "emcy on node 3: following error"),
+    ("faults_frame_loss.yaml", "completed", None),
+    ("faults_dead_node.yaml", BusError, "CAN node 3 (joint 'insertion')"),
+    ("faults_bus_off.yaml", "stopped", "CAN bus error"),
+    ("faults_no_bus.yaml", BusError, "cannot open CAN bus interface 'socketcan' channel 'can0'"),
 ]
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize(("name", "code", "message"), FAULT_PIPELINES)
-def test_every_fault_can_be_rehearsed_from_its_pipeline_file(cli, tmp_path, name, code, message):
+@pytest.fixture(scope="module")
+def roadmap(tmp_path_factory):
+    """The fault files share their plan stage: build its roadmap once, load it in the others."""
+    return tmp_path_factory.mktemp("roadmap") / "gimbal-roadmap.npz"
+
+
+def test_the_heartbeat_loss_file_rehearses_it_from_the_command_line(cli, tmp_path):
     out = tmp_path / "out"
-    status, stdout, stderr = cli("run", CONFIGS / name, "--out", out)
-    assert status == code, stdout + stderr
-    if message is not None:
-        assert message in stdout + stderr
-    if code == 2:  # a user error before any motion: no traceback, no result
-        assert "Traceback" not in stderr and not (out / "result.json").exists()
+    status, stdout, stderr = cli("run", CONFIGS / "faults_heartbeat_loss.yaml", "--out", out)
+    assert status == 1, stdout + stderr  # a stage did not succeed
+    assert "heartbeat timeout on node 2" in stdout + stderr
+    stage = json.loads((out / "result.json").read_text())["stages"][1]
+    assert stage["status"] == "stopped"
+    first = stage["metrics"]["faults"][0]
+    assert (first["kind"], first["node"], first["action"]) == ("heartbeat_timeout", 2, "quick stop of every axis")
+    assert first["all_axes_quick_stopped_s"] <= 0.3 + 2 * 0.1
+    assert {"gimbal.png", "gimbal-execution.csv"} <= set(stage["files"])
+    assert (out / "gimbal.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("name", "outcome", "message"), FAULT_PIPELINES)
+def test_every_fault_can_be_rehearsed_from_its_pipeline_file(tmp_path, roadmap, name, outcome, message):
+    from surgiplan import load_pipeline, run_pipeline
+
+    out = tmp_path / "out"
+    pipeline = load_pipeline(CONFIGS / name, output_dir=out)
+    pipeline.model.output.figures = pipeline.model.output.gltf = False  # the files' content is what is tested
+    pipeline.stages[0].artifact = roadmap
+    if outcome is BusError:  # a user error before any motion: the CLI prints it (exit 2), no result
+        with pytest.raises(BusError) as info:
+            run_pipeline(pipeline)
+        assert message in str(info.value) and "pipeline[1] (execute stage 'gimbal')" in str(info.value)
+        assert not (out / "result.json").exists()
         return
+    outcome_run = run_pipeline(pipeline)
     execute_stage = json.loads((out / "result.json").read_text())["stages"][1]
+    assert execute_stage["status"] == outcome == outcome_run.results[1].status
     metrics = execute_stage["metrics"]
     for key in ("tracking_error_max_m", "executed_min_clearance_m", "bus_load_percent", "cycles", "faults"):
         assert key in metrics
-    if code == 1:
-        assert execute_stage["status"] == "stopped" and metrics["faults"]
+    if outcome == "stopped":
+        assert message in execute_stage["message"] and metrics["faults"]
     else:
-        assert execute_stage["status"] == "completed" and metrics["frames_dropped"] > 0
+        assert metrics["faults"] == [] and metrics["frames_dropped"] > 0

@@ -141,3 +141,30 @@ def test_warm_started_pose_sequence_is_continuous():
     assert result.converged.all()
     # the solution follows the same branch: neighbouring targets give neighbouring joints
     np.testing.assert_allclose(result.q, q_path, atol=1e-5)
+
+
+def test_qp_step_with_active_joint_and_velocity_bounds_matches_bounded_least_squares(rng):
+    """The OSQP step against scipy's bounded least squares (an independent solver of the same problem):
+    min |J dq - e|^2 + lambda |dq|^2 subject to the joint limits and the per-step velocity bound."""
+    from scipy.optimize import lsq_linear
+
+    model = arm_model()
+    ik = DifferentialIK(model, step_time=0.05)  # 0.075 rad per step for joints 1-3: bounds bind
+    active = 0
+    for _ in range(40):
+        q = rng.uniform(model.lower, model.upper)
+        q[1] = model.upper[1] - 0.01  # near a limit
+        _, jac = model.jacobian(q)
+        error = rng.normal(0.0, 0.05, size=6) * np.array([1, 1, 1, 0.1, 0.1, 0.1])
+        weighted = jac * np.array([1, 1, 1, 0.1, 0.1, 0.1])[:, None]
+        step = ik.qp_step(q, weighted, error)
+        damping = ik.damping + float(error @ error)
+        lower = np.maximum(model.lower - q, -ik.step)
+        upper = np.minimum(model.upper - q, ik.step)
+        a = np.vstack([weighted, np.sqrt(damping) * np.eye(6)])
+        b = np.concatenate([error, np.zeros(6)])
+        reference = lsq_linear(a, b, bounds=(lower, upper), tol=1e-12, lsmr_tol="auto").x
+        assert np.all(step >= lower - 1e-7) and np.all(step <= upper + 1e-7)
+        np.testing.assert_allclose(step, reference, atol=2e-6)
+        active += bool(np.any(np.isclose(step, lower, atol=1e-6) | np.isclose(step, upper, atol=1e-6)))
+    assert active >= 20  # most cases exercised OSQP with a bound active

@@ -81,7 +81,7 @@ class MotorModel:
     #: viscous damping over inertia (1/s)
     damping: float = 2.0
     #: largest integration step (s)
-    substep: float = 2.5e-4
+    substep: float = 5e-4
     #: an enabled drive without SYNC for this long quick-stops (s)
     sync_timeout: float = 0.05
 

@@ -251,24 +251,31 @@ class DifferentialIK:
                 iteration >= self.max_iterations
             ):
                 return q, position_error, rotation_error, iteration
-            jw = jac[rows] * weights[:, None]
-            ew = error * weights
-            damping = self.damping + float(ew @ ew)
-            hessian = jw.T @ jw + damping * np.eye(model.nq)
-            lower = np.maximum(model.lower - q, -self.step)
-            upper = np.minimum(model.upper - q, self.step)
-            gradient = -(jw.T @ ew)
-            # the unconstrained minimiser solves the (convex) QP whenever it lies in the box;
-            # OSQP is needed only when a joint or step bound is active
-            step = np.linalg.solve(hessian, -gradient)
-            if np.any(step < lower) or np.any(step > upper):
-                self._solver.update(Px=hessian[self._triu][self._order], q=gradient, l=lower, u=upper)
-                result = self._solver.solve(raise_error=False)
-                if result.x is None or not np.all(np.isfinite(result.x)):
-                    return q, position_error, rotation_error, iteration
-                step = result.x
+            step = self.qp_step(q, jac[rows] * weights[:, None], error * weights)
+            if step is None:
+                return q, position_error, rotation_error, iteration
             q = np.clip(q + step, model.lower, model.upper)
             iteration += 1
+
+    def qp_step(self, q: np.ndarray, jacobian: np.ndarray, error: np.ndarray) -> np.ndarray | None:
+        """One differential-IK step: the QP of the module docstring for the weighted task Jacobian
+        (k x nq) and error (k,) at ``q``; None if OSQP fails."""
+        model = self.model
+        damping = self.damping + float(error @ error)
+        hessian = jacobian.T @ jacobian + damping * np.eye(model.nq)
+        gradient = -(jacobian.T @ error)
+        lower = np.maximum(model.lower - q, -self.step)
+        upper = np.minimum(model.upper - q, self.step)
+        # the unconstrained minimiser solves the (convex) QP whenever it lies in the box;
+        # OSQP is needed only when a joint or step bound is active
+        step = np.linalg.solve(hessian, -gradient)
+        if np.all(step >= lower) and np.all(step <= upper):
+            return step
+        self._solver.update(Px=hessian[self._triu][self._order], q=gradient, l=lower, u=upper)
+        result = self._solver.solve(raise_error=False)
+        if result.x is None or not np.all(np.isfinite(result.x)):
+            return None
+        return np.asarray(result.x)
 
     def _restart_guesses(self, q0: np.ndarray) -> list[np.ndarray]:
         rng = np.random.default_rng(0)  # deterministic: the same targets give the same solutions

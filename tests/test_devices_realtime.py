@@ -1,0 +1,77 @@
+"""Real-time mode: the control loop paced by the monotonic clock, the drives in a thread or in a
+process of their own reached over a real python-can interface (udp_multicast).
+
+This machine is shared and loaded, so these tests give the supervision generous time-outs and check
+what real time must deliver regardless: the pacing (median cycle period), the frames per cycle, and
+that the motion arrives; timings themselves are measured in benchmarks/bench_devices.py.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
+from surgiplan.devices import Trajectory
+from surgiplan.plugins.devices import CastGimbalDevice
+
+#: lenient supervision for a loaded machine: 100 Hz, 10 cycles without TPDO, 0.5 s heartbeats
+LENIENT = {
+    "control_rate": 100,
+    "pdo_timeout_cycles": 10,
+    "heartbeat_period": 0.5,
+    "settle_time": 1.0,
+}
+
+
+def test_real_time_clock_paces_the_loop_at_the_control_rate(block_world, tmp_path):
+    space = gimbal_space(block_world)
+    path = gimbal_path(space, GAP_TIPS)
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "simulation": {"sync_timeout": 0.2}}
+    with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+        assert device.clock.realtime and device.simulator._thread is not None
+        report = device.execute(Trajectory(path, space, "test"))
+        log = device.last_log
+        assert report.status == "completed", report.message
+        # wall-clock pacing: the median cycle is the control period (sleeps are coarse, then spin)
+        period = np.diff(log.wakeups)
+        assert np.median(period) == pytest.approx(0.01, abs=5e-4)
+        # the motion arrived: the drives' ground truth at the path's end
+        assert np.all(np.abs(device.simulator.positions() - path[-1]) <= 3.0 / device.controller.cpu)
+        assert report.metrics["tracking_error_rms_m"] < 1e-3  # within the following-error window
+
+
+@pytest.mark.slow
+def test_drives_in_another_process_over_udp_multicast_with_the_real_hardware_code_path(block_world, tmp_path):
+    """Real drives are a configuration change away: the same device, a real python-can interface,
+    no simulator in this process (canopen's own receive thread), the drives in another process."""
+    import random
+
+    space = gimbal_space(block_world)
+    path = gimbal_path(space, GAP_TIPS)
+    port = random.Random().randint(40000, 49000)
+    channel = "239.74.163.2"
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.sim_drives", "--device", "cast_gimbal"]
+    command += ["--interface", "udp_multicast", "--channel", channel, "--option", f"port={port}"]
+    command += ["--sync-timeout", "0.2", "--initial", *map(str, path[0])]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout.readline().strip() == "ready"
+        bus = {"interface": "udp_multicast", "channel": channel, "options": {"port": port}}
+        settings = {"fulcrum": FULCRUM, "bus": bus, **LENIENT}
+        with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+            assert device.simulator is None and device.clock.realtime  # the hardware code path
+            np.testing.assert_allclose(device.joint_positions(), path[0], atol=1e-4)  # read by SDO
+            report = device.execute(Trajectory(path, space, "test"))
+            assert report.status == "completed", report.message
+            np.testing.assert_allclose(device.joint_positions(), path[-1], atol=1e-4)
+            m = report.metrics
+            assert m["tracking_error_rms_m"] < 1e-3
+            # per cycle on the wire: SYNC, 4 RPDOs, 4 TPDOs (echoes of our own frames are not counted)
+            assert m["frames"] == pytest.approx(9 * m["cycles"], rel=0.05)
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+    assert process.returncode == 0
