@@ -305,7 +305,7 @@ def test_gimbal_in_the_loop_pipeline_plans_with_safe_prm_and_reports_what_the_ha
 
     out = tmp_path / "out"
     pipeline = load_pipeline(CONFIGS / "gimbal_in_the_loop.yaml", output_dir=out)
-    pipeline.model.output.figures = False  # the plan stage's figure is not what is tested here
+    pipeline.model.output.figures = pipeline.model.output.gltf = False  # the plan's figures are not tested here
     run_pipeline(pipeline)
     plan, stage = json.loads((out / "result.json").read_text())["stages"]
     assert (plan["plugin"], plan["status"], plan["space"]) == ("safe_prm", "solved", "cast_gimbal")
