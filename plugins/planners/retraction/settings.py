@@ -60,9 +60,13 @@ class DeformableSpec(_Strict):
 
     @model_validator(mode="after")
     def _validate_with_plugin(self, info: ValidationInfo):
+        from surgiplan.errors import SurgiplanError
         from surgiplan.registry import default_registry
 
-        info_ = default_registry().get("deformable_model", self.plugin)  # raises PluginError naming the choices
+        try:
+            info_ = default_registry().get("deformable_model", self.plugin)
+        except SurgiplanError as exc:  # as a validation error, so that it names the file, line and key
+            raise ValueError(exc.message) from None
         held = [k for k in ("anchored", "grasp") if self.settings.get(k)]
         if held:
             raise ValueError(

@@ -46,6 +46,13 @@ class Setup:
             )
         if problem.start is None:
             raise PlanningInputError("the retraction planner needs the initial grasp as the stage's start")
+        sampling = settings.sampling
+        if sampling.kind == "guided" and problem.goal is None and not sampling.waypoints:
+            raise PlanningInputError(
+                "user-guided sampling needs the surgeon's path: give the stage a goal (the estimated final "
+                "gripper position) or sampling.waypoints",
+                location="settings.sampling",
+            )
         info = default_registry().get("deformable_model", settings.deformable.plugin)
         model = deformable_model(info.cls, settings.deformable.settings)
         rest = np.asarray(model.rest_nodes, dtype=float)
