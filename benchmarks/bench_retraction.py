@@ -52,10 +52,18 @@ from surgiplan.progress import RichProgress
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 #: (config, stage, the surgeon's estimate of the final gripper position in mm, paper's Table I row)
 SCENARIOS = {
-    1: ("retraction_incision.yaml", "left-flap", [30, 25, 14], {"hours": 1.212, "cd": 0.563, "mv": 24.94,
-                                                                "fem": 7.113, "total": 32.713}),
-    2: ("retraction_veins.yaml", "min-stress", [36, 36, 20], {"hours": 3.027, "cd": 1.803, "mv": 32.85,
-                                                              "fem": 48.147, "total": 83.316}),
+    1: (
+        "retraction_incision.yaml",
+        "left-flap",
+        [30, 25, 14],
+        {"hours": 1.212, "cd": 0.563, "mv": 24.94, "fem": 7.113, "total": 32.713},
+    ),
+    2: (
+        "retraction_veins.yaml",
+        "min-stress",
+        [36, 36, 20],
+        {"hours": 3.027, "cd": 1.803, "mv": 32.85, "fem": 48.147, "total": 83.316},
+    ),
 }
 
 
@@ -162,7 +170,13 @@ def main() -> None:
                     ("guided", {"kind": "guided", "samples": args.guided, "spread": 4}, estimate),
                 ):
                     row = plan_once(
-                        stage_data(config, stage), g, sampling, goal, executor, store_root / f"s{scenario}", args.repeats
+                        stage_data(config, stage),
+                        g,
+                        sampling,
+                        goal,
+                        executor,
+                        store_root / f"s{scenario}",
+                        args.repeats,
                     )
                     row.update({"scenario": scenario, "sampling": kind, "grasp_mm": g})
                     results[kind].append(row)
@@ -229,12 +243,36 @@ def main() -> None:
             )
     finally:
         executor.close()
-    print(table([r for r in rows if r["table"] == "I"], ["scenario", "samples", "generation_s", "collision_s",
-                                                            "mesh_validation_s", "fem_s", "planning_s",
-                                                            "paper_generation_s", "paper_planning_s"]))
-    print(table([r for r in rows if r["table"] == "II"], ["scenario", "random_samples", "random_generation_s",
-                                                             "guided_samples", "guided_generation_s",
-                                                             "rms_rel_error_max_energy", "rms_rel_error_max_stress"]))
+    print(
+        table(
+            [r for r in rows if r["table"] == "I"],
+            [
+                "scenario",
+                "samples",
+                "generation_s",
+                "collision_s",
+                "mesh_validation_s",
+                "fem_s",
+                "planning_s",
+                "paper_generation_s",
+                "paper_planning_s",
+            ],
+        )
+    )
+    print(
+        table(
+            [r for r in rows if r["table"] == "II"],
+            [
+                "scenario",
+                "random_samples",
+                "random_generation_s",
+                "guided_samples",
+                "guided_generation_s",
+                "rms_rel_error_max_energy",
+                "rms_rel_error_max_stress",
+            ],
+        )
+    )
     notes = (
         f"{'quick sizes; ' if args.quick else ''}{args.grasps} grasp(s) per scenario, local executor with 2 workers, "
         f"OMP_NUM_THREADS=1; planning = median of {args.repeats} lazy queries from scratch; machine shared "

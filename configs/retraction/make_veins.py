@@ -25,8 +25,12 @@ ax.imshow(noise, cmap="gray", vmin=0, vmax=1, extent=(0, 1, 0, 1), interpolation
 for x0, amplitude, phase, width in [(0.22, 0.05, 0.0, 5.0), (0.52, 0.07, 1.3, 6.5), (0.8, 0.04, 2.1, 4.5)]:
     ax.plot(x0 + amplitude * np.sin(2 * np.pi * 1.3 * y + phase), y, color="#3a0d0d", linewidth=width)
 branch = y[y > 0.45]
-ax.plot(0.52 + 0.07 * np.sin(2 * np.pi * 1.3 * 0.45 + 1.3) + 0.5 * (branch - 0.45) ** 1.2, branch, color="#3a0d0d",
-        linewidth=3.5)
+ax.plot(
+    0.52 + 0.07 * np.sin(2 * np.pi * 1.3 * 0.45 + 1.3) + 0.5 * (branch - 0.45) ** 1.2,
+    branch,
+    color="#3a0d0d",
+    linewidth=3.5,
+)
 ax.set_xlim(0, 1)
 ax.set_ylim(0, 1)
 ax.axis("off")
