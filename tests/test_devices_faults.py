@@ -183,6 +183,10 @@ def test_a_fault_reset_brings_the_drive_back(block_world, tmp_path, gap_path):
         assert report.status == "stopped"
         states = device.drive_states()
         assert states["insertion"] == p402.FAULT
+        # a stopped device does not start again by itself
+        refused = device.execute(Trajectory(path, space, "test"))
+        assert refused.metrics["refused"] and "reset_faults() (a fault reset and re-enable) first" in refused.message
+        assert "'insertion' is FAULT" in refused.message
         device.reset_faults()
         assert set(device.drive_states().values()) == {p402.OPERATION_ENABLED}
         # and it moves again: the rest of the way to the goal from where it stopped

@@ -389,6 +389,17 @@ class Cia402Device(Device):
 
     def run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings
+        states = self.drive_states()
+        stopped = {name: state for name, state in states.items() if state != cia402.OPERATION_ENABLED}
+        if stopped or self.controller.pending_faults:
+            # after a stop the drives stay stopped until the user resets them: never restart by itself
+            what = ", ".join(f"'{name}' is {state}" for name, state in stopped.items())
+            pending = "; ".join(
+                f"{f['kind'].replace('_', ' ')} on node {f.get('node')}" for f in self.controller.pending_faults
+            )
+            return self._refused(
+                f"the drives are not ready ({what or pending}): reset_faults() (a fault reset and re-enable) first"
+            )
         current = self.joint_positions()
         try:
             joint_path = self.joint_path(trajectory, current)

@@ -343,6 +343,11 @@ class DriveSimulator:
         span = t - self.t
         if span <= 0:
             return
+        if not np.any(((self.state == OE) | (self.state == QS)) & self.alive):
+            # every brake holds: nothing moves (unpowered velocities are zero)
+            self.vel[:] = 0.0
+            self.t = t
+            return
         steps = max(1, int(np.ceil(span / self.model.substep - 1e-9)))
         dt = span / steps
         m = self.model
