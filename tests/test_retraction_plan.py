@@ -279,3 +279,18 @@ def test_rotation_relief_follows_the_energy_gradient_and_relieves_the_grasp():
     assert relaxed.energy < state.energy
     assert np.linalg.norm(_moment(chain, relaxed, q)) < 0.5 * np.linalg.norm(moment)
     assert relaxed.stress[near].max() < state.stress[near].max()
+
+
+def test_a_grasp_that_already_exposes_the_area_needs_no_motion(tmp_path):
+    def uncovered(d):
+        settings = d["pipeline"][0]["settings"]
+        settings["visibility"]["area"] = [[55, 20], [60, 20], [60, 30], [55, 30]]  # beside the flap
+        settings["grasps"] = {}
+        settings["sampling"]["samples"] = 6
+        settings["figures"] = False
+        d["output"]["figures"] = False
+
+    result = run_pipeline(load_pipeline(pipeline_file(tmp_path / "p.yaml", tmp_path / "out", uncovered))).results[0]
+    assert result.status == "solved"
+    assert result.metrics["trajectory_states"] == 1 and result.metrics["visible_fraction"] == 1.0
+    assert np.allclose(result.path, [[0.05, 0.025, 0.00125, 0, 0, 0, 1]])

@@ -253,6 +253,9 @@ class LazyPlanner:
                 return Outcome(
                     outcomes, best.index, trajectory, self._message(outcomes, best), self.timing, len(self.edge_results)
                 )
+            if failed < 0:  # the grasp's own state failed when re-solved: drop the grasp
+                best.message, best.lazy = "the start state fails when re-simulated", None
+                continue
             best.lazy.update(np.array([failed]), np.array([False]), None)
             best.lazy.done = False
         return Outcome(outcomes, None, None, "the trajectory could not be verified", self.timing, 0)
@@ -271,13 +274,17 @@ class LazyPlanner:
 
     def trajectory(self, outcome: GraspOutcome) -> tuple[Trajectory | None, int]:
         """The C¹ trajectory of a grasp's path, re-simulated; or (None, the id of an edge that failed)."""
-        setup, space = self.setup, self.setup.problem.space
         roadmap = self.roadmaps[outcome.index]
         path = outcome.path
         nodes, edge_ids = path.nodes, path.edges
         q_path = roadmap.q[nodes]
         smooth = self.settings.smoothing
         counts = np.array([max(1, math.ceil(roadmap.disp[e] / smooth.step)) for e in edge_ids], dtype=int)
+        if len(nodes) == 1:  # the grasp itself already exposes A: a trajectory of one state
+            (result,) = self._simulate(outcome.index, nodes, [np.empty((0, 7))])
+            if any(result["reason"]):
+                return None, -1
+            return self._assemble(roadmap, nodes, [np.empty((0, 7))], [result], []), -1
         if smooth.enabled and len(nodes) >= 3:
             spline = SE3Spline(parameters(roadmap.length[edge_ids]), q_path)
             pieces = [spline(u) for u in piece_parameters(spline.knots, counts)]
@@ -295,6 +302,10 @@ class LazyPlanner:
             if not self._piece_ok(roadmap, nodes, k, linear, retry, q_path):
                 return None, int(edge_ids[k])
             pieces[k], results[k], kinds[k] = linear, retry, "linear"
+        return self._assemble(roadmap, nodes, pieces, results, kinds), -1
+
+    def _assemble(self, roadmap, nodes, pieces, results, kinds) -> Trajectory:
+        setup, space = self.setup, self.setup.problem.space
         q = np.concatenate([roadmap.q[nodes[:1]], *pieces])
         positions = np.concatenate([r["positions"] for r in results])
         energy = np.concatenate([r["energy"] for r in results])
@@ -308,20 +319,17 @@ class LazyPlanner:
         value = np.maximum(energy - self.reference_energy, 0.0)
         effort = float(np.sum(d * 0.5 * (value[:-1] + value[1:])))
         visible = setup.visibility.visible(positions[-1].astype(float), setup.triangles, pose_matrices(q[-1]))
-        return (
-            Trajectory(
-                q,
-                positions,
-                energy,
-                max_stress,
-                stress,
-                waypoints,
-                kinds.count("spline"),
-                kinds.count("linear"),
-                visible,
-                effort,
-            ),
-            -1,
+        return Trajectory(
+            q,
+            positions,
+            energy,
+            max_stress,
+            stress,
+            waypoints,
+            kinds.count("spline"),
+            kinds.count("linear"),
+            visible,
+            effort,
         )
 
     def _linear(self, qa: np.ndarray, qb: np.ndarray, steps: int) -> np.ndarray:
