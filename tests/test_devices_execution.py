@@ -331,3 +331,35 @@ def test_gimbal_in_the_loop_pipeline_plans_with_safe_prm_and_reports_what_the_ha
     assert set(stage["files"]) == {"gimbal.png", "gimbal-execution.csv"}
     log = np.genfromtxt(out / "gimbal-execution.csv", delimiter=",", names=True)
     np.testing.assert_allclose(np.column_stack([log["tip_x_m"], log["tip_y_m"], log["tip_z_m"]]), tips, atol=1e-8)
+
+
+@pytest.mark.slow
+@pytest.mark.ompl
+def test_gripper6_executes_the_se3_path_of_a_plan_stage(tmp_path, block_world):
+    """configs/gripper_in_the_loop.yaml: OMPL plans the jaws in se3, gripper6 executes the plan's path
+    (any se3 planner's, e.g. retraction's, is taken the same way: path_from, no code change)."""
+    import json
+
+    pytest.importorskip("ompl")
+    from conftest import CONFIGS
+    from surgiplan import load_pipeline, run_pipeline
+
+    out = tmp_path / "out"
+    pipeline = load_pipeline(CONFIGS / "gripper_in_the_loop.yaml", output_dir=out)
+    pipeline.model.output.figures = pipeline.model.output.gltf = False
+    run_pipeline(pipeline)
+    plan, stage = json.loads((out / "result.json").read_text())["stages"]
+    assert (plan["space"], plan["status"], stage["plugin"], stage["status"]) == (
+        "se3",
+        "solved",
+        "gripper6",
+        "completed",
+    )
+    m = stage["metrics"]
+    assert m["tracking_error_max_m"] < 5e-5 and m["faults"] == []
+    assert m["executed_body_min_clearance_m"] > 0 and m["arm_min_clearance_m"] > 0
+    # the jaws end at the plan's goal
+    np.testing.assert_allclose(np.array(stage["path"])[-1], np.array(plan["path"])[-1][:3], atol=5e-5)
+    tips = np.array(stage["path"])
+    swept = coal_scene_segment_distance(block_world, tips[:-1], tips[1:], 0.0)
+    assert m["executed_min_clearance_m"] == pytest.approx(swept.min(), abs=1e-9)

@@ -17,11 +17,16 @@ from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
 from surgiplan.devices import Trajectory
 from surgiplan.plugins.devices import CastGimbalDevice
 
-#: lenient supervision for a loaded machine: 100 Hz, 10 cycles without TPDO, 0.5 s heartbeats
+#: lenient supervision for a shared, loaded machine, where a process may be descheduled for tens of
+#: milliseconds: 100 Hz, a third of the speed limits, 0.3 s without TPDO, 1 s heartbeats, and a
+#: following-error window (0.1 rad, 10 mm for 0.1 s) that a stalled master's frozen command stays in
 LENIENT = {
     "control_rate": 100,
-    "pdo_timeout_cycles": 10,
-    "heartbeat_period": 0.5,
+    "velocity_scale": 0.3,
+    "pdo_timeout_cycles": 30,
+    "heartbeat_period": 1.0,
+    "following_error_window": [0.1, 0.1, 0.01, 0.1],
+    "following_error_timeout": 0.1,
     "settle_time": 1.0,
 }
 
@@ -29,7 +34,7 @@ LENIENT = {
 def test_real_time_clock_paces_the_loop_at_the_control_rate(block_world, tmp_path):
     space = gimbal_space(block_world)
     path = gimbal_path(space, GAP_TIPS)
-    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "simulation": {"sync_timeout": 0.2}}
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "simulation": {"sync_timeout": 0.5}}
     with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
         assert device.clock.realtime and device.simulator._thread is not None
         report = device.execute(Trajectory(path, space, "test"))
@@ -55,7 +60,7 @@ def test_drives_in_another_process_over_udp_multicast_with_the_real_hardware_cod
     channel = "239.74.163.2"
     command = [sys.executable, "-m", "surgiplan.plugins.devices.sim_drives", "--device", "cast_gimbal"]
     command += ["--interface", "udp_multicast", "--channel", channel, "--option", f"port={port}"]
-    command += ["--sync-timeout", "0.2", "--initial", *map(str, path[0])]
+    command += ["--sync-timeout", "0.5", "--initial", *map(str, path[0])]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     try:
         assert process.stdout.readline().strip() == "ready"
