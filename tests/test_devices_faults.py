@@ -259,5 +259,8 @@ def test_every_fault_can_be_rehearsed_from_its_pipeline_file(tmp_path, roadmap, 
         assert key in metrics
     if outcome == "stopped":
         assert message in execute_stage["message"] and metrics["faults"]
+        if name == "faults_following_error.yaml":  # it also rehearses the recovery
+            assert metrics["fault_reset"]["ok"] is True
+            assert set(metrics["fault_reset"]["states"].values()) == {p402.OPERATION_ENABLED}
     else:
         assert metrics["faults"] == [] and metrics["frames_dropped"] > 0

@@ -2,7 +2,9 @@
 
 Every cycle k, at ``t_k = t_0 + k T``:
 
-1. read the TPDOs that answered SYNC k-1 (positions sampled at ``t_{k-1}``);
+1. read the TPDOs that answered SYNC k-1 (positions sampled at ``t_{k-1}``;
+   a TPDO that arrives after SYNC k was sent is late and not used for
+   tracking);
 2. supervise: EMCY received, heartbeats older than 1.5 heartbeat periods or
    reporting another NMT state than operational, an axis without TPDO for
    ``pdo_timeout_cycles`` cycles, a drive that left OPERATION ENABLED;
@@ -21,6 +23,11 @@ runs on until every axis stands still, then reports ``stopped`` with the
 faults: what, when (s after the trajectory start), which node, what the
 device did. A bus error (the master cannot send) leaves the drives to their
 own SYNC watchdog, which quick-stops them.
+
+In real time a loop that wakes more than a period late (the process was
+descheduled) skips the missed cycles (``missed_cycles``) instead of sending a
+burst of SYNCs; between trajectories a thread keeps SYNC and the hold
+targets going, supervised, so that the drives' watchdogs stay quiet.
 """
 
 from __future__ import annotations
@@ -189,13 +196,17 @@ class Controller:
         deadline = self.clock.now() + timeout
         enabled_cycles = 0
         answered = np.zeros(self.n, dtype=bool)
+        silent = np.full(self.n, self.supervision.pdo_timeout_cycles)  # cycles since each axis' last TPDO
         while True:
             self._wait()
             feedback = self.master.feedback()
             states = feedback.states
-            answered |= feedback.current
-            # only a statusword that answers the last SYNC counts: a silent drive's last one is stale
-            enabled = feedback.current & np.array([s == cia402.OPERATION_ENABLED for s in states])
+            answered |= feedback.fresh
+            silent = np.where(feedback.fresh, 0, silent + 1)
+            # only a recent statusword counts (a silent drive's last one is stale); in real time an
+            # answer may come a cycle late
+            recent = silent < min(3, self.supervision.pdo_timeout_cycles)
+            enabled = recent & np.array([s == cia402.OPERATION_ENABLED for s in states])
             if np.all(enabled):
                 enabled_cycles += 1
                 if enabled_cycles >= 2:

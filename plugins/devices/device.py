@@ -10,11 +10,16 @@ Lifecycle (ros2_control's, :class:`surgiplan.Device`):
   position (a fault reset first where a drive is in FAULT). In real-time mode
   SYNC keeps running between trajectories.
 * ``execute``: the path is mapped to joints (inverse kinematics), refused
-  with the reason if any waypoint is out of reach or outside the joint
-  limits, time-parameterised at the control rate (:mod:`.timing`) and run
-  (:mod:`.control`); the report says what the hardware actually did.
+  with the reason before any motion if a pose is out of reach, a waypoint
+  leaves the joint limits or the plan's workspace bounds, the approach from
+  where the device stands is not clear, or the drives are stopped from an
+  earlier fault (:meth:`Cia402Device.reset_faults` first: a stopped device
+  never restarts by itself); then time-parameterised at the control rate
+  (:mod:`.timing`) and run (:mod:`.control`); the report
+  (:mod:`.execution_report`) says what the hardware actually did.
 * ``deactivate``: drives disabled, brakes hold; ``cleanup``/``shutdown``:
-  NMT pre-operational, bus released.
+  NMT pre-operational, bus released. A failed transition is the error
+  state, with everything released; ``shutdown`` leaves it.
 
 Subclasses say how a path becomes joint waypoints (:meth:`Cia402Device.joint_path`)
 and how clearance is measured (:meth:`Cia402Device.clearance_along`).
