@@ -53,6 +53,7 @@ class CastGimbalDevice(Cia402Device):
     default_acceleration = (4.0, 4.0, 0.5, 10.0)
     urdf_name = "cast_gimbal"
     tip_frame = "tip"
+    clearance_label = "executed shaft clearance"
 
     def __init__(self, settings: CastGimbalDeviceSettings) -> None:
         super().__init__(settings)

@@ -143,6 +143,8 @@ class Cia402Device(Device):
     default_acceleration: tuple[float, ...] = ()
     urdf_name: str = ""
     tip_frame: str = ""
+    #: what the per-sample clearance of :meth:`clearance_along` is the clearance of (figure label)
+    clearance_label: str = "executed clearance"
 
     def __init__(self, settings: Cia402DeviceSettings) -> None:
         super().__init__(settings)
@@ -552,5 +554,15 @@ class Cia402Device(Device):
         if message:
             title += "\n" + textwrap.shorten(message, 150)
         error = np.linalg.norm(tips - reference_tips, axis=1)
-        execution_figure(out / f"{name}.png", title, log, model.joint_names, model.lower, model.upper, error, clearance)
+        execution_figure(
+            out / f"{name}.png",
+            title,
+            log,
+            model.joint_names,
+            model.lower,
+            model.upper,
+            error,
+            clearance,
+            self.clearance_label,
+        )
         return [f"{name}.png", f"{name}-execution.csv"]

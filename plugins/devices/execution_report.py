@@ -88,6 +88,7 @@ def execution_figure(
     upper: np.ndarray,
     tip_error: np.ndarray,
     clearance: np.ndarray,
+    clearance_label: str = "executed clearance",
 ) -> None:
     """Joints, tip tracking error and executed clearance over time, faults marked; PNG, atomically."""
     fig, axes = plt.subplots(3, 1, figsize=(9, 8.5), sharex=True, constrained_layout=True)
@@ -119,7 +120,7 @@ def execution_figure(
     ax = axes[2]
     ax.plot(t, clearance * 1e3, "-", color="tab:green", lw=1.4)
     ax.axhline(0.0, color="black", lw=0.8)
-    ax.set_ylabel("executed clearance (mm)")
+    ax.set_ylabel(f"{clearance_label} (mm)")
     ax.set_xlabel("time since the trajectory start (s)")
 
     for fault in log.faults:

@@ -69,6 +69,7 @@ class Gripper6Device(Cia402Device):
     default_acceleration = (5.0, 5.0, 5.0, 10.0, 10.0, 10.0)
     urdf_name = "gripper6"
     tip_frame = "jaws"
+    clearance_label = "executed jaws body clearance"
 
     def build_model(self, base=None) -> KinematicModel:
         return KinematicModel(urdf_path(self.urdf_name), self.tip_frame, base or self.settings.base.to_pose())
