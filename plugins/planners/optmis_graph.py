@@ -8,8 +8,8 @@ the space is tight:
 
 1. *surface vertices*: a lattice of spacing ``surface_spacing`` on every face
    of every obstacle's surface mesh (edges and corners included), pushed out
-   along the surface normal (averaged at edges and corners, so that a vertex
-   off a block's edge sits on the bisector) by the tip radius, the margin and
+   along the surface normal (at an edge along the bisector of its faces, at a
+   corner along the vertex normal) by the tip radius, the margin and
    ``surface_gap``: shortest paths wrap around obstacles there;
 2. *workspace vertices*: a grid of spacing ``grid_spacing`` over the bounds,
    each vertex jittered by up to 15 % of the spacing (seeded) so that no two
@@ -105,12 +105,27 @@ def edge_graph(vertices: np.ndarray, edges: np.ndarray) -> csr_matrix:
 # ----------------------------------------------------------------------------- seeding
 
 
+def _edge_normals(mesh) -> np.ndarray:
+    """(F, 3, 3): for each face, the mean normal of the faces sharing each of its edges (v1v2, v2v0, v0v1)."""
+    faces = mesh.faces
+    pairs = np.stack([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]], axis=1).reshape(-1, 2)
+    pairs = np.sort(pairs, axis=1).astype(np.int64)
+    _, inverse = np.unique(pairs[:, 0] * len(mesh.vertices) + pairs[:, 1], return_inverse=True)
+    summed = np.zeros((inverse.max() + 1, 3))
+    np.add.at(summed, inverse, np.repeat(mesh.face_normals, 3, axis=0))
+    summed /= np.maximum(np.linalg.norm(summed, axis=1), 1e-12)[:, None]
+    return summed[inverse].reshape(-1, 3, 3)
+
+
 def surface_vertices(scene, spacing: float, offset: float) -> np.ndarray:
     """A lattice of spacing ``spacing`` (m) on every obstacle surface, pushed out by ``offset`` (m).
 
     Each triangle gets a barycentric lattice with as many divisions as its
-    longest edge needs; points shared by several faces (edges, corners) are
-    merged and pushed along the mean of those faces' normals.
+    longest edge needs. A point inside a face moves along the face normal; a
+    point on an edge along the mean normal of the faces that share the edge
+    (the bisector, where shortest paths wrap round a block's edge); a corner
+    along the mesh's vertex normal. The distance to a convex obstacle is then
+    ``offset`` everywhere.
     """
     points, normals = [], []
     for obstacle in scene.obstacles:
@@ -118,25 +133,38 @@ def surface_vertices(scene, spacing: float, offset: float) -> np.ndarray:
         triangles = mesh.vertices[mesh.faces]  # (F, 3, 3)
         longest = np.max(np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2), axis=1)
         divisions = np.maximum(1, np.ceil(longest / spacing).astype(np.int64))
+        edge_normals = _edge_normals(mesh)
+        vertex_normals = mesh.vertex_normals[mesh.faces]  # (F, 3, 3)
         for n in np.unique(divisions):
             faces = np.flatnonzero(divisions == n)
             a, b = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
             keep = a + b <= n
-            weights = np.stack([a[keep], b[keep], n - a[keep] - b[keep]], axis=1) / n  # (K, 3)
-            lattice = np.einsum("kc,fcd->fkd", weights, triangles[faces]).reshape(-1, 3)
-            points.append(lattice)
-            normals.append(np.repeat(mesh.face_normals[faces], len(weights), axis=0))
+            lattice = np.stack([a[keep], b[keep], n - a[keep] - b[keep]], axis=1)  # integer barycentrics (K, 3)
+            weights = lattice / n
+            points.append(np.einsum("kc,fcd->fkd", weights, triangles[faces]).reshape(-1, 3))
+            zero = lattice == 0
+            # per lattice point: which normal (face, edge k = the one opposite vertex k, or vertex k)
+            normal = np.repeat(mesh.face_normals[faces][:, None, :], len(lattice), axis=1)
+            on_edge = zero.sum(axis=1) == 1
+            if np.any(on_edge):
+                k = np.argmax(zero[on_edge], axis=1)
+                normal[:, on_edge] = edge_normals[faces][:, k]
+            at_vertex = zero.sum(axis=1) == 2
+            if np.any(at_vertex):
+                k = np.argmin(zero[at_vertex], axis=1)  # the one non-zero weight
+                normal[:, at_vertex] = vertex_normals[faces][:, k]
+            normals.append(normal.reshape(-1, 3))
     if not points:
         return np.zeros((0, 3))
     points = np.concatenate(points)
     normals = np.concatenate(normals)
-    # merge the copies of shared points (1 um grid) and average their faces' normals
+    # merge the copies of shared points (1 um grid) and average their normals
     _, first, inverse = np.unique(np.round(points / 1e-6).astype(np.int64), axis=0, return_index=True,
                                   return_inverse=True)
     inverse = inverse.reshape(-1)
     summed = np.zeros((len(first), 3))
     np.add.at(summed, inverse, normals)
-    # opposite normals (a zero-thickness sheet) cancel: keep one face's normal there
+    # opposite normals (a zero-thickness sheet) cancel: keep one of them there
     norm = np.linalg.norm(summed, axis=1)
     flat = norm < 1e-9
     summed[flat] = normals[first[flat]]

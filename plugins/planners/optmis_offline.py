@@ -37,6 +37,8 @@ class SmoothingSettings(BaseModel):
     resolution: PositiveLength = 0.002
     #: straight pieces are cut into equal knot intervals of at most this length
     knot_spacing: PositiveLength = 0.006
+    #: the spline rounds each turn of the taut path within about this distance of it
+    turn_radius: PositiveLength = 0.001
     #: knots on each side of an interval in the fallback window spline
     window: PositiveInt = 2
 
@@ -51,14 +53,18 @@ class OptMISSettings(BaseModel):
     grid_spacing: PositiveLength = 0.006
     #: spacing of the vertices seeded on the obstacles' surfaces
     surface_spacing: PositiveLength = 0.003
-    #: how far beyond tip radius + margin the surface vertices sit
-    surface_gap: PositiveLength = 0.0003
+    #: how far beyond tip radius + margin the surface vertices, and the refined turns, sit
+    surface_gap: PositiveLength = 0.0001
     #: extra edges to each vertex's nearest neighbours (besides the Delaunay edges)
     neighbours: PositiveInt = 12
     #: any-angle tautening of the Dijkstra paths (False: the search space's paths, as in the paper)
     taut: bool = True
     #: longest straight motion tautening may create (none: no limit); shorter keeps paths on shared routes
     max_jump: PositiveLength | None = None
+    #: slide the turns of the taut paths along the obstacles' edges to where the paths are shortest ...
+    refine: bool = True
+    #: ... and pass the edges this close (beyond the margin)
+    turn_gap: PositiveLength = 0.00001
     #: clearance the tip sphere keeps beyond its radius
     margin: Length = 0.0
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
@@ -89,6 +95,9 @@ class OptMISSettings(BaseModel):
             knot_spacing=self.smoothing.knot_spacing,
             resolution=self.smoothing.resolution,
             smoothing=self.smoothing.enabled,
+            refine=self.refine,
+            floor=self.turn_gap,
+            turn_radius=self.smoothing.turn_radius,
             window=self.smoothing.window,
             margin=self.margin,
         )

@@ -37,6 +37,12 @@ class PathOptions:
     taut: bool = True
     #: longest straight motion tautening may create (m); inf: no limit
     max_jump: float = float("inf")
+    #: slide the corners of taut paths to where the paths are shortest ...
+    refine: bool = True
+    #: ... passing them this close (m) beyond the margin
+    floor: float = 0.00001
+    #: the spline rounds each turn within about this distance (m) of it
+    turn_radius: float = 0.001
     knot_spacing: float = 0.006
     resolution: float = 0.002
     smoothing: bool = True
@@ -94,6 +100,144 @@ def taut_parents(space, vertices: np.ndarray, clearance: np.ndarray, predecessor
     return parent, checks
 
 
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=1), 1e-15)[:, None]
+
+
+def edge_directions(space, points: np.ndarray) -> np.ndarray:
+    """The direction of the obstacle edge each point is near (unit vectors), or zero where there is none.
+
+    Near an edge the clearance is the distance to a line: constant along the
+    line, and curved (curvature 1/distance) around it. So in the plane
+    orthogonal to the clearance gradient, the direction of least curvature is
+    the edge, if the other direction is strongly curved; beside a flat face
+    both are flat, near a corner both are curved: no edge. Finite
+    differences, one batched clearance call.
+    """
+    n = len(points)
+    clearance = space.clearance(points)
+    h = 1e-6
+    grad_offsets = np.concatenate([np.eye(3), -np.eye(3)]) * h
+    values = space.clearance((points[:, None, :] + grad_offsets[None]).reshape(-1, 3)).reshape(n, 6)
+    normal = _unit((values[:, :3] - values[:, 3:]) / (2 * h))
+    # an orthonormal basis (u, v) of the tangent plane
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    u = _unit(np.cross(normal, helper))
+    v = np.cross(normal, u)
+    w = _unit(u + v)
+    step = np.maximum(0.2 * np.abs(clearance), 2e-6)[:, None, None]
+    directions = np.stack([u, v, w], axis=1)  # (n, 3, 3)
+    probes = np.concatenate([points[:, None] + step * directions, points[:, None] - step * directions], axis=1)
+    c = space.clearance(probes.reshape(-1, 3)).reshape(n, 6)
+    curvature = (c[:, :3] + c[:, 3:] - 2 * clearance[:, None]) / step[:, :, 0] ** 2
+    kuu, kvv, kww = curvature[:, 0], curvature[:, 1], curvature[:, 2]
+    kuv = kww - 0.5 * (kuu + kvv)
+    hessian = np.stack([np.stack([kuu, kuv], -1), np.stack([kuv, kvv], -1)], -2)
+    eigenvalues, eigenvectors = np.linalg.eigh(hessian)
+    scale = 1.0 / np.maximum(np.abs(clearance), 1e-9)
+    edge = (eigenvalues[:, 1] > 0.3 * scale) & (np.abs(eigenvalues[:, 0]) < 0.05 * scale)
+    along = eigenvectors[:, 0, 0][:, None] * u + eigenvectors[:, 1, 0][:, None] * v
+    return np.where(edge[:, None], _unit(along), 0.0)
+
+
+def refine_corners(space, polylines: list[np.ndarray], margin: float, floor: float,
+                   iterations: int = 12) -> tuple[list[np.ndarray], int]:
+    """Slide the corners of taut paths along the obstacle edges to where the paths are shortest.
+
+    Tautening keeps each turn at the vertex where the zig-zag graph path
+    happened to round the obstacle's edge; the shortest path turns at the
+    point of that edge that makes it shortest (in 3D, shortest paths among
+    polyhedra bend on edges). Every interior corner near an edge
+    (:func:`edge_directions`) moves along the edge to the point that
+    minimises |a - x| + |x - c| (in closed form: unfold the two legs into one
+    plane), even and odd corners in turn, and is pushed back out to ``floor``
+    (m) of clearance if it came closer (a curved edge); finally it moves in
+    towards the edge as far as both its legs keep ``floor`` of clearance, so
+    that the path wraps the edge as closely as a polyline can.
+    Afterwards every motion of a path is certified (keeping ``margin``) and
+    inside the bounds; a path that fails is tried halfway between its old and
+    new corners, then kept as it was. Returns the paths and the number of
+    motion checks.
+    """
+    sizes = np.array([len(p) for p in polylines])
+    if not len(polylines) or sizes.max() < 3:
+        return polylines, 0
+    points = np.concatenate(polylines)
+    start = np.concatenate([[0], np.cumsum(sizes)])
+    interior = np.ones(len(points), dtype=bool)
+    interior[start[:-1]] = False
+    interior[start[1:] - 1] = False
+    moving = np.flatnonzero(interior)
+    edge = edge_directions(space, points[moving])
+    moving, edge = moving[np.any(edge != 0, axis=1)], edge[np.any(edge != 0, axis=1)]
+    x = points.copy()
+    # even and odd corners in turn, so that each moves with its neighbours fixed (Gauss-Seidel)
+    parity = (moving - start[np.searchsorted(start, moving, side="right") - 1]) % 2
+    for k in range(iterations if len(moving) else 0):
+        now = parity == k % 2
+        corner, direction = moving[now], edge[now]
+        here, before, after = x[corner], x[corner - 1], x[corner + 1]
+        # the shortest way from a over the edge's line to c, unfolded into a plane:
+        # s* = z_a + (z_c - z_a) r_a / (r_a + r_c), z along the edge and r the distance from it
+        za = np.sum((before - here) * direction, axis=1)
+        zc = np.sum((after - here) * direction, axis=1)
+        ra = np.linalg.norm(before - here - za[:, None] * direction, axis=1)
+        rc = np.linalg.norm(after - here - zc[:, None] * direction, axis=1)
+        slide = za + (zc - za) * ra / np.maximum(ra + rc, 1e-15)
+        candidate = here + slide[:, None] * direction
+        low = space.clearance(candidate) < floor
+        if np.any(low):  # a curved edge: back out to the floor along the clearance gradient
+            offsets = np.concatenate([np.eye(3), -np.eye(3)]) * 1e-6
+            values = space.clearance((candidate[low][:, None] + offsets[None]).reshape(-1, 3)).reshape(-1, 6)
+            normal = _unit(values[:, :3] - values[:, 3:])
+            candidate[low] += (floor - space.clearance(candidate[low]))[:, None] * normal
+        x[corner] = candidate
+    for k in range(2 if len(moving) else 0):
+        # then in, towards the edge, as far as both legs keep the floor (bisection on the exact
+        # clearance of the legs): the path wraps the edge as closely as a polyline can
+        corner = moving[parity == k]
+        if not corner.size:
+            continue
+        here = x[corner]
+        offsets = np.concatenate([np.eye(3), -np.eye(3)]) * 1e-6
+        values = space.clearance((here[:, None] + offsets[None]).reshape(-1, 3)).reshape(-1, 6)
+        normal = _unit(values[:, :3] - values[:, 3:])
+        lo = np.zeros(len(corner))
+        hi = np.maximum(space.clearance(here) - floor, 0.0)
+        for _ in range(8):
+            mid = 0.5 * (lo + hi)
+            trial = here - mid[:, None] * normal
+            ok = (np.minimum(space.segment_clearance(x[corner - 1], trial),
+                             space.segment_clearance(trial, x[corner + 1])) >= floor)
+            lo = np.where(ok, mid, lo)
+            hi = np.where(ok, hi, mid)
+        x[corner] = here - lo[:, None] * normal
+    checks = 0
+    accepted = np.zeros(len(polylines), dtype=bool)
+    result = [p.copy() for p in polylines]
+    owner = np.repeat(np.arange(len(polylines)), np.maximum(sizes - 1, 0))
+    first = np.concatenate([start[k] + np.arange(sizes[k] - 1) for k in range(len(sizes))])
+    for trial in (x, 0.5 * (x + points)):
+        todo = ~accepted[owner]
+        if not np.any(todo):
+            break
+        a, b = trial[first[todo]], trial[first[todo] + 1]
+        ok = space.motion_is_clear(a, b, margin) & space.scene.in_bounds(a) & space.scene.in_bounds(b)
+        checks += int(np.count_nonzero(todo))
+        bad = np.bincount(owner[todo], weights=~ok, minlength=len(polylines))
+        tried = np.bincount(owner[todo], minlength=len(polylines)) > 0
+        for k in np.flatnonzero((bad == 0) & tried & ~accepted):
+            candidate = trial[start[k] : start[k + 1]]
+            if _length(candidate) < _length(polylines[k]):
+                result[k] = candidate.copy()
+            accepted[k] = True
+    return result, checks
+
+
+def _length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
 def chain(parent: np.ndarray, source: int, target: int) -> np.ndarray:
     """Vertex indices from ``source`` to ``target`` following ``parent`` pointers."""
     out = [target]
@@ -102,23 +246,37 @@ def chain(parent: np.ndarray, source: int, target: int) -> np.ndarray:
     return np.asarray(out[::-1], dtype=np.int64)
 
 
-def knots_of(points: np.ndarray, knot_spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each straight piece of the polyline ``points`` cut into equal intervals of at most ``knot_spacing``.
+def knots_of(points: np.ndarray, knot_spacing: float, turn_radius: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Knots for the spline through the polyline ``points``, and which of them are its corners.
 
-    Returns the knots and, per knot, whether it is a corner of the polyline
-    (its start, end or a turn).
+    Each straight piece gets a knot at ``turn_radius`` from each of its ends
+    that is a turn (so the spline rounds a turn within about that distance and
+    stays straight elsewhere), and the rest of the piece is cut into equal
+    intervals of at most ``knot_spacing``. A piece shared by several paths
+    gets the same knots in all of them, except within ``turn_radius`` of turns
+    where they part.
     """
     if len(points) < 2:
         return points.copy(), np.ones(len(points), dtype=bool)
-    steps = np.diff(points, axis=0)
-    count = np.maximum(1, np.ceil(np.linalg.norm(steps, axis=1) / knot_spacing - 1e-9).astype(np.int64))
-    owner = np.repeat(np.arange(len(steps)), count)
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    t = (np.arange(len(owner)) - start[owner]) / count[owner]
-    knots = np.concatenate([points[owner] + t[:, None] * steps[owner], points[-1:]])
-    corner = np.zeros(len(knots), dtype=bool)
-    corner[np.concatenate([start, [len(knots) - 1]])] = True
-    return knots, corner
+    knots, corner = [], []
+    last = len(points) - 2
+    for i in range(len(points) - 1):
+        a, b = points[i], points[i + 1]
+        length = float(np.linalg.norm(b - a))
+        lead = turn_radius if (i > 0 and length > 4 * turn_radius) else 0.0
+        tail = turn_radius if (i < last and length > 4 * turn_radius) else 0.0
+        inner = length - lead - tail
+        count = max(1, int(np.ceil(inner / knot_spacing - 1e-9)))
+        t = np.concatenate([[0.0], ([lead / length] if lead else []),
+                            (lead + inner * np.arange(1, count) / count) / length,
+                            ([1.0 - tail / length] if tail else [])])
+        knots.append(a + t[:, None] * (b - a))
+        flags = np.zeros(len(t), dtype=bool)
+        flags[0] = True
+        corner.append(flags)
+    knots.append(points[-1:])
+    corner.append(np.ones(1, dtype=bool))
+    return np.concatenate(knots), np.concatenate(corner)
 
 
 def paths_from_source(space, graph, vertices: np.ndarray, clearance: np.ndarray, source: int, targets: np.ndarray,
@@ -148,9 +306,12 @@ def paths_from_source(space, graph, vertices: np.ndarray, clearance: np.ndarray,
         parent = predecessors.copy()
         parent[source] = source
     polylines = [vertices[chain(parent, source, t)] for t in targets]
+    if targets.size and options.taut and options.refine:
+        polylines, refine_checks = refine_corners(space, polylines, options.margin, options.margin + options.floor)
+        checks += refine_checks
     knots, corners = [], []
     for polyline in polylines:
-        k, c = knots_of(polyline, options.knot_spacing)
+        k, c = knots_of(polyline, options.knot_spacing, options.turn_radius)
         knots.append(k)
         corners.append(c)
     smoothed = smooth_paths(space, knots, options.resolution, options.margin, options.window, options.smoothing)

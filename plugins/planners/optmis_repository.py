@@ -46,7 +46,7 @@ class SearchOptions:
 
     grid_spacing: float = 0.006
     surface_spacing: float = 0.003
-    surface_gap: float = 0.0003
+    surface_gap: float = 0.0001
     neighbours: int = 12
     seed: int = 0
 

@@ -96,7 +96,7 @@ class PathmapArtifact:
     pathmap: SegmentedPathmap
     graph: OnlineGraph
     space: Any
-    poi_vertex: np.ndarray  # graph vertex of each point of interest
+    poi_vertex: np.ndarray  # graph vertex of each point of interest (-1: in no stored path)
     table1: list[dict]
 
 
@@ -156,8 +156,8 @@ class SegmentedAStar(Planner):
     def _artifact(pathmap: SegmentedPathmap, space, rows: list[dict]) -> PathmapArtifact:
         graph = online_graph(pathmap)
         distance, index = graph.tree.query(pathmap.pois)
-        if np.any(distance > 1e-12):
-            raise ValueError("a point of interest is missing from the pathmap")
+        # a point of interest that no path reaches is not in the pathmap (-1)
+        index = np.where(distance <= 1e-12, index, -1)
         return PathmapArtifact(pathmap, graph, space, np.asarray(index, np.int64), rows)
 
     def save_artifact(self, artifact: PathmapArtifact) -> dict[str, Any]:
@@ -315,10 +315,13 @@ class SegmentedAStar(Planner):
                     f"local plan within {self.settings.local_radius * 1e3:.3g} mm of it",
                     **metrics,
                 )
-        direct = None
+        # routes that need no junction: along the one chain both ends joined, or straight from start to goal
+        direct = graph.along_one_chain(starts, goals)
         if "vertex" not in (start_kind, goal_kind) and space.motion_is_clear(start[None], goal[None],
                                                                              self.settings.margin)[0]:
-            direct = (float(np.linalg.norm(goal - start)), np.stack([start, goal]))
+            straight = float(np.linalg.norm(goal - start))
+            if direct is None or straight < direct[0]:
+                direct = (straight, np.stack([start, goal]))
         outcome = graph.astar(starts, goals, goal, direct)
         finished = time.perf_counter()
         metrics.update(

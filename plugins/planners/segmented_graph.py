@@ -36,11 +36,19 @@ from .pathmap import SegmentedPathmap
 
 @dataclass
 class Attachment:
-    """How an endpoint joins the graph: ``cost`` (m) to reach ``junction``, by ``points`` (endpoint first)."""
+    """How an endpoint joins the graph: ``cost`` (m) to reach ``junction``, by ``points`` (endpoint first).
+
+    ``link``/``link_cost``: the part from the endpoint to the graph vertex it
+    joins, which is ``position`` along ``chain`` (-1: the vertex is a junction).
+    """
 
     junction: int
     cost: float
     points: np.ndarray
+    chain: int = -1
+    position: int = 0
+    link: np.ndarray | None = None
+    link_cost: float = 0.0
 
 
 @dataclass
@@ -182,16 +190,32 @@ class OnlineGraph:
     def attachments_at_vertex(self, v: int, link: np.ndarray, link_cost: float) -> list[Attachment]:
         """Ways to a junction from graph vertex ``v`` reached by ``link`` (endpoint first, ending at v)."""
         if self.is_junction[v]:
-            return [Attachment(int(v), link_cost, link)]
+            return [Attachment(int(v), link_cost, link, link=link, link_cost=link_cost)]
         c = int(self.chain_of[v])
         chain, cum, p = self.chains[c], self.chain_cum[c], int(self.position[v])
-        out = []
         towards_start = self.points[chain[p::-1]]
         towards_end = self.points[chain[p:]]
-        out.append(Attachment(int(chain[0]), link_cost + cum[p], np.concatenate([link, towards_start[1:]])))
-        out.append(Attachment(int(chain[-1]), link_cost + cum[-1] - cum[p],
-                              np.concatenate([link, towards_end[1:]])))
-        return out
+        common = {"chain": c, "position": p, "link": link, "link_cost": link_cost}
+        return [
+            Attachment(int(chain[0]), link_cost + cum[p], np.concatenate([link, towards_start[1:]]), **common),
+            Attachment(int(chain[-1]), link_cost + cum[-1] - cum[p], np.concatenate([link, towards_end[1:]]),
+                       **common),
+        ]
+
+    def along_one_chain(self, starts: list[Attachment], goals: list[Attachment]) -> tuple[float, np.ndarray] | None:
+        """The best route between a start and a goal attached to the same chain, along it (or None)."""
+        best = None
+        for a in starts:
+            for b in goals:
+                if a.chain < 0 or a.chain != b.chain:
+                    continue
+                cum = self.chain_cum[a.chain]
+                cost = a.link_cost + abs(cum[a.position] - cum[b.position]) + b.link_cost
+                if best is None or cost < best[0]:
+                    step = 1 if b.position >= a.position else -1
+                    between = self.points[self.chains[a.chain][a.position : b.position + step : step]]
+                    best = (cost, np.concatenate([a.link, between[1:], b.link[::-1][1:]]))
+        return best
 
     # ------------------------------------------------------------------ search
     def astar(self, starts: list[Attachment], goals: list[Attachment], goal_point: np.ndarray,

@@ -59,14 +59,22 @@ def _counts(knots: np.ndarray, resolution: float) -> np.ndarray:
     return np.maximum(1, np.ceil(chord / resolution - 1e-9).astype(np.int64))
 
 
-def _interval_samples(curve, t0: float, t1: float, count: int, k0: np.ndarray, k1: np.ndarray) -> np.ndarray:
-    """``count + 1`` points of ``curve`` from t0 to t1; the ends are the knots k0 and k1 exactly.
+def _interval_samples(curve, t0: float, t1: float, count: int, k0: np.ndarray, k1: np.ndarray,
+                      resolution: float) -> np.ndarray:
+    """Points of ``curve`` from t0 to t1, at most ``resolution`` apart; the ends are the knots k0 and k1 exactly.
 
     (The spline interpolates the knots; setting them exactly makes neighbouring
-    intervals meet bit for bit, so what is certified is what is stored.)
+    intervals meet bit for bit, so what is certified is what is stored.) The
+    arc can be longer than the chord, so the count starts from the chord and
+    grows until every step is short enough.
     """
-    samples = curve(np.linspace(t0, t1, count + 1))
-    samples[0], samples[-1] = k0, k1
+    for _ in range(8):
+        samples = curve(np.linspace(t0, t1, count + 1))
+        samples[0], samples[-1] = k0, k1
+        step = float(np.max(np.linalg.norm(np.diff(samples, axis=0), axis=1)))
+        if step <= resolution:
+            break
+        count = int(np.ceil(count * step / resolution * 1.01))
     return samples
 
 
@@ -101,7 +109,10 @@ def smooth_paths(space, paths: list[np.ndarray], resolution: float, margin: floa
             continue
         curve, t = _spline(knots)
         intervals.append(
-            [_interval_samples(curve, t[i], t[i + 1], count[i], knots[i], knots[i + 1]) for i in range(len(count))]
+            [
+                _interval_samples(curve, t[i], t[i + 1], count[i], knots[i], knots[i + 1], resolution)
+                for i in range(len(count))
+            ]
         )
 
     # level 1: the global splines
@@ -116,7 +127,8 @@ def smooth_paths(space, paths: list[np.ndarray], resolution: float, margin: floa
         if hi - lo >= 3:
             curve, t = _spline(knots[lo:hi])
             j = i - lo
-            intervals[p][i] = _interval_samples(curve, t[j], t[j + 1], counts[p][i], knots[i], knots[i + 1])
+            intervals[p][i] = _interval_samples(curve, t[j], t[j + 1], counts[p][i], knots[i], knots[i + 1],
+                                                 resolution)
             kinds[p][i] = WINDOW
             retry.append((p, i))
         else:
@@ -130,14 +142,14 @@ def smooth_paths(space, paths: list[np.ndarray], resolution: float, margin: floa
         kinds[p][i] = CHORD
 
     out = []
-    for knots, count, kind, pieces in zip(paths, counts, kinds, intervals, strict=True):
+    for knots, kind, pieces in zip(paths, kinds, intervals, strict=True):
         knots = np.asarray(knots, float)
         if len(knots) < 2:
             out.append(SmoothedPath(knots.reshape(-1, 3).copy(), kind, np.zeros(len(knots), dtype=np.int64)))
             continue
         # consecutive intervals share their knot: keep it once
         dense = np.concatenate([pieces[0]] + [piece[1:] for piece in pieces[1:]])
-        knot_index = np.concatenate([[0], np.cumsum(count)])
+        knot_index = np.concatenate([[0], np.cumsum([len(piece) - 1 for piece in pieces])])
         out.append(SmoothedPath(dense, kind, knot_index))
     return out
 
