@@ -156,7 +156,7 @@ class ReliefModel(_Strict):
     """
 
     enabled: bool = True
-    max_iterations: Annotated[int, Field(ge=1)] = 3
+    max_iterations: Annotated[int, Field(ge=1)] = 2
     #: largest rotation of one step
     max_step: Angle = 0.5235987755982988
     #: stop when a step turns less than this
