@@ -31,6 +31,7 @@ configured failsafe (land, return, hold) is commanded and the flight ends
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -192,10 +193,12 @@ class Flight:
         items, first, last = self.mission_items()
         log = self.log
         gcs.step = "mission upload"
+        started = time.monotonic()
         with self.progress.task("uploading mission", total=len(items)) as task:
             stats, transfers = gcs.upload(items, progress=task)
         log.metrics.update(
             mission_items=len(items),
+            upload_s=time.monotonic() - started,
             upload_transfers=transfers,
             upload_retransmissions=stats.retransmissions,
             upload_requests=stats.requests,
@@ -380,10 +383,13 @@ class Flight:
         log.faults.append(entry)
         outcome = "acknowledged" if entry["acknowledged"] else "not acknowledged"
         if s.failsafe == "land" and entry["acknowledged"]:
+            # EXTENDED_SYS_STATE says when it is down (heartbeats, and so the armed flag, may be gone)
+            vehicle = gcs.vehicle
+            vehicle.landed_state = mavlink.MAV_LANDED_STATE_UNDEFINED
             try:
-                gcs.wait_for(lambda: not gcs.vehicle.armed, s.timeouts.failsafe, "landed")
+                gcs.wait_for(lambda: vehicle.on_ground or not vehicle.armed, s.timeouts.failsafe, "landed")
                 entry["landed"] = True
-                outcome += ", the vehicle landed and disarmed"
+                outcome += ", the vehicle landed"
             except VehicleError:
                 entry["landed"] = False
                 outcome += f", no landing seen within {s.timeouts.failsafe:g} s"

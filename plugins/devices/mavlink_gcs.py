@@ -300,6 +300,13 @@ class GroundStation:
                         "(mission types, signing): enable it on the vehicle's link (PX4: MAV_PROTO_VER 2)",
                         step="connect",
                     )
+                if message.get_header().incompat_flags & mavlink.MAVLINK_IFLAG_SIGNED and not self.link.signed:
+                    # it would reject every unsigned command we send: say so now, not after the timeouts
+                    raise VehicleError(
+                        f"the vehicle (system {message.get_srcSystem()}) signs its messages (MAVLink 2 signing) "
+                        "and will ignore unsigned commands: give the shared key in signing.key",
+                        step="connect",
+                    )
                 v = self.vehicle
                 v.system_id, v.component_id = message.get_srcSystem(), message.get_srcComponent()
                 v.autopilot, v.vehicle_type = int(message.autopilot), int(message.type)

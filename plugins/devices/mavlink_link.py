@@ -16,10 +16,12 @@ is hashed with SHA-256 as MAVProxy's ``signing setup`` does.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
 import select
+import socket
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -40,6 +42,9 @@ if mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":  # imported earlier by someon
 
 #: the generated dialect module (message classes, enums, constants)
 mavlink = mavutil.mavlink
+
+#: socket receive buffer asked for (bytes)
+RECEIVE_BUFFER = 4 * 1024 * 1024
 
 #: connection strings mavutil understands, as users write them
 _CONNECTION = re.compile(r"^(?:(?:udpin|udpout|udp|udpbcast|tcp|tcpin|mcast):[^:\s]+:\d{1,5}|/\S+|COM\d+)$")
@@ -153,6 +158,7 @@ class Endpoint:
         except (OSError, ValueError) as exc:
             raise VehicleError(f"cannot open MAVLink connection '{connection}': {exc}", step="connect") from None
         self.mav = self.conn.mav
+        self._enlarge_receive_buffer()
         self.stats = LinkStatistics(Counter(), Counter())
         self.loss = float(loss)
         self._rng = np.random.default_rng(seed)
@@ -162,6 +168,18 @@ class Endpoint:
         if key is not None:
             # no allow_unsigned_callback: an unsigned frame or a wrong signature is rejected
             self.conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
+
+    def _enlarge_receive_buffer(self) -> None:
+        """Ask for a 4 MB socket receive buffer (the kernel caps it at net.core.rmem_max).
+
+        The default (~200 kB, some 200 datagrams) overflows within a second when a busy
+        machine delays the reader while a vehicle streams telemetry, and the kernel then
+        drops datagrams silently, heartbeats among them.
+        """
+        sock = getattr(self.conn, "port", None)
+        if isinstance(sock, socket.socket):
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
 
     # ------------------------------------------------------------------ sending
     def _lossy_write(self, buf) -> None:

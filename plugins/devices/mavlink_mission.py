@@ -241,7 +241,7 @@ class MissionUpload:
         self.requested.add(seq)
         self._highest = max(self._highest, seq)
         item = self.items[seq].encode(seq, *self.target, self.mission_type)
-        after = "MISSION_ACK" if len(self.requested) == self.count else f"the request for the item after {seq}"
+        after = "MISSION_ACK" if len(self.requested) == self.count else f"the next MISSION_REQUEST_INT after item {seq}"
         return self._send(item, now, after)
 
     def _on_ack(self, result: int) -> list:
@@ -265,8 +265,8 @@ class MissionUpload:
             self.state = "failed"
             self.deadline = math.inf
             self.error = (
-                f"the vehicle stopped answering: no {self._waiting_for} after {self._attempts + 1} attempts "
-                f"({self.timeout:g} s apart); {len(self.requested)} of {self.count} items had been requested"
+                f"the vehicle stopped answering: waited for {self._waiting_for} through {self._attempts + 1} "
+                f"attempts, {self.timeout:g} s apart; {len(self.requested)} of {self.count} items had been requested"
             )
             return []
         self._attempts += 1

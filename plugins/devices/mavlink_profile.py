@@ -26,7 +26,9 @@ centripetal), the feed-forward a position controller needs.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from bisect import bisect_right
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -57,6 +59,7 @@ class TimedPath:
     acceleration: float
     #: (n,) time at which the path passes each waypoint (a corner: the middle of its arc)
     waypoint_time: np.ndarray
+    _lists: dict = field(default_factory=dict, repr=False)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -255,6 +258,47 @@ class TimedPath:
         centripetal = np.where(arc, speed**2 / np.where(arc, radius, 1.0), 0.0)
         accel = tangent * along[:, None] - (cos * e1 + sin * e2) * centripetal[:, None] * arc[:, None]
         return position, tangent * speed[:, None], accel
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`sample` for a single time, in plain floats: a simulated vehicle asks a hundred times a second."""
+        if not self._lists:
+            names = ("knot_time", "knot_speed", "peak_speed", "accelerate", "cruise", "length", "radius")
+            self._lists.update({name: getattr(self, name).tolist() for name in names})
+            for name in ("start", "direction", "centre", "e1", "e2"):
+                self._lists[name] = getattr(self, name).tolist()
+        c = self._lists
+        k = len(c["length"])
+        if k == 0 or t >= c["knot_time"][-1] or t <= 0:
+            point = self.waypoints[-1] if k == 0 or t > 0 else self.waypoints[0]
+            return np.array(point, float), np.zeros(3), np.zeros(3)
+        i = min(max(bisect_right(c["knot_time"], t) - 1, 0), k - 1)
+        a = self.acceleration
+        v0, vp, ta, tc = c["knot_speed"][i], c["peak_speed"][i], c["accelerate"][i], c["cruise"][i]
+        tau = t - c["knot_time"][i]
+        if tau < ta:
+            s, speed, along = v0 * tau + 0.5 * a * tau * tau, v0 + a * tau, a
+        elif tau < ta + tc:
+            s, speed, along = (vp * vp - v0 * v0) / (2 * a) + vp * (tau - ta), vp, 0.0
+        else:
+            td = tau - ta - tc
+            s = (vp * vp - v0 * v0) / (2 * a) + vp * tc + vp * td - 0.5 * a * td * td
+            speed, along = max(vp - a * td, 0.0), -a
+        s = min(max(s, 0.0), c["length"][i])
+        radius = c["radius"][i]
+        if radius > 0:
+            theta = s / radius
+            cos, sin = math.cos(theta), math.sin(theta)
+            e1, e2, centre = c["e1"][i], c["e2"][i], c["centre"][i]
+            radial = [cos * e1[j] + sin * e2[j] for j in range(3)]
+            tangent = [-sin * e1[j] + cos * e2[j] for j in range(3)]
+            position = [centre[j] + radius * radial[j] for j in range(3)]
+            inward = speed * speed / radius
+            accel = [tangent[j] * along - radial[j] * inward for j in range(3)]
+        else:
+            tangent = c["direction"][i]
+            position = [c["start"][i][j] + tangent[j] * s for j in range(3)]
+            accel = [tangent[j] * along for j in range(3)]
+        return np.array(position), np.array(tangent) * speed, np.array(accel)
 
     def arc_length(self, t) -> np.ndarray:
         """Distance along the path (m) covered at times ``t``."""

@@ -125,7 +125,7 @@ def write_flight_csv(path: Path, t: np.ndarray, flown: np.ndarray, velocity: np.
     columns = [t, *flown.T, *velocity.T, arrays["clearance"], arrays["deviation"], arrays["in_path"].astype(float)]
     header = "t_s,x_m,y_m,z_m,vx_mps,vy_mps,vz_mps,clearance_m,deviation_m,on_path"
     buffer = io.StringIO()
-    np.savetxt(buffer, np.column_stack(columns), delimiter=",", header=header, comments="", fmt="%.6g")
+    np.savetxt(buffer, np.column_stack(columns), delimiter=",", header=header, comments="", fmt="%.9g")
     write_text_atomic(path, buffer.getvalue())
 
 
@@ -150,7 +150,7 @@ def flight_figure(
     from matplotlib.collections import LineCollection, PolyCollection
 
     fig = plt.figure(figsize=(14, 6.2))
-    grid = fig.add_gridspec(2, 2, width_ratios=[1.7, 1.0], hspace=0.35, wspace=0.18)
+    grid = fig.add_gridspec(2, 2, width_ratios=[1.7, 1.0], hspace=0.35, wspace=0.3)
     top = fig.add_subplot(grid[:, 0])
     for obstacle in scene.obstacles:
         mesh = obstacle.to_trimesh()
@@ -178,13 +178,14 @@ def flight_figure(
     if len(flown) >= 2:
         segments = np.stack([flown[:-1, :2], flown[1:, :2]], axis=1)
         value = np.minimum(arrays["clearance"][:-1], arrays["clearance"][1:])
-        upper = max(float(np.nanmax(value)) if len(value) else 1.0, (threshold or 0) * 2, 1e-3)
+        # colours resolve the range that matters (up to twice the threshold); more is "plenty"
+        upper = 2 * threshold if threshold else max(float(np.nanmax(value)), 1e-3)
         lines = LineCollection(segments, cmap="viridis", linewidths=2.4, label="flown")
         lines.set_array(np.clip(value, 0, upper))
         lines.set_clim(0, upper)
         top.add_collection(lines)
         bar = fig.colorbar(lines, ax=top, fraction=0.035, pad=0.02)
-        bar.set_label("flown clearance (m)")
+        bar.set_label("flown clearance (m)" + (f", capped at {upper:.2g}" if threshold else ""))
         if threshold is not None:
             low = value < threshold
             if np.any(low):
@@ -209,7 +210,7 @@ def flight_figure(
     top.set_aspect("equal")
     top.set_xlabel("x (m)")
     top.set_ylabel("y (m)")
-    top.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=4, fontsize=7, frameon=False)
+    top.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=4, fontsize=7, frameon=False)
 
     clearance_ax = fig.add_subplot(grid[0, 1])
     deviation_ax = fig.add_subplot(grid[1, 1], sharex=clearance_ax)
@@ -225,13 +226,15 @@ def flight_figure(
         planned_min = metrics.get("planned_min_clearance_m")
         if planned_min is not None:
             clearance_ax.axhline(planned_min, color="orange", linestyle=":", linewidth=1.2, label="planned minimum")
-        deviation_ax.plot(time, arrays["deviation"], color="#444444", linewidth=1.2, label="distance to planned path")
+        # the distance to the planned path means something only while on it (not climbing to it)
+        on_path = np.where(in_path, arrays["deviation"], np.nan)
+        deviation_ax.plot(time, on_path, color="#444444", linewidth=1.2, label="distance to planned path")
         if "setpoint_error" in arrays:
             deviation_ax.plot(
                 time, arrays["setpoint_error"], color="#9467bd", linewidth=1.0, label="distance to setpoint"
             )
     clearance_ax.set_ylabel("clearance (m)")
-    clearance_ax.set_ylim(bottom=0)
+    clearance_ax.set_ylim(0, max(3 * (threshold or 0), 3 * (metrics.get("planned_min_clearance_m") or 0), 0.5))
     clearance_ax.legend(fontsize=7, loc="upper right")
     deviation_ax.set_ylabel("tracking error (m)")
     deviation_ax.set_xlabel("vehicle time since arming (s)")

@@ -81,7 +81,7 @@ class _Follow:
         self.tau = 0.0
 
     def reference(self, p: np.ndarray, dt: float):
-        ref, vel, acc = (x[0] for x in self.profile.sample(self.tau))
+        ref, vel, acc = self.profile.at(self.tau)
         lag = float(np.linalg.norm(ref - p))
         rate = min(max((LEAD[1] - lag) / (LEAD[1] - LEAD[0]), 0.0), 1.0)
         self.tau = min(self.tau + rate * dt, self.profile.duration)
@@ -122,6 +122,7 @@ class SimulatedVehicle:
         )
         self._noise = np.random.default_rng(s.seed + 3)
         self.t = 0.0
+        self._next_heartbeat = -math.inf
         self.armed = False
         self.mode = "position"
         self.mission: list[MissionItem] = []
@@ -143,13 +144,33 @@ class SimulatedVehicle:
         self.telemetry_lost = False
         self.position_interval = 1.0 / s.position_rate
         self._next = {"position": 0.0, "state": 0.0, "current": 0.0}
-        self._next_heartbeat = -math.inf
         #: (t, x, y, z, vx, vy, vz) true states at the position rate, for tests and figures
         self.trajectory: list[tuple[float, ...]] = []
         #: what happened, in words, with the vehicle time (for tests and the log)
         self.events: list[tuple[float, str]] = []
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+
+    # ------------------------------------------------------------------ state announced at once
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    @mode.setter
+    def mode(self, value: str) -> None:
+        if value != getattr(self, "_mode", None):
+            self._next_heartbeat = -math.inf  # a mode change is announced by a HEARTBEAT at once
+        self._mode = value
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @armed.setter
+    def armed(self, value: bool) -> None:
+        if value != getattr(self, "_armed", None):
+            self._next_heartbeat = -math.inf
+        self._armed = value
 
     # ------------------------------------------------------------------ running
     @property

@@ -370,6 +370,7 @@ class MavlinkVehicle(Device):
             **metrics,
             **self.endpoint.stats.to_json(),
             "heartbeats_received": self.gcs.vehicle.heartbeats,
+            "setpoints_sent": self.endpoint.stats.sent["SET_POSITION_TARGET_LOCAL_NED"],
             "signed": self.endpoint.signed,
         }
         if len(flown):

@@ -1,0 +1,197 @@
+"""The faults of issue 8, each rehearsed from its pipeline file (configs/hall_faults_*.yaml).
+
+Each test loads the shipped file, keeps its fault settings, and runs the simulated
+vehicle those settings describe in a thread on a free 127.0.0.1 UDP port (faster
+than real time), so that the outcome can be checked against the simulator's own
+state; one test runs a file exactly as shipped, through the command line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import re
+import shutil
+import time
+
+import numpy as np
+import pytest
+from conftest import CONFIGS
+from helpers import coal_scene_segment_distance
+from surgiplan import load_pipeline, load_scene, run_pipeline
+from surgiplan.errors import SurgiplanError
+from surgiplan.plugins.devices.mavlink_link import mavlink
+from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle
+from test_mavlink_vehicle import HALL, RADIUS, ground_truth, session_file
+
+
+@pytest.fixture(scope="session")
+def roadmap(tmp_path_factory):
+    """The hall roadmap of the configs/hall_*.yaml files, shared with test_mavlink_vehicle (same place)."""
+    return session_file(tmp_path_factory, "hall-roadmap", "roadmap.npz")
+
+
+#: the ground station's heartbeat expectations in these tests: 2 Hz, lost after 5 missed (2.5 s)
+QUICK_LIVENESS = {"period": 0.5, "missed": 5}
+
+
+@contextlib.contextmanager
+def rehearse(name: str, tmp_path, roadmap, *, sim: dict | None = None, **settings):
+    """configs/hall_faults_<name>.yaml with its simulated vehicle in a thread; overrides for speed only."""
+    pipeline = load_pipeline(CONFIGS / f"hall_faults_{name}.yaml", output_dir=tmp_path / "out")
+    pipeline.stages[0].artifact = roadmap
+    flight = pipeline.stages[1]
+    given = flight.settings.sim
+    vehicle = SimulatedVehicle(type(given).model_validate({**given.model_dump(), **(sim or {})})).start()
+    values = {**flight.settings.model_dump(), **settings, "sim": None, "connection": f"udpout:127.0.0.1:{vehicle.port}"}
+    flight.settings = type(flight.settings).model_validate(values)
+    try:
+        yield pipeline, vehicle
+    finally:
+        vehicle.stop()
+
+
+def stage_of(outcome):
+    document = json.loads((outcome.output_dir / "result.json").read_text())
+    return document["stages"][1]
+
+
+def flight_log(outcome) -> np.ndarray:
+    return np.loadtxt(outcome.output_dir / "flight-flight.csv", delimiter=",", skiprows=1)
+
+
+# ----------------------------------------------------------------------------- a poor link
+
+
+@pytest.mark.slow
+def test_twenty_percent_packet_loss_both_ways_still_uploads_and_flies(tmp_path, roadmap):
+    with rehearse("packet_loss", tmp_path, roadmap, sim={"speed": 20.0}, figure=False) as (pipeline, vehicle):
+        assert vehicle.settings.packet_loss == 0.2 and pipeline.stages[1].settings.heartbeat.missed == 10
+        outcome = run_pipeline(pipeline)
+        stats = vehicle.endpoint.stats
+    stage = stage_of(outcome)
+    assert stage["status"] == "completed", stage.get("message")
+    metrics = stage["metrics"]
+    # the loss really happened, both ways ...
+    assert stats.dropped_in > 0 and stats.dropped_out > 0
+    assert stats.dropped_out / (stats.dropped_out + sum(stats.sent.values())) == pytest.approx(0.2, abs=0.05)
+    # ... and the vehicle holds exactly the mission that was sent
+    assert len(vehicle.mission) == metrics["mission_items"]
+    assert metrics["upload_requests"] >= metrics["mission_items"]
+    waypoints = np.array([[i.x, i.y, i.z] for i in vehicle.mission[1:-1]])
+    assert np.all(np.isfinite(waypoints)) and vehicle.mission[-1].command == mavlink.MAV_CMD_NAV_LAND
+    flown = flight_log(outcome)[:, 1:4]
+    assert coal_scene_segment_distance(load_scene(HALL), flown[:-1], flown[1:], RADIUS).min() > 0
+
+
+# ----------------------------------------------------------------------------- a silent vehicle
+
+
+@pytest.mark.parametrize(("step", "named"), [("mission_upload", "mission upload"), ("arming", "arming")])
+def test_vehicle_that_stops_answering_is_a_clear_error_naming_the_step(tmp_path, roadmap, step, named):
+    sim = {"speed": 20.0, "heartbeat_rate": 2.0, "stop_answering": {"step": step}}
+    with rehearse("silent", tmp_path, roadmap, sim=sim, heartbeat=QUICK_LIVENESS) as (pipeline, vehicle):
+        with pytest.raises(SurgiplanError) as caught:
+            run_pipeline(pipeline)
+    message = str(caught.value)
+    assert f"{named}: the vehicle stopped answering: no HEARTBEAT for " in message
+    assert "(5 missed at 2 Hz)" in message
+    assert vehicle.silent and not vehicle.armed
+    assert not (tmp_path / "out" / "result.json").exists()
+
+
+# ----------------------------------------------------------------------------- a refusing vehicle
+
+
+@pytest.mark.slow
+def test_rejected_mission_from_the_shipped_file_on_the_command_line(tmp_path, roadmap, cli, monkeypatch):
+    """The file exactly as shipped: the simulated vehicle a subprocess, the error on stderr, exit 2."""
+    monkeypatch.chdir(tmp_path)
+    if roadmap.exists():  # the file's artifact path is relative to the working directory
+        (tmp_path / "out" / "hall-flight").mkdir(parents=True)
+        shutil.copy(roadmap, tmp_path / "out" / "hall-flight" / "roadmap.npz")
+    code, _, err = cli("run", CONFIGS / "hall_faults_rejected.yaml", "--quiet")
+    assert code == 2
+    assert (
+        "mission upload: the vehicle rejected the mission: MAV_MISSION_NO_SPACE (4): Mission items exceed storage space"
+        in err
+    )
+    assert "Traceback" not in err
+    assert not (tmp_path / "out" / "hall-faults-rejected" / "result.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("sim", "result"),
+    [
+        ({"reject_mission": None, "mission_capacity": 10}, "MAV_MISSION_NO_SPACE (4)"),
+        ({"reject_mission": mavlink.MAV_MISSION_INVALID_PARAM5_X, "reject_at_item": 3}, "MAV_MISSION_INVALID_PARAM5_X"),
+    ],
+)
+def test_rejected_mission_reports_the_vehicles_result(tmp_path, roadmap, sim, result):
+    with rehearse("rejected", tmp_path, roadmap, sim={"speed": 20.0, **sim}) as (pipeline, vehicle):
+        with pytest.raises(
+            SurgiplanError, match=re.escape(f"mission upload: the vehicle rejected the mission: {result}")
+        ):
+            run_pipeline(pipeline)
+    assert vehicle.mission == [] and not vehicle.armed
+
+
+# ----------------------------------------------------------------------------- heartbeat lost in flight
+
+
+@pytest.mark.slow
+def test_heartbeat_lost_in_flight_commands_the_failsafe_and_the_vehicle_lands(tmp_path, roadmap):
+    sim = {"heartbeat_rate": 2.0}
+    with rehearse("heartbeat", tmp_path, roadmap, sim=sim, heartbeat=QUICK_LIVENESS, figure=False) as (
+        pipeline,
+        vehicle,
+    ):
+        assert vehicle.settings.heartbeat_loss.at_s == 6 and pipeline.stages[1].settings.failsafe == "land"
+        outcome = run_pipeline(pipeline)
+        events = [text for _, text in vehicle.events]
+        _, truth = ground_truth(vehicle)
+    stage = stage_of(outcome)
+    assert not outcome.ok and stage["status"] == "stopped"
+    assert "no HEARTBEAT for" in stage["message"]
+    assert stage["message"].endswith("commanded the failsafe: land (acknowledged, the vehicle landed)")
+    faults = stage["metrics"]["faults"]
+    assert [f["kind"] for f in faults] == ["heartbeat_lost", "failsafe"]
+    assert faults[0]["step"] == "flight" and faults[0]["vehicle_time_s"] > 6
+    assert faults[1] == {
+        "kind": "failsafe",
+        "action": "land",
+        "reason": "heartbeat lost",
+        "acknowledged": True,
+        "landed": True,
+    }
+    # the simulator's own account: heartbeats stopped, then LAND, and it stands on the floor, short of the goal
+    assert events.index("heartbeat lost (injected)") < events.index("mode land") < events.index("landed")
+    assert truth[-1][2] == pytest.approx(0.0, abs=1e-9)
+    assert np.linalg.norm(truth[-1][:2] - [22, 6]) > 3
+    # the flight up to the landing is in the report, and clear of everything
+    flown = flight_log(outcome)[:, 1:4]
+    assert flown[-1] == pytest.approx(truth[-1], abs=1e-4)
+    assert coal_scene_segment_distance(load_scene(HALL), flown[:-1], flown[1:], RADIUS).min() > 0
+
+
+@pytest.mark.slow
+def test_failsafe_is_commanded_even_when_the_vehicle_is_no_longer_heard(tmp_path, roadmap):
+    sim = {"heartbeat_rate": 2.0, "heartbeat_loss": {"at_s": 6, "all_telemetry": True}}
+    timeouts = {"command": 0.5, "command_retries": 2}
+    with rehearse(
+        "heartbeat", tmp_path, roadmap, sim=sim, heartbeat=QUICK_LIVENESS, timeouts=timeouts, figure=False
+    ) as (pipeline, vehicle):
+        outcome = run_pipeline(pipeline)
+        # the ground station could not hear it; the vehicle heard the LAND command and lands (simulated time)
+        deadline = time.monotonic() + 60
+        while vehicle.armed and time.monotonic() < deadline:
+            time.sleep(0.05)
+        events = [text for _, text in vehicle.events]
+        landed = not vehicle.armed and not vehicle.model.airborne
+    stage = stage_of(outcome)
+    assert stage["status"] == "stopped"
+    failsafe = stage["metrics"]["faults"][-1]
+    assert failsafe["kind"] == "failsafe" and failsafe["acknowledged"] is False
+    assert "no COMMAND_ACK for MAV_CMD_NAV_LAND after 3 attempts" in failsafe["error"]
+    assert "(not acknowledged)" in stage["message"]
+    assert "mode land" in events and landed

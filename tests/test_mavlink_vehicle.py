@@ -1,0 +1,320 @@
+"""The mavlink_vehicle device in pipelines: flights through the hall, re-measured independently.
+
+The simulated vehicle runs in a thread of the test on a free 127.0.0.1 UDP port
+(faster than real time); the device connects to it as to any vehicle, so the
+test can compare what the device reports with the simulator's ground truth,
+and the flown path's clearance with coal's distances.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import CONFIGS, write
+from helpers import coal_scene_segment_distance, coal_segment_distance
+from scipy.spatial import cKDTree
+from surgiplan import load_pipeline, load_scene, run_pipeline
+from surgiplan.errors import ConfigError, SurgiplanError
+from surgiplan.plugins.devices.mavlink_conventions import LocalFrame
+from surgiplan.plugins.devices.mavlink_gcs import GroundStation
+from surgiplan.plugins.devices.mavlink_link import Endpoint, VehicleError, mavlink
+from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle
+from surgiplan.plugins.devices.mavlink_sim_settings import SimSettings
+from surgiplan.registry import default_registry
+
+HALL = CONFIGS / "scenes" / "hall.yaml"
+ORIGIN = (2.0, 6.0, 0.0)  # the take-off pad: the vehicle's local NED origin in the hall
+RADIUS = 0.25
+MARGIN = 0.5
+
+
+def _shipped_plan_stage() -> str:
+    """The plan stage of configs/hall_flight.yaml, verbatim: every test pipeline plans as the shipped files do,
+    so that one stored roadmap serves the whole session."""
+    text = (CONFIGS / "hall_flight.yaml").read_text()
+    stage = text[text.index("  - stage: plan") : text.index("  - stage: execute")]
+    return stage.replace("{", "{{").replace("}", "}}").replace("out/hall-flight/roadmap.npz", "{artifact}")
+
+
+PIPELINE = (
+    """
+name: {name}
+length_unit: m
+scene: {scene}
+pipeline:
+"""
+    + _shipped_plan_stage()
+    + """  - stage: execute
+    name: flight
+    plugin: mavlink_vehicle
+    settings: {settings}
+output: {{dir: {out}, figures: false, gltf: false}}
+"""
+)
+
+#: a quick simulated vehicle: twenty times real time, a light breeze
+QUICK = {"speed": 20.0, "wind": {"mean": [0.2, 0.3, 0.0], "gust": 0.2}, "seed": 1}
+
+
+def session_file(factory, folder: str, name: str) -> Path:
+    # a fixed place in the session's temporary directory, so that every test module shares it
+    where = factory.getbasetemp() / folder
+    where.mkdir(exist_ok=True)
+    return where / name
+
+
+@pytest.fixture(scope="session")
+def roadmap(tmp_path_factory) -> Path:
+    """One hall roadmap for the whole session, outside the repository's out/ (built once, then loaded)."""
+    return session_file(tmp_path_factory, "hall-roadmap", "roadmap.npz")
+
+
+def hall_pipeline(tmp_path: Path, roadmap: Path, settings: dict, name: str = "hall") -> Path:
+    text = PIPELINE.format(
+        name=name,
+        scene=HALL,
+        artifact=roadmap,
+        settings=json.dumps(settings),
+        out=tmp_path / "out",
+    )
+    return write(tmp_path / f"{name}.yaml", text)
+
+
+def fly(tmp_path: Path, roadmap: Path, settings: dict):
+    """Run the hall pipeline; returns the outcome, the execute stage's entry of result.json, and the flight log."""
+    outcome = run_pipeline(load_pipeline(hall_pipeline(tmp_path, roadmap, settings)))
+    document = json.loads((outcome.output_dir / "result.json").read_text())
+    stage = document["stages"][1]
+    log = outcome.output_dir / "flight-flight.csv"
+    table = np.loadtxt(log, delimiter=",", skiprows=1) if log.exists() else None
+    return outcome, document, stage, table
+
+
+@contextlib.contextmanager
+def simulated(**settings):
+    """The simulated vehicle in a thread on a free UDP port."""
+    vehicle = SimulatedVehicle(SimSettings(**{**QUICK, **settings})).start()
+    try:
+        yield vehicle
+    finally:
+        vehicle.stop()
+
+
+def external(vehicle: SimulatedVehicle, **settings) -> dict:
+    return {
+        "connection": f"udpout:127.0.0.1:{vehicle.port}",
+        "frame": {"local_origin": list(ORIGIN)},
+        "cruise_speed": 2.0,
+        **settings,
+    }
+
+
+def ground_truth(vehicle: SimulatedVehicle) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's own states (vehicle time, scene positions)."""
+    rows = np.array(vehicle.trajectory)
+    return rows[:, 0], LocalFrame(ORIGIN).from_ned(rows[:, 1:4])
+
+
+def planned_path(document) -> np.ndarray:
+    return np.array(document["stages"][0]["path"])
+
+
+def dense(points: np.ndarray, spacing: float = 1e-3) -> np.ndarray:
+    pieces = [
+        a + np.linspace(0, 1, max(2, math.ceil(np.linalg.norm(b - a) / spacing) + 1))[:, None] * (b - a)
+        for a, b in itertools.pairwise(points)
+    ]
+    return np.vstack(pieces)
+
+
+def check_flight_against_independent_measures(document, stage, table, vehicle=None) -> dict:
+    """Re-measure the flight: coal clearances, KD-tree deviations, and the simulator's ground truth."""
+    metrics = stage["metrics"]
+    scene = load_scene(HALL)
+    flown = table[:, 1:4]
+    assert np.asarray(stage["path"]) == pytest.approx(flown, abs=1e-5)  # result.json's path is the flight log's
+    on_path = table[:, -1] > 0.5
+    index = np.flatnonzero(on_path)
+    a, b = flown[index[:-1]], flown[index[1:]]
+    coal_clearance = coal_scene_segment_distance(scene, a, b, RADIUS)
+    assert metrics["flown_min_clearance_m"] == pytest.approx(coal_clearance.min(), abs=1e-5)
+    whole = coal_scene_segment_distance(scene, flown[:-1], flown[1:], RADIUS)
+    assert metrics["flight_min_clearance_m"] == pytest.approx(whole.min(), abs=1e-5)
+    assert whole.min() > 0  # never touched anything
+    deviation, _ = cKDTree(dense(planned_path(document))).query(flown[on_path])
+    assert metrics["tracking_error_max_m"] == pytest.approx(deviation.max(), abs=2e-3)
+    assert metrics["tracking_error_rms_m"] == pytest.approx(np.sqrt(np.mean(deviation**2)), abs=2e-3)
+    if vehicle is not None:
+        times, truth = ground_truth(vehicle)
+        where = {round(t, 3): i for i, t in enumerate(times)}
+        matched = np.array([where[round(t, 3)] for t in table[:, 0]])
+        assert truth[matched] == pytest.approx(flown, abs=1e-4)  # float32 on the wire
+    return metrics
+
+
+# ----------------------------------------------------------------------------- the plugin and its settings
+
+
+def test_mavlink_vehicle_is_a_registered_device():
+    info = default_registry().get("device", "mavlink_vehicle")
+    assert info.package == "surgiplan" and info.cls.__name__ == "MavlinkVehicle"
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"connection": "udpin:0.0.0.0:14550", "sim": {"speed": 2}}, "remove one of them"),
+        ({"connection": "localhost"}, "not a MAVLink connection string; use udpin:HOST:PORT"),
+        ({"cruise_sped": 1.0}, "did you mean 'cruise_speed'"),
+        ({"sim": {"reject_mission": "NO_ROOM"}}, "unknown MAV_MISSION_RESULT 'NO_ROOM'; choose one of"),
+        ({"sim": {"stop_answering": "landing"}}, "sim.stop_answering"),
+        ({"failsafe": "panic"}, "failsafe"),
+        ({"signing": {"key": ""}}, "signing key is empty"),
+    ],
+)
+def test_bad_settings_are_reported_with_their_yaml_path(tmp_path, roadmap, settings, message):
+    with pytest.raises(ConfigError) as caught:
+        load_pipeline(hall_pipeline(tmp_path, roadmap, settings))
+    assert message in str(caught.value)
+    assert "pipeline[1].settings" in str(caught.value)
+
+
+# ----------------------------------------------------------------------------- flights
+
+
+def test_mission_flight_through_the_hall(tmp_path, roadmap):
+    with simulated() as vehicle:
+        outcome, document, stage, table = fly(tmp_path, roadmap, external(vehicle))
+    assert outcome.ok and stage["status"] == "completed"
+    metrics = check_flight_against_independent_measures(document, stage, table, vehicle)
+    # the mission the vehicle flew is the one that was planned: change speed, take off to the path's first
+    # waypoint, one waypoint per other (thinned) path point, land
+    assert len(vehicle.mission) == metrics["mission_items"] == metrics["waypoints"] + 2
+    commands = [i.command for i in vehicle.mission]
+    assert commands[:2] == [mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_TAKEOFF]
+    assert commands[-1] == mavlink.MAV_CMD_NAV_LAND
+    waypoints = vehicle.mission[1:-1]
+    scene_points = LocalFrame(ORIGIN).from_ned([[i.x, i.y, i.z] for i in waypoints])
+    distance, _ = cKDTree(dense(planned_path(document))).query(scene_points)
+    assert distance.max() <= 0.02 + 1e-4  # the waypoint tolerance
+    # safe_prm's promise, kept in flight: outside the door the margin holds up to the tracking error
+    assert metrics["clearance_threshold_m"] == MARGIN
+    outside = metrics["flown_min_clearance_outside_critical_m"]
+    assert outside >= MARGIN - metrics["tracking_error_max_m"] - 1e-9
+    assert metrics["flown_min_clearance_in_critical_m"] > 0.2  # the door: 0.35 m at best
+    assert metrics["tracking_error_max_m"] < 0.15
+    # it took off from its pad, flew, landed on the other pad and disarmed
+    _, truth = ground_truth(vehicle)
+    assert truth[0] == pytest.approx([2, 6, 0], abs=1e-6)
+    assert truth[-1] == pytest.approx([22, 6, 0], abs=0.15)
+    assert not vehicle.armed
+    assert {"flight-flight.csv", "flight.png"} <= set(document["files"])
+    assert metrics["upload_retransmissions"] == 0 and metrics["signed"] is False
+
+
+def test_offboard_flight_streams_setpoints_on_the_vehicle_clock(tmp_path, roadmap):
+    with simulated() as vehicle:
+        settings = external(vehicle, mode="offboard", acceleration=1.0, corner_deviation=0.05, figure=False)
+        outcome, document, stage, table = fly(tmp_path, roadmap, settings)
+    assert outcome.ok and stage["status"] == "completed"
+    metrics = check_flight_against_independent_measures(document, stage, table, vehicle)
+    assert metrics["setpoint_error_max_m"] < 0.15
+    # the setpoint path rounds corners by at most 5 cm: deviation from the plan = that plus tracking
+    assert metrics["tracking_error_max_m"] <= metrics["setpoint_error_max_m"] + 0.05 + 0.02 + 1e-9
+    # the stream never lapsed: no offboard loss on the vehicle, and more than PX4's minimum of 2 Hz
+    assert not any("setpoints lost" in text for _, text in vehicle.events)
+    assert metrics["setpoints_sent"] >= 2 * metrics["flight_time_s"]
+    assert any(text == "mode offboard" for _, text in vehicle.events)
+    assert not vehicle.armed
+
+
+def test_flight_is_refused_when_the_approach_crosses_a_wall(tmp_path, roadmap):
+    # the vehicle stands in room B (scene 14, 3): the straight approach to room A's pad crosses the wall
+    # and, deepest, pillar A1 (the message names the obstacle it comes closest to)
+    with simulated(home=(-3.0, 12.0, 0.0)) as vehicle:
+        outcome, _, stage, _ = fly(tmp_path, roadmap, external(vehicle))
+    assert not outcome.ok and stage["status"] == "stopped"
+    assert stage["message"].startswith(
+        "refused before any motion: the approach leg from [14.0, 3.0, 1.5] to [2.0, 6.0, 1.5] m "
+        "passes -0.453 m from 'A1'"
+    )
+    scene = load_scene(HALL)
+    start, end = np.array([[14.0, 3, 1.5]]), np.array([[2.0, 6, 1.5]])
+    assert coal_scene_segment_distance(scene, start, end, RADIUS)[0] < 0  # coal agrees: it would collide
+    a1 = scene.obstacles[scene.obstacle_names.index("A1")]
+    assert coal_segment_distance(a1, start, end, RADIUS)[0] < 0
+    assert not any(text == "armed" for _, text in vehicle.events) and vehicle.mission == []
+
+
+@pytest.mark.slow
+def test_the_hall_pipeline_file_flies_its_mission(tmp_path, roadmap):
+    """configs/hall_flight.yaml as shipped, its mission flight (the simulated vehicle in a thread, faster;
+    test_mavlink_faults runs a shipped file with the simulator as the separate program it is by default)."""
+    pipeline = load_pipeline(CONFIGS / "hall_flight.yaml", output_dir=tmp_path / "out")
+    pipeline.stages = pipeline.stages[:2]
+    pipeline.stages[0].artifact = roadmap
+    flight = pipeline.stages[1]
+    assert flight.settings.connection is None and flight.settings.sim_process == "subprocess"
+    flight.settings.sim_process = "thread"
+    flight.settings.sim.speed = 20.0
+    outcome = run_pipeline(pipeline)
+    document = json.loads((outcome.output_dir / "result.json").read_text())
+    stage = document["stages"][1]
+    assert stage["status"] == "completed", stage.get("message")
+    metrics = stage["metrics"]
+    assert metrics["simulated"] and metrics["connection"].startswith("udpout:127.0.0.1:")
+    assert metrics["flown_min_clearance_m"] > 0.2
+    assert metrics["flown_min_clearance_outside_critical_m"] >= 0.5 - metrics["tracking_error_max_m"]
+    assert (outcome.output_dir / "flight-mission.png").stat().st_size > 10_000
+    assert {"route.png", "flight-mission.png", "flight-flight-mission.csv", "scene.glb"} <= set(document["files"])
+
+
+# ----------------------------------------------------------------------------- signing
+
+
+def test_signed_link_works_and_strangers_are_told_why_they_are_ignored():
+    key = "correct horse battery staple"
+    with simulated(signing_key=key) as vehicle:
+        target = f"udpout:127.0.0.1:{vehicle.port}"
+        signed = Endpoint(
+            target, system_id=255, component_id=190, key=__import__("hashlib").sha256(key.encode()).digest()
+        )
+        try:
+            station = GroundStation(signed)
+            station.connect(10)
+            station.step = "telemetry setup"
+            assert station.set_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20)
+            assert signed.signature_rejections == 0
+        finally:
+            signed.close()
+        unsigned = Endpoint(target, system_id=254, component_id=190)
+        try:
+            with pytest.raises(VehicleError, match=r"signs its messages .* give the shared key in signing\.key"):
+                GroundStation(unsigned).connect(10)
+        finally:
+            unsigned.close()
+        wrong = Endpoint(target, system_id=253, component_id=190, key=b"x" * 32)
+        try:
+            with pytest.raises(VehicleError, match=r"frames were rejected .* check the signing key"):
+                GroundStation(wrong).connect(1.5)
+        finally:
+            wrong.close()
+        assert vehicle.endpoint.signature_rejections > 0  # the vehicle ignored the unsigned ones
+
+
+def test_no_vehicle_is_a_clear_connect_error(tmp_path, roadmap):
+    # a port nobody listens on
+    with simulated() as vehicle:
+        port = vehicle.port
+    settings = {"connection": f"udpout:127.0.0.1:{port}", "timeouts": {"connect": 1}}
+    with pytest.raises(
+        SurgiplanError, match=r"connect: no HEARTBEAT from a vehicle on 'udpout:127.0.0.1:\d+' within 1 s"
+    ):
+        run_pipeline(load_pipeline(hall_pipeline(tmp_path, roadmap, settings)))
+    assert not (tmp_path / "out" / "result.json").exists()
