@@ -3,7 +3,8 @@
 For 500, 2000 and 5000 milestones and 5 seeds each, in one run on one machine:
 
 * roadmap build time (safe_prm builds R and R_safe together; OMPL's PRM one roadmap),
-* query time (safe_prm: linking, search and repair; smoothing reported apart),
+* query time (safe_prm: linking, search and repair; smoothing reported apart), for the
+  expert (nothing to repair) and for the 4 mm and 8 mm thresholds (repairs, critical regions),
 * path length after each planner's own smoothing (safe_prm: the corridor QP;
   OMPL: PathSimplifier.simplifyMax), and its minimum clearance, re-measured with coal,
 * raw paths (before smoothing) that clip an obstacle, measured with coal,
@@ -144,6 +145,8 @@ def summarise(records, planner, milestones):
         "seeds": len(records["expert"]),
         "build_s": fmt(med("build_s")),
         "query_ms": fmt(med("query_s"), 1e3),
+        "query_ms_4mm": fmt(med("query_s", "intermediate"), 1e3) if planner == "safe_prm" else "—",
+        "query_ms_8mm": fmt(med("query_s", "beginner"), 1e3) if planner == "safe_prm" else "—",
         "smooth_ms": fmt(med("smooth_s"), 1e3) if planner == "safe_prm" else "—",
         "length_mm": fmt(med("length_m"), 1e3, 4),
         "min_clear_mm": fmt(med("min_clearance_m"), 1e3),
@@ -188,6 +191,8 @@ def main() -> None:
         "build_s",
         "build_speedup",
         "query_ms",
+        "query_ms_4mm",
+        "query_ms_8mm",
         "smooth_ms",
         "length_mm",
         "length_vs_ompl",
