@@ -223,7 +223,7 @@ def sampled_equilibria(n: int, chunk: int, workers: int, store: str | None) -> d
         finally:
             progress.close()
         wall = time.perf_counter() - started
-    keys = ("converged", "valid", "iterations", "factorizations", "solve_s")
+    keys = ("converged", "valid", "iterations", "factorizations", "solve_s", "cpu_s")
     cat = {k: np.concatenate([r[k] for r in results.values()]) for k in keys}
     ok = cat["converged"] & cat["valid"]
     return {
@@ -244,6 +244,9 @@ def sampled_equilibria(n: int, chunk: int, workers: int, store: str | None) -> d
         "p90_solve_s": round(float(np.percentile(cat["solve_s"], 90)), 3),
         "max_solve_s": round(float(np.max(cat["solve_s"])), 3),
         "core_s_per_sample": round(float(cat["solve_s"].sum()) / n, 3),
+        "cpu_s_per_sample": round(float(cat["cpu_s"].sum()) / n, 3),
+        # what the wall time would be with every worker on a core of its own (a loaded machine inflates wall_s)
+        "cpu_bound_wall_s": round(float(cat["cpu_s"].sum()) / workers, 1),
     }
 
 
