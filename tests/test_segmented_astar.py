@@ -54,14 +54,13 @@ def test_astar_cost_equals_dijkstra_on_the_same_graph():
 
 
 def dijkstra_with_links(artifact, p, start, goal) -> float:
-    """Independent reference: scipy's Dijkstra on the pathmap graph plus every coal-certified straight link."""
+    """Independent reference: scipy's Dijkstra on the pathmap graph plus the coal-certified straight links."""
     graph = artifact.graph
     n = len(graph.points)
     rows, cols, weights = [], [], []
     for node, q in ((n, start), (n + 1, goal)):
-        distance, index = graph.tree.query(q, k=p.settings.link_candidates, distance_upper_bound=p.settings.link_radius)
-        keep = np.isfinite(distance)
-        distance, index = distance[keep], index[keep]
+        index = p.link_candidates(artifact, q)  # the planner's choice of candidates; certified here by coal
+        distance = np.linalg.norm(graph.points[index] - q, axis=1)
         clear = coal_scene_segment_distance(small_world(), np.repeat(q[None], len(index), 0), graph.points[index],
                                             TIP_RADIUS) > 0
         rows += [np.full(clear.sum(), node), index[clear]]
@@ -170,14 +169,15 @@ def test_points_no_stored_path_reaches_answer_no_path_with_the_reason():
     assert result.status.value == "invalid_start"
 
 
-def test_replanning_midway_gives_a_new_path_from_the_current_position():
+def test_replanning_midway_gives_a_new_path_from_the_current_position(tmp_path):
     artifact = pathmap_artifact()
     pois, names = artifact.pathmap.pois, artifact.pathmap.names
     a, b, c = pois[names.index("a")], pois[names.index("d")], pois[names.index("c")]
     first = planner().query(artifact, a, b)
-    p = planner(replan=ReplanSettings(goal="c", at=0.5))
+    p = planner(replan=ReplanSettings(goal="c", at=0.5, figure=str(tmp_path / "fig6.png")))
     result = p.query(artifact, a, b)
     assert result.solved
+    assert (tmp_path / "fig6.png").read_bytes()[:4] == b"\x89PNG"
     replan = result.metrics["replan"]
     current = np.array(replan["position_m"])
     # the travelled part is the first path up to half its length ...

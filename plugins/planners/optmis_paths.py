@@ -192,9 +192,10 @@ def refine_corners(space, polylines: list[np.ndarray], margin: float, floor: flo
             normal = _unit(values[:, :3] - values[:, 3:])
             candidate[low] += (floor - space.clearance(candidate[low]))[:, None] * normal
         x[corner] = candidate
+    levels = np.array([1.0, 0.9, 0.75, 0.5, 0.25, 0.0])
     for k in range(2 if len(moving) else 0):
-        # then in, towards the edge, as far as both legs keep the floor (bisection on the exact
-        # clearance of the legs): the path wraps the edge as closely as a polyline can
+        # then in, towards the edge, as far as both legs keep the floor: the path wraps the edge as
+        # closely as a polyline can (a few push levels, all tried in one batched check)
         corner = moving[parity == k]
         if not corner.size:
             continue
@@ -202,16 +203,15 @@ def refine_corners(space, polylines: list[np.ndarray], margin: float, floor: flo
         offsets = np.concatenate([np.eye(3), -np.eye(3)]) * 1e-6
         values = space.clearance((here[:, None] + offsets[None]).reshape(-1, 3)).reshape(-1, 6)
         normal = _unit(values[:, :3] - values[:, 3:])
-        lo = np.zeros(len(corner))
-        hi = np.maximum(space.clearance(here) - floor, 0.0)
-        for _ in range(8):
-            mid = 0.5 * (lo + hi)
-            trial = here - mid[:, None] * normal
-            ok = (np.minimum(space.segment_clearance(x[corner - 1], trial),
-                             space.segment_clearance(trial, x[corner + 1])) >= floor)
-            lo = np.where(ok, mid, lo)
-            hi = np.where(ok, hi, mid)
-        x[corner] = here - lo[:, None] * normal
+        push = np.maximum(space.clearance(here) - floor, 0.0)
+        trial = here[None] - (levels[:, None, None] * push[None, :, None]) * normal[None]  # (levels, corners, 3)
+        before = np.broadcast_to(x[corner - 1], trial.shape).reshape(-1, 3)
+        after = np.broadcast_to(x[corner + 1], trial.shape).reshape(-1, 3)
+        flat = trial.reshape(-1, 3)
+        ok = space.motion_is_clear(np.concatenate([before, flat]), np.concatenate([flat, after]), floor)
+        ok = ok.reshape(2, len(levels), len(corner)).all(axis=0)
+        ok[-1] = True  # not moving at all is always allowed
+        x[corner] = trial[np.argmax(ok, axis=0), np.arange(len(corner))]
     checks = 0
     accepted = np.zeros(len(polylines), dtype=bool)
     result = [p.copy() for p in polylines]

@@ -17,8 +17,9 @@ planner fails for points not in the graph, §7):
   is ``no_path`` with the reason;
 * *replanning* (paper 001 Fig. 6): :meth:`SegmentedAStar.replan` gives a
   new path from the current position to a new goal; ``replan: {goal: C,
-  at: 0.6}`` in a pipeline plans A -> B, moves 60 % of the way along it and
-  replans to C, returning the travelled part and the new path.
+  at: 0.6, figure: fig6.png}`` in a pipeline plans A -> B, moves 60 % of the
+  way along it and replans to C, returning the travelled part and the new
+  path, and draws the instance like Fig. 6 (:mod:`.segmented_figures`).
 
 Every returned motion is certified for the tip sphere: pathmap motions were
 certified when the pathmap was built, links and local plans when made.
@@ -60,8 +61,11 @@ class ReplanSettings(BaseModel):
     """Paper 001 Fig. 6: after a fraction ``at`` of the first path, a new goal."""
 
     model_config = ConfigDict(extra="forbid")
+    #: the new goal C: a scene point's name or coordinates
     goal: str | Vec3
     at: float = Field(default=1.0, gt=0, le=1)
+    #: write the instance drawn like paper 001 Fig. 6 to this PNG file (relative to the current directory)
+    figure: str | None = None
 
 
 class SegmentedAStarSettings(OptMISSettings):
@@ -76,8 +80,9 @@ class SegmentedAStarSettings(OptMISSettings):
     #: a segment also matches one traversed the other way
     reverse: bool = True
     # query settings (exclude=True: they do not change the stored pathmap, so not its content key)
-    #: how far a start or goal may be linked to the pathmap by a straight motion
-    link_radius: PositiveLength = Field(default=0.02, exclude=True)
+    #: how far a start or goal may be linked to the pathmap by a straight motion (to the nearest point
+    #: of each of the ``link_candidates`` nearest chains of the online graph)
+    link_radius: PositiveLength = Field(default=0.03, exclude=True)
     #: half-size of the box in which a local plan links a start or goal the straight links cannot
     local_radius: PositiveLength = Field(default=0.015, exclude=True)
     report: ReportSettings | None = Field(default=None, exclude=True)
@@ -183,10 +188,7 @@ class SegmentedAStar(Planner):
         distance, v = graph.tree.query(q)
         if distance <= 1e-12:
             return graph.attachments_at_vertex(int(v), q[None], 0.0), "vertex"
-        k = min(settings.link_candidates, len(graph.points))
-        distance, index = graph.tree.query(q, k=k, distance_upper_bound=settings.link_radius)
-        found = np.isfinite(np.atleast_1d(distance))
-        index = np.atleast_1d(index)[found]
+        index = self.link_candidates(artifact, q)
         if index.size:
             targets = graph.points[index]
             ok = space.motion_is_clear(np.repeat(q[None], len(index), 0), targets, settings.margin)
@@ -199,6 +201,21 @@ class SegmentedAStar(Planner):
                 return out, "straight"
         counters["local_plans"] += 1
         return self._local_plan(artifact, q), "local"
+
+    def link_candidates(self, artifact: PathmapArtifact, q: np.ndarray) -> np.ndarray:
+        """Graph vertices a straight link from q may go to, nearest first.
+
+        The nearest point of each of the ``link_candidates`` nearest chains
+        within ``link_radius``: links into different stored paths, rather than
+        many into the one path that q happens to lie beside.
+        """
+        graph, settings = artifact.graph, self.settings
+        k = min(8 * settings.link_candidates, len(graph.points))
+        distance, index = graph.tree.query(q, k=k, distance_upper_bound=settings.link_radius)
+        index = np.atleast_1d(index)[np.isfinite(np.atleast_1d(distance))]
+        owner = np.where(graph.is_junction[index], -1 - index, graph.chain_of[index])
+        _, first = np.unique(owner, return_index=True)
+        return index[np.sort(first)][: settings.link_candidates]
 
     def _local_plan(self, artifact: PathmapArtifact, q: np.ndarray) -> list[Attachment]:
         """Certified paths from q to pathmap points in a box around it (a small optMIS search space)."""
@@ -268,6 +285,14 @@ class SegmentedAStar(Planner):
                                       **metrics)
         combined = np.concatenate([travelled, second.path[1:]])
         keep = np.concatenate([[True], np.any(np.diff(combined, axis=0) != 0, axis=1)])
+        if replan.figure:
+            from .segmented_figures import replanning_figure
+
+            labels = {"A": start, "B": goal, "C": new_goal, "R": current}
+            replanning_figure(Path(replan.figure), artifact.space.scene, path, travelled, second.path, labels,
+                              title=f"replanning (paper 001 Fig. 6): A to B, new goal C after {replan.at:.0%} "
+                              f"of the way (replanned in {second.metrics['online_s'] * 1e3:.2f} ms)")
+            metrics["replan"]["figure"] = replan.figure
         return PlanResult(PlanStatus.SOLVED, combined[keep], metrics,
                           annotations={"replan": {"position_m": current.tolist(), "travelled_m": float(where)}})
 
