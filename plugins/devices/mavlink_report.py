@@ -88,6 +88,7 @@ def flight_metrics(
         worst = int(np.argmin(segment))
         nearest = int(space.scene.segment_distance(a[worst][None], b[worst][None])[1][0])
         metrics["path_time_s"] = float(t[idx[-1]] - t[idx[0]])
+        metrics["flown_path_length_m"] = float(np.linalg.norm(b - a, axis=1).sum())
         metrics["flown_min_clearance_m"] = float(segment[worst])
         metrics["flown_min_clearance_obstacle"] = space.scene.obstacles[nearest].name if nearest >= 0 else None
         metrics["flown_min_clearance_point_m"] = [float(x) for x in 0.5 * (a[worst] + b[worst])]
@@ -112,6 +113,14 @@ def flight_metrics(
             metrics["flown_length_below_threshold_outside_critical_m"] = float(
                 pieces[(segment < threshold) & ~inside].sum()
             )
+    # the names the summary table (and the other devices) use, for the stretch along the path
+    for common, ours in (
+        ("length_m", "flown_path_length_m"),
+        ("executed_min_clearance_m", "flown_min_clearance_m"),
+        ("length_below_threshold_m", "flown_length_below_threshold_m"),
+    ):
+        if ours in metrics:
+            metrics[common] = metrics[ours]
     if setpoints is not None and np.any(in_path):
         error = np.linalg.norm(flown - setpoints, axis=1)
         arrays["setpoint_error"] = error
@@ -210,7 +219,7 @@ def flight_figure(
     top.set_aspect("equal")
     top.set_xlabel("x (m)")
     top.set_ylabel("y (m)")
-    top.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=4, fontsize=7, frameon=False)
+    top.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=4, fontsize=7, frameon=False)
 
     clearance_ax = fig.add_subplot(grid[0, 1])
     deviation_ax = fig.add_subplot(grid[1, 1], sharex=clearance_ax)

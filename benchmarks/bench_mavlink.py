@@ -1,0 +1,240 @@
+"""mavlink_vehicle: mission upload under packet loss, tracking in wind, and the simulator's speed.
+
+Everything over real MAVLink 2 on 127.0.0.1 UDP, with the simulated vehicle in a thread:
+
+1. upload: missions of 20 and 100 waypoints, packets dropped at 0-40 % in each direction; median
+   upload time over seeds, the vehicle's re-requests and the ground station's retransmissions;
+   beside it the time the mission protocol's own timeouts predict (the reference): with
+   q = (1 - p)^2 the chance that a request and its item both arrive, a lost round trip costs the
+   vehicle's item timeout (0.25 s), and a lost MISSION_COUNT (or first request) the ground
+   station's 1.5 s, so E[T] ~ N (1/q - 1) 0.25 s + (1 - q) 1.5 s + N * (one round trip).
+2. tracking: the hall path (configs/hall_flight.yaml's plan) flown as a mission and as an
+   offboard stream, in a 0.5 m/s breeze with gusts of 0-0.9 m/s (3 seeds each): tracking error
+   against the planned path, and the flown clearance inside the door (the critical region,
+   0.35 m planned) and outside it (0.5 m threshold), re-measured on the scene.
+3. speed: simulated seconds per wall second the simulator sustains while flying a mission
+   (asked for 1000x).
+
+    python benchmarks/bench_mavlink.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import save, table
+from surgiplan import load_pipeline, run_pipeline
+from surgiplan.plugins.devices.mavlink_gcs import GroundStation
+from surgiplan.plugins.devices.mavlink_link import Endpoint, mavlink
+from surgiplan.plugins.devices.mavlink_mission import MissionItem
+from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle
+from surgiplan.plugins.devices.mavlink_sim_settings import SimSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+ITEM_TIMEOUT, COUNT_TIMEOUT = 0.25, 1.5
+
+
+def mission(n: int) -> list[MissionItem]:
+    return [MissionItem(mavlink.MAV_CMD_NAV_WAYPOINT, x=0.5 * i, y=0.0, z=-1.5, param2=0.1) for i in range(n)]
+
+
+def predicted_upload(n: int, loss: float, round_trip: float) -> float:
+    q = (1 - loss) ** 2
+    return n * (1 / q - 1) * ITEM_TIMEOUT + (1 - q) * COUNT_TIMEOUT + n * round_trip
+
+
+def upload_once(n: int, loss: float, seed: int) -> dict:
+    vehicle = SimulatedVehicle(SimSettings(packet_loss=loss, seed=seed, heartbeat_rate=5.0)).start()
+    link = Endpoint(f"udpout:127.0.0.1:{vehicle.port}", system_id=255, component_id=190)
+    try:
+        station = GroundStation(link, missed_heartbeats=50, heartbeat_period=0.2)
+        station.connect(30)
+        station.step = "mission upload"
+        items = mission(n)
+        started = time.perf_counter()
+        stats, transfers = station.upload(items)
+        elapsed = time.perf_counter() - started
+        intact = len(vehicle.mission) == n and all(a.same_as(b) for a, b in zip(vehicle.mission, items, strict=True))
+        return {
+            "upload_s": elapsed,
+            "transfers": transfers,
+            "requests_per_item": stats.requests / n,
+            "vehicle_rerequests": vehicle.receiver.stats.rerequests,
+            "gcs_retransmissions": stats.retransmissions,
+            "intact": intact,
+        }
+    finally:
+        link.close()
+        vehicle.stop()
+
+
+def bench_upload(sizes, losses, seeds) -> list[dict]:
+    rows = []
+    base = statistics.median(upload_once(sizes[0], 0.0, s)["upload_s"] for s in range(3))
+    round_trip = base / sizes[0]
+    for n in sizes:
+        for loss in losses:
+            runs = [upload_once(n, loss, seed) for seed in range(seeds)]
+            rows.append(
+                {
+                    "benchmark": "upload",
+                    "items": n,
+                    "loss": loss,
+                    "upload_s_median": round(statistics.median(r["upload_s"] for r in runs), 3),
+                    "upload_s_max": round(max(r["upload_s"] for r in runs), 3),
+                    "predicted_s": round(predicted_upload(n, loss, round_trip), 3),
+                    "requests_per_item": round(statistics.median(r["requests_per_item"] for r in runs), 3),
+                    "vehicle_rerequests": statistics.median(r["vehicle_rerequests"] for r in runs),
+                    "gcs_retransmissions": statistics.median(r["gcs_retransmissions"] for r in runs),
+                    "transfers_max": max(r["transfers"] for r in runs),
+                    "all_intact": all(r["intact"] for r in runs),
+                    "runs": len(runs),
+                }
+            )
+            print(table(rows[-1:], list(rows[-1])), flush=True)
+    return rows
+
+
+HALL = """
+name: bench-hall
+length_unit: m
+scene: {scene}
+pipeline:
+{plan}  - stage: execute
+    name: flight
+    plugin: mavlink_vehicle
+    settings: {settings}
+output: {{dir: {out}, figures: false, gltf: false}}
+"""
+
+
+def hall_plan(artifact: Path) -> str:
+    text = (ROOT / "configs" / "hall_flight.yaml").read_text()
+    stage = text[text.index("  - stage: plan") : text.index("  - stage: execute")]
+    return stage.replace("out/hall-flight/roadmap.npz", str(artifact))
+
+
+def fly(tmp: Path, artifact: Path, mode: str, gust: float, seed: int) -> dict:
+    sim = SimSettings(speed=20.0, seed=seed, wind={"mean": [0.3, 0.4, 0.0], "gust": gust})
+    vehicle = SimulatedVehicle(sim).start()
+    try:
+        settings = {
+            "connection": f"udpout:127.0.0.1:{vehicle.port}",
+            "mode": mode,
+            "frame": {"local_origin": [2, 6, 0]},
+            "cruise_speed": 1.5,
+            "figure": False,
+        }
+        path = tmp / f"{mode}-{gust}-{seed}.yaml"
+        text = HALL.format(
+            scene=ROOT / "configs" / "scenes" / "hall.yaml",
+            plan=hall_plan(artifact),
+            settings=json.dumps(settings),
+            out=tmp / f"out-{mode}-{gust}-{seed}",
+        )
+        path.write_text(text)
+        outcome = run_pipeline(load_pipeline(path))
+        stage = json.loads((outcome.output_dir / "result.json").read_text())["stages"][1]
+        return stage["metrics"] | {"status": stage["status"]}
+    finally:
+        vehicle.stop()
+
+
+def bench_tracking(gusts, seeds) -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        tmp = Path(folder)
+        artifact = tmp / "roadmap.npz"
+        for gust in gusts:
+            for mode in ("mission", "offboard"):
+                runs = [fly(tmp, artifact, mode, gust, seed) for seed in range(seeds)]
+                ok = [r for r in runs if r["status"] == "completed"]
+
+                def med(key, ok=ok):
+                    values = [r[key] for r in ok if r.get(key) is not None]
+                    return round(statistics.median(values), 4) if values else None
+
+                rows.append(
+                    {
+                        "benchmark": "tracking",
+                        "mode": mode,
+                        "gust_mps": gust,
+                        "completed": f"{len(ok)}/{len(runs)}",
+                        "tracking_error_max_m": med("tracking_error_max_m"),
+                        "tracking_error_rms_m": med("tracking_error_rms_m"),
+                        "door_min_clearance_m": med("flown_min_clearance_in_critical_m"),
+                        "outside_min_clearance_m": med("flown_min_clearance_outside_critical_m"),
+                        "below_threshold_outside_m": med("flown_length_below_threshold_outside_critical_m"),
+                        "path_time_s": med("path_time_s"),
+                    }
+                )
+                print(table(rows[-1:], list(rows[-1])), flush=True)
+    return rows
+
+
+def bench_speed(seconds: float) -> list[dict]:
+    """Simulated seconds per wall second while flying a 60-waypoint mission, asked for 1000x."""
+    vehicle = SimulatedVehicle(SimSettings(speed=1000.0, wind={"mean": [0.3, 0.4, 0.0], "gust": 0.3})).start()
+    link = Endpoint(f"udpout:127.0.0.1:{vehicle.port}", system_id=255, component_id=190)
+    try:
+        station = GroundStation(link, missed_heartbeats=1000)
+        station.connect(30)
+        station.step = "setup"
+        items = [MissionItem(mavlink.MAV_CMD_NAV_TAKEOFF, z=-1.5)]
+        circle = np.linspace(0, 12 * np.pi, 60)
+        items += [
+            MissionItem(mavlink.MAV_CMD_NAV_WAYPOINT, x=10.0 * np.cos(k), y=10.0 * np.sin(k), z=-1.5) for k in circle
+        ]
+        station.upload(items)
+        station.set_mode("mission")
+        station.arm()
+        start_sim, start_wall = vehicle.t, time.perf_counter()
+        while time.perf_counter() - start_wall < seconds:
+            station.pump(0.05)
+        factor = (vehicle.t - start_sim) / (time.perf_counter() - start_wall)
+    finally:
+        link.close()
+        vehicle.stop()
+    rows = [
+        {
+            "benchmark": "speed",
+            "asked": 1000.0,
+            "sustained_x_real_time": round(factor, 1),
+            "physics_step_s": SimSettings().step,
+        }
+    ]
+    print(table(rows, list(rows[0])), flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes, for checking the script")
+    args = parser.parse_args()
+    if args.quick:
+        rows = bench_upload([20], [0.0, 0.2], 2) + bench_tracking([0.3], 1) + bench_speed(2.0)
+    else:
+        rows = bench_upload([20, 100], [0.0, 0.1, 0.2, 0.3, 0.4], 5) + bench_tracking([0.0, 0.3, 0.6, 0.9], 3)
+        rows += bench_speed(10.0)
+    notes = (
+        "MAVLink 2 over 127.0.0.1 UDP, simulated vehicle in a thread of this process; upload times are wall "
+        "clock (protocol timeouts: vehicle 0.25 s per item, 10 retries; ground station 1.5 s, 5 retries); "
+        "predicted_s is the mission protocol's expectation from its timeouts; tracking flights at 20x real time"
+    )
+    if args.quick:
+        return  # a check of the script; results/mavlink.json holds full runs only
+    print(f"\nwritten {save('mavlink', rows, notes)}")
+
+
+if __name__ == "__main__":
+    main()
