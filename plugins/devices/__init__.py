@@ -4,8 +4,10 @@ Modules: :mod:`.kinematics` (Pinocchio models, QP inverse kinematics),
 :mod:`.timing` (time-optimal parameterisation), :mod:`.cia402` (the drive
 profile), :mod:`.bus` (transport, fault injection, bus load),
 :mod:`.network` and :mod:`.clock` (simulated clock), :mod:`.drives`
-(simulated drives), :mod:`.master` (CANopen master), :mod:`.control` (the
-supervised control loop), :mod:`.device` (lifecycle and execution),
+(simulated drives; :mod:`.sim_drives` runs them in a process of their own),
+:mod:`.master` (CANopen master), :mod:`.control` (the supervised control
+loop), :mod:`.settings` and :mod:`.device` (settings, lifecycle and
+execution), :mod:`.execution_report` (metrics, figure, log),
 :mod:`.cast_gimbal` and :mod:`.gripper6` (the devices).
 """
 

@@ -33,8 +33,9 @@ from surgiplan.models import PoseModel
 from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace
 from surgiplan.units import Length
 
-from .device import Cia402Device, Cia402DeviceSettings, JointPath, Refusal
+from .device import Cia402Device, JointPath, Refusal
 from .kinematics import DifferentialIK, KinematicModel, urdf_path
+from .settings import Cia402DeviceSettings
 
 
 class CastGimbalDeviceSettings(Cia402DeviceSettings):

@@ -39,8 +39,9 @@ from surgiplan.geometry.transforms import canonical_quaternion, quaternion_angle
 from surgiplan.models import PoseModel
 from surgiplan.units import Angle, Length
 
-from .device import Cia402Device, Cia402DeviceSettings, JointPath, Refusal
+from .device import Cia402Device, JointPath, Refusal
 from .kinematics import DifferentialIK, KinematicModel, urdf_path
+from .settings import Cia402DeviceSettings
 
 
 class Gripper6Settings(Cia402DeviceSettings):

@@ -1,0 +1,86 @@
+"""Settings every CiA 402 device shares (``cast_gimbal``, ``gripper6``): bus, rates, limits, supervision.
+
+Per-joint lists are in SI joint units (rad or m); lengths accept the pipeline's
+``length_unit``. Device-specific settings extend :class:`Cia402DeviceSettings`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
+from surgiplan.units import PositiveLength
+
+from .bus import BusSettings
+
+#: encoder resolution defaults: a 17-bit absolute encoder (revolute), 1 um per count (prismatic)
+REVOLUTE_COUNTS = 2**17 / (2 * math.pi)
+PRISMATIC_COUNTS = 1e6
+
+
+class SimulationSettings(BaseModel):
+    """The simulated drives (``bus.interface: virtual``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    #: joint positions at power-up (SI); None: the first trajectory's start, as if placed there by hand
+    initial: list[float] | None = None
+    position_gain: PositiveFloat = 150.0
+    velocity_gain: PositiveFloat = 1000.0
+    #: each drive's current limit, as a multiple of the trajectory's acceleration limit
+    peak_acceleration_factor: float = Field(default=3.0, gt=1.0)
+    #: each motor's speed limit, as a multiple of the joint velocity limit
+    velocity_factor: float = Field(default=1.5, ge=1.0)
+    #: an enabled drive without SYNC for this long quick-stops by itself (s)
+    sync_timeout: PositiveFloat = 0.05
+
+
+class IKSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    #: position tolerance (m)
+    tolerance: PositiveLength = 1e-7
+    #: orientation tolerance (rad)
+    rotation_tolerance: PositiveFloat = 1e-6
+    max_iterations: PositiveInt = 100
+
+
+class Cia402DeviceSettings(BaseModel):
+    """Settings every CiA 402 device shares. Per-joint lists are in SI joint units (rad or m)."""
+
+    model_config = ConfigDict(extra="forbid")
+    bus: BusSettings = Field(default_factory=BusSettings)
+    #: auto: simulated for the virtual bus, real time otherwise
+    clock: Literal["auto", "simulated", "realtime"] = "auto"
+    #: SYNC rate (Hz); its period must be a whole number of 1e-6 s steps (0x60C2)
+    control_rate: PositiveFloat = 250.0
+    #: CAN node ids per joint (default 1, 2, ...)
+    node_ids: list[int] | None = None
+    #: heartbeat producer period (s); the master times out after 1.5 periods
+    heartbeat_period: PositiveFloat = 0.1
+    #: fraction of the URDF velocity limits the trajectories use
+    velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0)
+    #: per joint (rad/s^2 or m/s^2); default: the device's
+    acceleration_limits: list[PositiveFloat] | None = None
+    #: encoder counts per rad or per m, per joint; default 2^17 per turn, 1 per um
+    counts_per_unit: list[PositiveFloat] | None = None
+    #: following error window per joint (rad or m); default 0.01 rad, 1 mm
+    following_error_window: list[PositiveFloat] | None = None
+    following_error_timeout: PositiveFloat = 0.01
+    #: quick-stop deceleration as a multiple of the acceleration limit
+    quick_stop_factor: float = Field(default=2.0, ge=1.0)
+    #: tip spacing (m) at which the path is resampled before inverse kinematics
+    path_resolution: PositiveLength = 0.0005
+    #: move from the current configuration to the path's start (checked clear) when they differ
+    approach: bool = True
+    sdo_timeout: PositiveFloat = 0.2
+    pdo_timeout_cycles: PositiveInt = 5
+    settle_time: PositiveFloat = 0.5
+    stop_timeout: PositiveFloat = 1.0
+    enable_timeout: PositiveFloat = 1.0
+    #: after a stop, fault-reset and re-enable the drives and report whether they came back
+    #: (``metrics.fault_reset``); the stage still ends "stopped"
+    fault_reset: bool = False
+    #: write <stage>.png (joints, tracking error, clearance over time, faults) and <stage>-execution.csv
+    outputs: bool = True
+    simulation: SimulationSettings = Field(default_factory=SimulationSettings)
+    ik: IKSettings = Field(default_factory=IKSettings)
