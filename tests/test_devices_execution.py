@@ -44,11 +44,15 @@ def bus_load_from_frames(truth, report) -> float:
     return 100.0 * bits / (report.metrics["duration_s"] * 1e6)
 
 
-def test_gimbal_executes_a_gimbal_space_path_within_tolerance(block_world, tmp_path):
+def test_gimbal_executes_a_gimbal_space_path_within_tolerance_and_deterministically(block_world, tmp_path):
     space = gimbal_space(block_world)
     path = gimbal_path(space, GAP_TIPS)
     report, truth = execute(CastGimbalDevice, GIMBAL, path, space, block_world, tmp_path)
     m = report.metrics
+    # the simulated clock makes a run reproducible to the bit
+    again, _ = execute(CastGimbalDevice, GIMBAL, path, space, block_world, tmp_path)
+    np.testing.assert_array_equal(again.executed_tip_path, report.executed_tip_path)
+    assert again.metrics == m
     assert report.status == "completed", report.message
     assert report.faults == [] and m["faults"] == []
     # the hardware ends where the path ends (ground truth, within two encoder counts)
@@ -81,20 +85,11 @@ def test_gimbal_executes_a_gimbal_space_path_within_tolerance(block_world, tmp_p
     worst = 250 * (55 + 8 * 115) + 40 * 65
     assert 100 * unstuffed / 1e6 < m["bus_load_percent"] < 100 * worst / 1e6
     assert m["bus_load_percent"] < m["bus_load_worst_case_percent"] < 100
-
-
-def test_executed_joint_velocities_respect_the_limits(block_world, tmp_path):
-    space = gimbal_space(block_world)
-    path = gimbal_path(space, GAP_TIPS)
-    report, truth = execute(CastGimbalDevice, GIMBAL, path, space, block_world, tmp_path)
-    log = truth["log"]
-    velocity = np.diff(log.measured, axis=0) / truth["period"]
-    limit = truth["model"].velocity_limit
-    # the trajectory uses the limits fully; the servo follows within a few percent and encoder counts
-    ratio = np.max(np.abs(velocity) / limit, axis=0)
+    # the measured joint speeds: the trajectory uses the limits fully, the servo follows within a few %
+    velocity = np.diff(truth["log"].measured, axis=0) / truth["period"]
+    ratio = np.max(np.abs(velocity) / truth["model"].velocity_limit, axis=0)
     assert np.max(ratio) == pytest.approx(1.0, abs=0.05)
-    assert report.metrics["max_joint_velocity_ratio"] <= 1.0
-    assert report.metrics["max_joint_acceleration_ratio"] <= 1.0
+    assert m["max_joint_velocity_ratio"] <= 1.0 and m["max_joint_acceleration_ratio"] <= 1.0
 
 
 def test_gimbal_executes_an_r3_tip_path_through_the_qp_inverse_kinematics(block_world, tmp_path):
@@ -110,15 +105,6 @@ def test_gimbal_executes_an_r3_tip_path_through_the_qp_inverse_kinematics(block_
     swept = coal_scene_segment_distance(block_world, report.executed_tip_path[:-1], report.executed_tip_path[1:], 0.001)
     assert m["executed_min_clearance_m"] == pytest.approx(swept.min(), abs=1e-9)
     assert m["tip_radius_m"] == 0.001
-
-
-def test_runs_on_the_simulated_clock_are_deterministic(block_world, tmp_path):
-    space = gimbal_space(block_world)
-    path = gimbal_path(space, GAP_TIPS)
-    first, _ = execute(CastGimbalDevice, GIMBAL, path, space, block_world, tmp_path)
-    second, _ = execute(CastGimbalDevice, GIMBAL, path, space, block_world, tmp_path)
-    np.testing.assert_array_equal(first.executed_tip_path, second.executed_tip_path)
-    assert first.metrics == second.metrics
 
 
 def test_device_approaches_the_path_start_from_where_it_stands(block_world, tmp_path):
@@ -254,7 +240,7 @@ def test_gripper6_takes_a_planner_frame_through_tool_frame(block_world, tmp_path
     """A planner (e.g. retraction) whose grasp frame is 15 mm beyond the jaws and turned 90 deg."""
     space = se3_space(block_world)
     tool = {"xyz": [0.0, 0.0, 0.015], "rpy": [0.0, 0.0, np.pi / 2]}
-    jaws_path = jaws_down_path()
+    jaws_path = jaws_down_path()[:2]  # the first stretch: a 45 deg turn on the way
     offset = Rotation.from_euler("xyz", tool["rpy"])
     planned = np.concatenate(
         [
