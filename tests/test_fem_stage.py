@@ -41,7 +41,7 @@ def test_the_stage_writes_a_vtu_and_the_metrics(tmp_path, cli):
     code, _, err = cli("run", path, "--out", tmp_path / "out")
     assert code == 0, err
     stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
-    assert stage["status"] == "converged" and stage["files"] == ["beam.vtu"]
+    assert stage["status"] == "converged" and stage["files"] == ["beam.vtu", "beam.png"]
     metrics = stage["metrics"]
     for key in ("energy_J", "max_stress_Pa", "max_displacement_m", "newton_iterations", "residual", "converged"):
         assert key in metrics
@@ -129,7 +129,7 @@ def test_steps_apply_the_grasp_quasi_statically_and_write_a_paraview_series(tmp_
     assert code == 0, err
     stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
     steps = [f"flap/step_{k:03d}.vtu" for k in range(4)]
-    assert stage["status"] == "converged" and stage["files"] == ["flap.vtu", "flap.pvd", *steps]
+    assert stage["status"] == "converged" and stage["files"] == ["flap.vtu", "flap.png", "flap.pvd", *steps]
     metrics = stage["metrics"]
     assert metrics["step_fraction"] == pytest.approx([0, 1 / 3, 2 / 3, 1])
     assert all(metrics["step_converged"]) and metrics["steps_solved"] == 3
@@ -171,7 +171,7 @@ def test_a_step_that_fails_stops_the_sequence_and_names_the_step(tmp_path, cli):
     assert stage["status"] == "failed"
     assert stage["message"].startswith("step 1 of 3 (33% of the motion): did not converge in 6 Newton iterations")
     assert stage["metrics"]["step_converged"] == [True, False]
-    assert stage["files"] == ["flap.vtu", "flap.pvd", "flap/step_000.vtu", "flap/step_001.vtu"]
+    assert stage["files"] == ["flap.vtu", "flap.png", "flap.pvd", "flap/step_000.vtu", "flap/step_001.vtu"]
 
 
 def test_shipped_configs_validate_and_the_plugin_is_registered(cli):

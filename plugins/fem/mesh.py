@@ -114,6 +114,13 @@ class TetMesh:
         return self.nodes[self.vertices].mean(axis=1)
 
     @property
+    def surface_elements(self) -> np.ndarray:
+        """The tetrahedron (t,) each triangle of :attr:`surface` belongs to."""
+        if getattr(self, "_surface_elements", None) is None:
+            self._surface_elements = boundary_faces(self.tets, elements=True)[1]
+        return self._surface_elements
+
+    @property
     def surface(self) -> np.ndarray:
         """Boundary triangles (t, 3) of node indices, counter-clockwise seen from outside.
 
@@ -165,8 +172,8 @@ def signed_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.linalg.det(np.swapaxes(x[:, 1:] - x[:, :1], 1, 2)) / 6.0
 
 
-def boundary_faces(tets: np.ndarray) -> np.ndarray:
-    """Faces that belong to exactly one tetrahedron, outward-oriented (t, 3).
+def boundary_faces(tets: np.ndarray, elements: bool = False):
+    """Faces that belong to exactly one tetrahedron, outward-oriented (t, 3) (and, if asked, their elements (t,)).
 
     Quadratic tetrahedra (m, 10): each boundary face (a, b, c) with mid-edge
     nodes ab, bc, ca becomes the four triangles (a, ab, ca), (ab, b, bc),
@@ -179,9 +186,9 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     if np.any(counts > 2):
         raise ConfigError("the mesh is not a valid volume mesh: a face is shared by more than two tetrahedra")
     outer = np.sort(index[counts == 1])
-    if tets.shape[1] == 4:
-        return faces[outer]
     element, slot = np.divmod(outer, 4)
+    if tets.shape[1] == 4:
+        return (faces[outer], element) if elements else faces[outer]
     local = TET_FACES[slot]  # (t, 3) local vertices a, b, c
     a, b, c = local[:, 0], local[:, 1], local[:, 2]
     row = tets[element]
@@ -198,7 +205,7 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
         ],
         axis=1,
     )
-    return split.reshape(-1, 3)
+    return (split.reshape(-1, 3), np.repeat(element, 4)) if elements else split.reshape(-1, 3)
 
 
 # ----------------------------------------------------------------------------- structured boxes

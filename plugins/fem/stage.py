@@ -11,6 +11,7 @@ before, as a gripper retracting the flap would.
 Files written next to ``result.json``:
 
 * ``<name>.vtu``: the final equilibrium (ParaView or any VTK viewer);
+* ``<name>.png``: a first look at it, coloured by stress (:mod:`.figure`);
 * with ``steps > 1``: ``<name>/step_000.vtu`` (the tissue held by its
   anchors, before the gripper moves) to ``<name>/step_N.vtu`` and
   ``<name>.pvd``, a collection ParaView plays as an animation (time = the
@@ -34,6 +35,7 @@ from surgiplan.errors import ConfigError
 from surgiplan.results import StageContext, StageResult
 from surgiplan.storage import write_text_atomic
 
+from .figure import stage_figure
 from .output import write_vtu
 
 if TYPE_CHECKING:
@@ -133,6 +135,13 @@ def run_simulate_stage(model: StVKModel, context: StageContext) -> StageResult:
             }
         )
     ok = final.converged and final.valid and len(history) == len(fractions)
+    title = (
+        f"{name}: energy {final.energy * 1e3:.4g} mJ, largest stress {metrics['max_stress_Pa'] / 1e3:.4g} kPa, "
+        f"largest displacement {metrics['max_displacement_m'] * 1e3:.3g} mm"
+        + ("" if ok else " (not converged or not valid)")
+    )
+    stage_figure(out / f"{name}.png", model, final, title, metrics if steps > 1 else None)
+    files.insert(1, f"{name}.png")
     message = final.message
     if final.converged and not final.valid:
         message = "the equilibrium is not valid: " + message.split("; ", 1)[-1]
