@@ -286,6 +286,17 @@ def test_warm_start_reaches_the_cold_solution_in_fewer_iterations():
     assert np.allclose(warm.positions[jaws], m.rest_nodes[jaws] + [0, 0, 0.006], atol=1e-15)
 
 
+def test_disp_distance_is_the_largest_surface_node_displacement():
+    size = (0.02, 0.01, 0.004)
+    m = model(size, (4, 2, 2))
+    moved = m.rest_nodes.copy()
+    inside = np.setdiff1d(np.arange(m.mesh.n_nodes), m.surface_nodes)
+    assert len(inside) > 0 and len(m.surface_nodes) + len(inside) == m.mesh.n_nodes
+    moved[inside] += [0.5, 0, 0]  # interior nodes do not count
+    moved[m.surface_nodes[3]] += [0.003, 0.004, 0]
+    assert m.disp_distance(m.rest_nodes, moved) == pytest.approx(0.005, rel=1e-12)
+
+
 def test_non_convergence_is_reported_not_hidden():
     size = (0.05, 0.01, 0.01)
     m = model(

@@ -187,6 +187,23 @@ class StVKModel(DeformableModel):
         return self.mesh.surface
 
     @property
+    def surface_nodes(self) -> np.ndarray:
+        """Indices (sorted) of the nodes on the boundary surface."""
+        if getattr(self, "_surface_nodes", None) is None:
+            self._surface_nodes = np.unique(self.surface_triangles)
+        return self._surface_nodes
+
+    def disp_distance(self, a, b) -> float:
+        """DISP distance (m) between two states: the largest displacement of a surface node from a to b.
+
+        Patil & Alterovitz §IV-C use it to choose a roadmap sample's nearest
+        neighbours; ``a`` and ``b`` are states or positions (n, 3).
+        """
+        xa = np.asarray(getattr(a, "positions", a), dtype=float)[self.surface_nodes]
+        xb = np.asarray(getattr(b, "positions", b), dtype=float)[self.surface_nodes]
+        return float(np.linalg.norm(xa - xb, axis=1).max())
+
+    @property
     def element_volumes(self) -> np.ndarray:
         """Rest volumes (m,) in m^3."""
         return self.kernel.volume
