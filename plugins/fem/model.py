@@ -45,6 +45,10 @@ Use from Python (a planner calls this thousands of times)::
   positions without solving.
 * Constraints may hold nodes along some axes only (rollers, symmetry
   planes): :class:`AxisConstraints`.
+* :attr:`StVKModel.surface_nodes` and :meth:`StVKModel.disp_distance` (the
+  paper's DISP metric, §IV-C) for planners; :meth:`StVKModel.nodes_in_oriented_box`
+  selects the nodes between a gripper's jaws (§IV-A).
+* Linear or quadratic tetrahedra (``mesh: {..., order: 2}``): the same API.
 * A model pickles (for worker processes) without its caches, which are
   rebuilt on the first solve (about 0.2 s for the paper's flap); or rebuild
   it from ``model.settings`` (see :mod:`.tasks`).
