@@ -75,10 +75,20 @@ def drives_process(initial):
     try:
         if process.stdout.readline().strip() != "ready":
             raise RuntimeError("the drive simulator did not start")
-        yield {"interface": "udp_multicast", "channel": CHANNEL, "options": {"port": port}}
+        yield {"interface": "udp_multicast", "channel": CHANNEL, "options": {"port": port}}, process.pid
     finally:
         process.terminate()
         process.wait(timeout=10)
+
+
+def process_cpu(pid) -> float:
+    """CPU seconds (user + system) a process has used so far; 0 without a process."""
+    if pid is None:
+        return 0.0
+    import os
+
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def control_loop(scene, rates, repeat: int) -> list[dict]:
@@ -100,10 +110,11 @@ def control_loop(scene, rates, repeat: int) -> list[dict]:
             if mode.startswith("separate"):
                 context = drives_process(path[0])
             else:
-                context = contextlib.nullcontext(None)
+                context = contextlib.nullcontext((None, None))
                 settings |= {"clock": "realtime", "simulation": {"initial": path[0].tolist(), "sync_timeout": 0.2}}
             error = ""
-            with context as bus, contextlib.ExitStack() as stack:
+            master_cpu = drives_cpu = 0.0
+            with context as (bus, pid), contextlib.ExitStack() as stack:
                 if bus is not None:
                     settings["bus"] = bus
                 try:
@@ -113,7 +124,10 @@ def control_loop(scene, rates, repeat: int) -> list[dict]:
                     device = None
                 for k in range(repeat if device is not None else 0):
                     try:
+                        cpu, cpu_drives = time.process_time(), process_cpu(pid)
                         report = device.execute(Trajectory(back if k % 2 else path, space, "bench"))
+                        master_cpu += time.process_time() - cpu
+                        drives_cpu += process_cpu(pid) - cpu_drives
                     except SurgiplanError as exc:
                         error = str(exc)
                         break
@@ -150,6 +164,10 @@ def control_loop(scene, rates, repeat: int) -> list[dict]:
                 "cycles_missing_a_tpdo": missing,
                 "bus_load_percent": round(statistics.median(load), 2) if load else None,
                 "bus_load_worst_case_percent": round(statistics.median(worst), 2) if worst else None,
+                # CPU per cycle (all threads; this process, and the drives' process): what a core would
+                # have to give the loop, independent of how loaded the machine is
+                "master_cpu_per_cycle_ms": round(master_cpu / cycles * 1e3, 3) if cycles else None,
+                "drives_cpu_per_cycle_ms": round(drives_cpu / cycles * 1e3, 3) if cycles and pid else None,
                 "error": error,
             }
             row["held_rate"] = bool(completed == repeat and missed == 0 and row["period_p99_ms"] <= 1.5 * period * 1e3)
@@ -315,8 +333,15 @@ def main() -> None:
     print("\n## the simulated clock", flush=True)
     speed = simulation_speed(scene)
     print(speed)
+    cpu = [
+        r["master_cpu_per_cycle_ms"]
+        for r in loop
+        if r["drives"].startswith("separate") and r["master_cpu_per_cycle_ms"]
+    ]
     summary = {
         "highest_rate_held_hz_separate_process": max(held) if held else None,
+        # the rate at which the master's loop would need a whole core (median over the rates measured)
+        "cpu_bound_rate_hz_master": round(1e3 / statistics.median(cpu)) if cpu else None,
         "bus_limited_rate_hz_4_drives_worst_case": ceiling[0]["max_rate_hz_worst_case"],
     }
     print("\n", summary)

@@ -440,7 +440,9 @@ class DriveSimulator:
         while not self._stop.is_set():
             due = self.scheduler.next_due()
             wait = 0.005 if due is None else min(0.005, max(0.0, due - self.clock.now()))
-            self.network.pump(wait)
+            # a few frames at a time: the timers (heartbeats, the SYNC watchdog) must not wait behind
+            # a backlog of frames when the process was descheduled
+            self.network.pump(wait, limit=2 + 2 * len(self.axes))
             now = self.clock.now()
             while (timer := self.scheduler.pop_due(now)) is not None:
                 timer.action()

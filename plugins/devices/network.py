@@ -68,10 +68,11 @@ class PumpedNetwork(canopen.Network):
         if link is not None:
             link.add(self)
 
-    def pump(self, timeout: float = 0.0) -> int:
-        """Deliver the frames waiting on the bus (blocking up to ``timeout`` s for the first)."""
+    def pump(self, timeout: float = 0.0, limit: int | None = None) -> int:
+        """Deliver the frames waiting on the bus (blocking up to ``timeout`` s for the first), at most
+        ``limit`` of them."""
         count = 0
-        while True:
+        while limit is None or count < limit:
             msg = self.bus.recv(timeout if count == 0 else 0.0)
             if msg is None:
                 return count
@@ -81,6 +82,7 @@ class PumpedNetwork(canopen.Network):
             if self.drop is not None and self.drop(msg.arbitration_id):
                 continue
             self.notify(msg.arbitration_id, msg.data, msg.timestamp)
+        return count
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         super().send_message(can_id, data, remote)
