@@ -203,12 +203,11 @@ class LazyPlanner:
         workers = max(1, int(getattr(self.setup.problem.executor, "workers", 2) or 2))
         for k, js in by_grasp.items():
             roadmap = self.roadmaps[k]
-            groups = np.array_split(np.array(js), min(len(js), 2 * workers))
-            for group in groups:
+            steps_of = {j: max(1, math.ceil(roadmap.disp[batch[pending[j]][1]] / options.step)) for j in js}
+            for group in _balanced(js, steps_of, min(len(js), workers)):
                 edges = []
                 for j in group:
-                    e = batch[pending[j]][1]
-                    steps = max(1, math.ceil(roadmap.disp[e] / options.step))
+                    steps = steps_of[j]
                     edges.append(
                         {
                             "q": self._linear(qa[j], qb[j], steps),
@@ -419,3 +418,14 @@ class LazyPlanner:
                 }
             )
         return metrics
+
+
+def _balanced(items: list[int], load: dict[int, int], groups: int) -> list[list[int]]:
+    """Items split into ``groups`` of nearly equal total load (longest first, each to the lightest group)."""
+    out: list[list[int]] = [[] for _ in range(groups)]
+    totals = [0] * groups
+    for item in sorted(items, key=lambda i: -load[i]):
+        lightest = totals.index(min(totals))
+        out[lightest].append(item)
+        totals[lightest] += load[item]
+    return [g for g in out if g]
