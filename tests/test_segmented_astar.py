@@ -195,11 +195,12 @@ def test_replanning_midway_gives_a_new_path_from_the_current_position(tmp_path):
     assert_collision_free(result.path)
 
 
-def write_pipeline(tmp_path, extra="", points=POINTS_MM):
+def write_pipeline(tmp_path, extra="", points=POINTS_MM, report_dir=None):
     (tmp_path / "small.yaml").write_text(scene_yaml(points))
     out = tmp_path / "out"
     settings = ("{grid_spacing: 4, surface_spacing: 2, neighbours: 12, seed: 3, "
-                f"report: {{dir: {out}/table1, segment_points: [2, 3]}}, replan: {{goal: c, at: 0.5}}}}")
+                f"report: {{dir: {report_dir or out / 'table1'}, segment_points: [2, 3]}}, "
+                "replan: {goal: c, at: 0.5}}")
     config = tmp_path / "pipeline.yaml"
     config.write_text(
         "name: small-offline-online\nlength_unit: mm\nscene: small.yaml\npipeline:\n"
@@ -244,3 +245,17 @@ def test_point_of_interest_inside_an_obstacle_fails_cleanly_from_the_command_lin
     assert "point of interest 'buried' (20, 10, 5) mm is not free for the instrument tip" in err
     assert "Traceback" not in err
     assert not (out / "result.json").exists() and not (out / "repository.npz").exists()
+
+
+def test_report_directory_that_cannot_be_written_fails_before_any_work(tmp_path, cli):
+    (tmp_path / "a-file").write_text("not a directory")
+    config, out = write_pipeline(tmp_path, report_dir=tmp_path / "a-file" / "table1")
+    # only the pathmap stage, so that nothing runs before the check
+    text = config.read_text()
+    start = text.index("  - {stage: plan, name: repository")
+    config.write_text(text[:start] + text[text.index("  - {stage: plan, name: pathmap"):])
+    code, _, err = cli("run", config, "--quiet")
+    assert code == 2, err
+    assert "settings.report.dir: cannot write to directory" in err and "a-file/table1" in err
+    assert "Traceback" not in err
+    assert not (out / "result.json").exists() and not list(out.glob(".work/optmis-*"))

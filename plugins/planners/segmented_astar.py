@@ -35,6 +35,7 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt, field_validator
+from surgiplan.errors import OutputError
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 from surgiplan.units import Length, PositiveLength, Vec3
 
@@ -81,8 +82,8 @@ class SegmentedAStarSettings(OptMISSettings):
     reverse: bool = True
     # query settings (exclude=True: they do not change the stored pathmap, so not its content key)
     #: how far a start or goal may be linked to the pathmap by a straight motion (to the nearest point
-    #: of each of the ``link_candidates`` nearest chains of the online graph)
-    link_radius: PositiveLength = Field(default=0.03, exclude=True)
+    #: of each of the ``link_candidates`` nearest chains of the online graph); none: no limit
+    link_radius: PositiveLength | None = Field(default=None, exclude=True)
     #: half-size of the box in which a local plan links a start or goal the straight links cannot
     local_radius: PositiveLength = Field(default=0.015, exclude=True)
     report: ReportSettings | None = Field(default=None, exclude=True)
@@ -112,8 +113,24 @@ class SegmentedAStar(Planner):
     artifact_version = 1
 
     # ------------------------------------------------------------------ offline
+    def _check_outputs(self) -> None:
+        """Fail before any work when the report or figure cannot be written (not after an hour of it)."""
+        from surgiplan.runner import prepare_output_dir
+
+        targets = []
+        if self.settings.report is not None:
+            targets.append((Path(self.settings.report.dir), "settings.report.dir"))
+        if self.settings.replan is not None and self.settings.replan.figure:
+            targets.append((Path(self.settings.replan.figure).parent, "settings.replan.figure"))
+        for directory, location in targets:
+            try:
+                prepare_output_dir(directory)
+            except OutputError as exc:
+                raise OutputError(exc.message.replace("output directory", "directory"), location=location) from None
+
     def build(self, problem: PlanningProblem) -> PathmapArtifact:
         settings = self.settings
+        self._check_outputs()
         offline = run_offline(problem, settings)
         started = time.perf_counter()
         with problem.progress.task("segmented pathmap", total=1) as task:
@@ -170,6 +187,7 @@ class SegmentedAStar(Planner):
 
     def load_artifact(self, data, problem: PlanningProblem) -> PathmapArtifact:
         require_r3(problem.space)
+        self._check_outputs()
         rows = list(data.get("table1", []))
         artifact = self._artifact(SegmentedPathmap.from_artifact(data), problem.space, rows)
         if self.settings.report is not None:
@@ -211,7 +229,8 @@ class SegmentedAStar(Planner):
         """
         graph, settings = artifact.graph, self.settings
         k = min(8 * settings.link_candidates, len(graph.points))
-        distance, index = graph.tree.query(q, k=k, distance_upper_bound=settings.link_radius)
+        limit = settings.link_radius if settings.link_radius is not None else np.inf
+        distance, index = graph.tree.query(q, k=k, distance_upper_bound=limit)
         index = np.atleast_1d(index)[np.isfinite(np.atleast_1d(distance))]
         owner = np.where(graph.is_junction[index], -1 - index, graph.chain_of[index])
         _, first = np.unique(owner, return_index=True)
@@ -313,9 +332,12 @@ class SegmentedAStar(Planner):
 
     def _plan(self, artifact: PathmapArtifact, start: np.ndarray, goal: np.ndarray) -> PlanResult:
         space, graph = artifact.space, artifact.graph
-        failure = self.check_endpoints(space, start, goal, self.settings.margin)
-        if failure is not None:
-            return failure
+        # a point of the pathmap is a certified configuration already; anything else is checked
+        on_map = graph.tree.query(np.stack([start, goal]))[0] <= 1e-12
+        if not np.all(on_map):
+            failure = self.check_endpoints(space, start, goal, self.settings.margin)
+            if failure is not None:
+                return failure
         started = time.perf_counter()
         counters = {"link_checks": 0, "local_plans": 0}
         starts, start_kind = self._attach(artifact, start, counters)
@@ -329,6 +351,7 @@ class SegmentedAStar(Planner):
             **{f"pathmap_{k}": v for k, v in artifact.pathmap.stats.items() if not isinstance(v, dict | list)},
             **graph.stats(),
         }
+        within = f" within {self.settings.link_radius * 1e3:.3g} mm" if self.settings.link_radius else ""
         for attachments, what, q in ((starts, "start", start), (goals, "goal", goal)):
             if not attachments:
                 metrics["link_s"] = linked - started
@@ -336,8 +359,9 @@ class SegmentedAStar(Planner):
                     PlanStatus.NO_PATH,
                     3,
                     f"the {what} {space.scene.describe_point(q)} cannot be joined to the pathmap: no certified "
-                    f"straight motion to a pathmap point within {self.settings.link_radius * 1e3:.3g} mm, and no "
-                    f"local plan within {self.settings.local_radius * 1e3:.3g} mm of it",
+                    f"straight motion to the nearest point of any of the {self.settings.link_candidates} nearest "
+                    f"stored paths{within}, and no local plan within {self.settings.local_radius * 1e3:.3g} mm "
+                    "of it",
                     **metrics,
                 )
         # routes that need no junction: along the one chain both ends joined, or straight from start to goal

@@ -164,15 +164,20 @@ class OnlineGraph:
             np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points[c], axis=0), axis=1))])
             for c in chains
         ]
-        # adjacency of the junction graph, as plain Python lists (A* runs in pure Python)
-        adjacency: dict[int, list[tuple[int, float, int]]] = {int(j): [] for j in np.flatnonzero(junction)}
+        # the junction graph for A*, on local indices 0..J-1 and plain Python lists (A* runs in pure Python)
+        junctions = np.flatnonzero(junction)
+        self.junction_vertex = junctions
+        local = np.full(len(self.points), -1, dtype=np.int64)
+        local[junctions] = np.arange(len(junctions))
+        self.junction_local = local
+        adjacency: list[list[tuple[int, float, int]]] = [[] for _ in range(len(junctions))]
         for c, (chain, cost) in enumerate(zip(chains, costs, strict=True)):
-            a, b = int(chain[0]), int(chain[-1])
+            a, b = int(local[chain[0]]), int(local[chain[-1]])
             adjacency[a].append((b, cost, c))
             if a != b:
                 adjacency[b].append((a, cost, c))
         self.adjacency = adjacency
-        self.xyz = [tuple(p) for p in self.points.tolist()]
+        self.junction_points = self.points[junctions]
 
     @property
     def n_junctions(self) -> int:
@@ -220,56 +225,54 @@ class OnlineGraph:
     # ------------------------------------------------------------------ search
     def astar(self, starts: list[Attachment], goals: list[Attachment], goal_point: np.ndarray,
               direct: tuple[float, np.ndarray] | None = None) -> SearchOutcome:
-        """Shortest path from any start attachment to any goal attachment (reversed: goal first).
+        """Shortest path from any start attachment to any goal attachment.
 
         ``direct``: an optional (cost, points) candidate joining start and goal
         without the graph. Returns the path (start first), its cost (m), the
-        number of expanded junctions and the junctions visited.
+        number of expanded junctions and the junctions visited (vertex indices).
         """
-        gx, gy, gz = (float(c) for c in goal_point)
-        xyz = self.xyz
-
-        def h(v: int) -> float:
-            x, y, z = xyz[v]
-            return math.sqrt((x - gx) ** 2 + (y - gy) ** 2 + (z - gz) ** 2)
-
+        local = self.junction_local
+        # the heuristic of every junction at once: |x(v) - x_goal| (paper 001 §5)
+        h = np.linalg.norm(self.junction_points - goal_point, axis=1).tolist()
+        n = len(h)
+        inf = math.inf
+        best = [inf] * n
+        came: list[tuple[int, int]] = [(-1, -1)] * n  # (previous junction or -1 - start attachment, chain)
+        closed = [False] * n
         goal_cost: dict[int, list[tuple[float, int]]] = {}
         for k, attachment in enumerate(goals):
-            goal_cost.setdefault(attachment.junction, []).append((attachment.cost, k))
-        best: dict[int, float] = {}
-        came: dict[int, tuple[int, int] | tuple[str, int]] = {}
+            goal_cost.setdefault(int(local[attachment.junction]), []).append((attachment.cost, k))
         heap: list[tuple[float, float, int]] = []
         for k, attachment in enumerate(starts):
-            v = attachment.junction
-            if attachment.cost < best.get(v, math.inf):
+            v = int(local[attachment.junction])
+            if attachment.cost < best[v]:
                 best[v] = attachment.cost
-                came[v] = ("start", k)
-                heapq.heappush(heap, (attachment.cost + h(v), attachment.cost, v))
-        found_cost = math.inf
+                came[v] = (-1 - k, -1)
+                heapq.heappush(heap, (attachment.cost + h[v], attachment.cost, v))
+        found_cost = direct[0] if direct is not None else inf
         found: tuple[int, int] | None = None  # (junction, goal attachment)
-        if direct is not None:
-            found_cost = direct[0]
         expanded = 0
         adjacency = self.adjacency
-        closed = set()
+        push, pop = heapq.heappush, heapq.heappop
         while heap:
-            f, g, v = heapq.heappop(heap)
+            f, g, v = pop(heap)
             if f >= found_cost:
                 break
-            if v in closed or g > best.get(v, math.inf):
+            if closed[v] or g > best[v]:
                 continue
-            closed.add(v)
+            closed[v] = True
             expanded += 1
-            for cost, k in goal_cost.get(v, ()):
-                if g + cost < found_cost:
-                    found_cost = g + cost
-                    found = (v, k)
+            if v in goal_cost:
+                for cost, k in goal_cost[v]:
+                    if g + cost < found_cost:
+                        found_cost = g + cost
+                        found = (v, k)
             for w, cost, c in adjacency[v]:
                 ng = g + cost
-                if ng < best.get(w, math.inf):
+                if ng < best[w]:
                     best[w] = ng
                     came[w] = (v, c)
-                    heapq.heappush(heap, (ng + h(w), ng, w))
+                    push(heap, (ng + h[w], ng, w))
         if found is None:
             if direct is not None:
                 return SearchOutcome(direct[1], direct[0], expanded, [])
@@ -277,20 +280,19 @@ class OnlineGraph:
         # expand, collecting goal-to-start: the goal attachment, chains back to a start attachment
         v, k = found
         pieces = [goals[k].points]
-        junctions = [v]
+        junctions = [int(self.junction_vertex[v])]
         while True:
-            origin = came[v]
-            if origin[0] == "start":
-                pieces.append(starts[origin[1]].points[::-1])
+            previous, c = came[v]
+            if previous < 0:
+                pieces.append(starts[-1 - previous].points[::-1])
                 break
-            u, c = origin
             chain = self.chains[c]
-            sequence = chain if (chain[0] == u and chain[-1] == v) else chain[::-1]
+            u_vertex, v_vertex = self.junction_vertex[previous], self.junction_vertex[v]
+            sequence = chain if (chain[0] == u_vertex and chain[-1] == v_vertex) else chain[::-1]
             pieces.append(self.points[sequence[::-1]])
-            v = u
-            junctions.append(v)
-        backwards = np.concatenate(pieces)
-        path = backwards[::-1]
+            v = previous
+            junctions.append(int(self.junction_vertex[v]))
+        path = np.concatenate(pieces)[::-1]
         keep = np.concatenate([[True], np.any(np.diff(path, axis=0) != 0, axis=1)])
         return SearchOutcome(path[keep], found_cost, expanded, junctions[::-1])
 
