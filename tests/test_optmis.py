@@ -170,18 +170,20 @@ class InterruptingExecutor(InlineExecutor):
 
 
 def test_interrupted_build_resumes_without_recomputing_finished_sources(tmp_path, monkeypatch):
-    computed: list[int] = []
-    real_task = optmis_repository.source_task
+    computed: list[tuple[int, ...]] = []
+    real_task = optmis_repository.sources_task
 
     def counting_task(item):
-        computed.append(int(item["source_vertex"]))
+        computed.append(tuple(item["source_pois"]))
         return real_task(item)
 
     graph_builds = []
     real_build = optmis_repository.build_search_graph
-    monkeypatch.setattr(optmis_repository, "source_task", counting_task)
+    monkeypatch.setattr(optmis_repository, "sources_task", counting_task)
     monkeypatch.setattr(optmis_repository, "build_search_graph",
                         lambda *a, **k: graph_builds.append(1) or real_build(*a, **k))
+    # one source per task, so that there are eight tasks to interrupt
+    monkeypatch.setattr(optmis_repository, "source_groups", lambda n, group: [[i] for i in range(n - 1)])
     settings = OptMISSettings(**SETTINGS)
     workdir = tmp_path / "out" / ".work" / "stage"
     with pytest.raises(Interrupt):
@@ -191,10 +193,10 @@ def test_interrupted_build_resumes_without_recomputing_finished_sources(tmp_path
     assert len(computed) == 4
     computed.clear()
     resumed = run_offline(problem(workdir), settings)
-    sources = len(resumed.repository.names) - 1
-    assert len(computed) == sources - 3 and not set(computed) & set(finished)
+    tasks = len(resumed.repository.names) - 1
+    assert len(computed) == tasks - 3 and not set(computed) & set(finished)
     assert len(graph_builds) == 1  # the search space was stored once and loaded on resumption
-    assert resumed.repository.stats["resumed_sources"] == 3
+    assert resumed.repository.stats["resumed_tasks"] == 3
     # the same repository as an uninterrupted build
     fresh = offline().repository
     for name in ("pairs", "path_start", "points", "unreachable", "length"):
@@ -203,6 +205,16 @@ def test_interrupted_build_resumes_without_recomputing_finished_sources(tmp_path
     computed.clear()
     run_offline(problem(workdir), settings)
     assert computed == []
+
+
+def test_sources_are_grouped_by_equal_work():
+    groups = optmis_repository.source_groups(80, 4)
+    assert [s for g in groups for s in g] == list(range(79))
+    assert max(len(g) for g in groups) <= 4
+    work = [sum(79 - s for s in g) for g in groups]  # paths per task
+    assert sum(work) == 80 * 79 // 2
+    # no task much heavier than an equal share of 20 tasks (the first sources have the most paths)
+    assert max(work) <= sum(work) / 20 + 79
 
 
 def test_process_pool_builds_the_same_repository_as_inline():

@@ -64,9 +64,11 @@ def tree_vertices(predecessors: np.ndarray, source: int, targets: np.ndarray) ->
     return np.flatnonzero(on_path)
 
 
-def taut_parents(space, vertices: np.ndarray, clearance: np.ndarray, predecessors: np.ndarray, source: int,
+def taut_parents(space, vertices: np.ndarray, clearance: np.ndarray, predecessors: np.ndarray, source,
                  members: np.ndarray, margin: float, max_jump: float = np.inf) -> tuple[np.ndarray, int]:
-    """Any-angle parents of the tree ``members`` by pointer jumping; the result is still a tree.
+    """Any-angle parents of the tree(s) ``members`` by pointer jumping; the result is still a tree.
+
+    ``source``: the root vertex, or an array of roots (a forest: see :func:`paths_from_sources`).
 
     In every round each vertex still moving tries its current grandparent:
     if the straight motion to it is certified it jumps there (and tries
@@ -83,7 +85,7 @@ def taut_parents(space, vertices: np.ndarray, clearance: np.ndarray, predecessor
     parent = predecessors.copy()
     parent[source] = source
     slack = clearance - margin
-    active = members[members != source]
+    active = members[~np.isin(members, source)]
     checks = 0
     while active.size:
         grand = parent[parent[active]]
@@ -279,34 +281,46 @@ def knots_of(points: np.ndarray, knot_spacing: float, turn_radius: float = 0.0) 
     return np.concatenate(knots), np.concatenate(corner)
 
 
-def paths_from_source(space, graph, vertices: np.ndarray, clearance: np.ndarray, source: int, targets: np.ndarray,
-                      options: PathOptions) -> dict:
-    """optMIS paths from vertex ``source`` to each vertex in ``targets``; unreachable ones are listed.
+def paths_from_sources(space, graph, vertices: np.ndarray, clearance: np.ndarray, sources, targets,
+                       options: PathOptions) -> list[dict]:
+    """optMIS paths from each vertex in ``sources`` to each vertex of its ``targets`` array.
 
-    Returns a mapping of arrays: ``targets`` (the reachable ones, in order),
-    ``reachable`` (per given target), ``unreachable``, ``points`` (all paths' samples, concatenated),
-    ``path_start`` (offsets into points, one more than paths), ``corner``
-    (per sample: a corner of the taut path, where segments may be anchored),
-    ``graph_length`` (Dijkstra's length), ``taut_length`` and ``length`` (m),
-    ``kinds`` (per path: intervals drawn by the global spline, a window
-    spline, the chord) and ``checks`` (certified motion checks for tautening).
+    The sources are processed together: one Dijkstra call for all of them,
+    and the tautening, refinement and smoothing of all their paths in shared
+    batched checks (each check has a fixed cost, which several sources then
+    share). The trees are kept apart by giving tree t the vertex indices
+    ``t * V + v``. Returns, per source, what :func:`paths_from_source` returns.
     """
-    targets = np.asarray(targets, dtype=np.int64)
-    distance, predecessors = dijkstra(graph, indices=int(source), return_predecessors=True)
-    reachable = np.isfinite(distance[targets])
-    unreachable = targets[~reachable]
-    targets = targets[reachable]
+    sources = np.atleast_1d(np.asarray(sources, dtype=np.int64))
+    count, n = len(sources), len(vertices)
+    distance, predecessors = dijkstra(graph, indices=sources, return_predecessors=True)
+    distance, predecessors = np.atleast_2d(distance), np.atleast_2d(predecessors)
+    offset = np.arange(count, dtype=np.int64) * n
+    roots = sources + offset
+    flat = np.where(predecessors >= 0, predecessors + offset[:, None], -9999).reshape(-1)
+    per_source = []
+    members = []
+    for t in range(count):
+        wanted = np.asarray(targets[t], dtype=np.int64)
+        reachable = np.isfinite(distance[t, wanted])
+        per_source.append((wanted, reachable))
+        if reachable.any() and options.taut:
+            members.append(tree_vertices(predecessors[t], int(sources[t]), wanted[reachable]) + offset[t])
     checks = 0
-    if targets.size and options.taut:
-        members = tree_vertices(predecessors, source, targets)
-        parent, checks = taut_parents(
-            space, vertices, clearance, predecessors, source, members, options.margin, options.max_jump
-        )
+    tiled_vertices = np.tile(vertices, (count, 1)) if count > 1 else vertices
+    tiled_clearance = np.tile(clearance, count) if count > 1 else clearance
+    if members:
+        parent, checks = taut_parents(space, tiled_vertices, tiled_clearance, flat, roots, np.concatenate(members),
+                                      options.margin, options.max_jump)
     else:
-        parent = predecessors.copy()
-        parent[source] = source
-    polylines = [vertices[chain(parent, source, t)] for t in targets]
-    if targets.size and options.taut and options.refine:
+        parent = flat.copy()
+        parent[roots] = roots
+    owner, polylines = [], []
+    for t, (wanted, reachable) in enumerate(per_source):
+        for target in wanted[reachable]:
+            polylines.append(tiled_vertices[chain(parent, int(roots[t]), int(target + offset[t]))])
+            owner.append(t)
+    if polylines and options.taut and options.refine:
         polylines, refine_checks = refine_corners(space, polylines, options.margin, options.margin + options.floor)
         checks += refine_checks
     knots, corners = [], []
@@ -315,24 +329,46 @@ def paths_from_source(space, graph, vertices: np.ndarray, clearance: np.ndarray,
         knots.append(k)
         corners.append(c)
     smoothed = smooth_paths(space, knots, options.resolution, options.margin, options.window, options.smoothing)
-    points, corner_flags, sizes, kinds = [], [], [], []
-    for path, corner in zip(smoothed, corners, strict=True):
-        flags = np.zeros(len(path.points), dtype=bool)
-        flags[path.knot_index[corner]] = True
-        points.append(path.points)
-        corner_flags.append(flags)
-        sizes.append(len(path.points))
-        kinds.append([np.count_nonzero(path.kinds == kind) for kind in (GLOBAL, WINDOW, CHORD)])
-    return {
-        "targets": targets,
-        "reachable": reachable,
-        "unreachable": unreachable,
-        "points": np.concatenate(points) if points else np.zeros((0, 3)),
-        "path_start": np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-        "corner": np.concatenate(corner_flags) if corner_flags else np.zeros(0, dtype=bool),
-        "graph_length": distance[targets],
-        "taut_length": np.array([np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in polylines]),
-        "length": np.array([p.length for p in smoothed]),
-        "kinds": np.asarray(kinds, dtype=np.int64).reshape(-1, 3),
-        "checks": int(checks),
-    }
+    owner = np.asarray(owner, dtype=np.int64)
+    out = []
+    for t, (wanted, reachable) in enumerate(per_source):
+        mine = np.flatnonzero(owner == t)
+        points, corner_flags, sizes, kinds = [], [], [], []
+        for k in mine:
+            path = smoothed[k]
+            flags = np.zeros(len(path.points), dtype=bool)
+            flags[path.knot_index[corners[k]]] = True
+            points.append(path.points)
+            corner_flags.append(flags)
+            sizes.append(len(path.points))
+            kinds.append([np.count_nonzero(path.kinds == kind) for kind in (GLOBAL, WINDOW, CHORD)])
+        out.append({
+            "targets": wanted[reachable],
+            "reachable": reachable,
+            "unreachable": wanted[~reachable],
+            "points": np.concatenate(points) if points else np.zeros((0, 3)),
+            "path_start": np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+            "corner": np.concatenate(corner_flags) if corner_flags else np.zeros(0, dtype=bool),
+            "graph_length": distance[t, wanted[reachable]],
+            "taut_length": np.array([_length(polylines[k]) for k in mine]),
+            "length": np.array([smoothed[k].length for k in mine]),
+            "kinds": np.asarray(kinds, dtype=np.int64).reshape(-1, 3),
+            "checks": int(checks) if t == 0 else 0,
+        })
+    return out
+
+
+def paths_from_source(space, graph, vertices: np.ndarray, clearance: np.ndarray, source: int, targets: np.ndarray,
+                      options: PathOptions) -> dict:
+    """optMIS paths from vertex ``source`` to each vertex in ``targets``; unreachable ones are listed.
+
+    Returns a mapping of arrays: ``targets`` (the reachable ones, in order),
+    ``reachable`` (per given target), ``unreachable``, ``points`` (all
+    paths' samples, concatenated), ``path_start`` (offsets into points, one
+    more than paths), ``corner`` (per sample: a corner of the taut path, where
+    segments may be anchored), ``graph_length`` (Dijkstra's length),
+    ``taut_length`` and ``length`` (m), ``kinds`` (per path: intervals drawn
+    by the global spline, a window spline, the chord) and ``checks``
+    (certified motion checks for tautening and refinement).
+    """
+    return paths_from_sources(space, graph, vertices, clearance, [source], [targets], options)[0]

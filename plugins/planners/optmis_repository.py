@@ -5,10 +5,10 @@ For N points of interest the repository holds the N(N-1)/2 paths P_i (paper
 (paper 001 §6 eliminates points of interest the instrument cannot reach; we
 list every such pair instead of dropping it silently).
 
-The work is one task per source point of interest (one Dijkstra call gives
-its paths to all later points of interest) and runs on the pipeline's
-executor (a local process pool, or a dask cluster) with a progress bar. It is
-*resumable*: each finished source is checkpointed atomically
+The work is one task per group of source points of interest (one Dijkstra
+call gives a source's paths to all later points of interest) and runs on the
+pipeline's executor (a local process pool, or a dask cluster) with a
+progress bar. It is *resumable*: each finished group is checkpointed atomically
 (:class:`surgiplan.TaskStore`) in ``<output>/.work/optmis-<key>/``, where key
 is a hash of everything the paths depend on (scene, tip, points of interest,
 search-space and path settings); the search space itself is stored there
@@ -32,12 +32,12 @@ from surgiplan.progress import NullProgress, Progress
 from surgiplan.storage import load_bundle, save_bundle
 
 from .optmis_graph import SearchGraph, build_search_graph, edge_graph
-from .optmis_paths import PathOptions, paths_from_source
+from .optmis_paths import PathOptions, paths_from_sources
 
 log = logging.getLogger(__name__)
 
 #: bump when the checkpoint layout or the path computation changes
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
 
 
 @dataclass
@@ -200,25 +200,47 @@ def _cached_graph(digest: str, vertices: np.ndarray, edges: np.ndarray):
     return graph
 
 
-def source_task(item: dict) -> dict:
-    """One source point of interest: its paths to all later ones (runs on an executor's worker)."""
+def sources_task(item: dict) -> dict:
+    """A group of source points of interest: their paths to all later ones (runs on an executor's worker)."""
     graph = _cached_graph(item["digest"], item["vertices"], item["edges"])
     started = time.perf_counter()
-    out = paths_from_source(
+    sources = [int(s) for s in item["source_pois"]]
+    vertex = np.asarray(item["poi_vertex"], np.int64)
+    n = len(vertex)
+    results = paths_from_sources(
         item["space"],
         graph,
         item["vertices"],
         item["clearance"],
-        int(item["source_vertex"]),
-        item["target_vertices"],
+        vertex[sources],
+        [vertex[s + 1 : n] for s in sources],
         PathOptions(**item["options"]),
     )
-    # report targets as point-of-interest indices, not vertex indices
-    target_pois = np.asarray(item["target_pois"], np.int64)
-    out["targets"] = target_pois[out["reachable"]]
-    out["unreachable"] = target_pois[~out["reachable"]]
-    out["seconds"] = time.perf_counter() - started
-    return out
+    pairs, unreachable, sizes = [], [], []
+    for s, r in zip(sources, results, strict=True):
+        later = np.arange(s + 1, n)  # reported as point-of-interest indices, not vertex indices
+        pairs.append(np.stack([np.full(int(r["reachable"].sum()), s), later[r["reachable"]]], axis=1))
+        unreachable.append(np.stack([np.full(int((~r["reachable"]).sum()), s), later[~r["reachable"]]], axis=1))
+        sizes.append(np.diff(r["path_start"]))
+
+    def cat(key, shape):
+        parts = [np.asarray(r[key]) for r in results]
+        return np.concatenate(parts) if parts else np.zeros(shape)
+
+    sizes = np.concatenate(sizes) if sizes else np.zeros(0, np.int64)
+    return {
+        "pairs": np.concatenate(pairs).astype(np.int64).reshape(-1, 2),
+        "unreachable": np.concatenate(unreachable).astype(np.int64).reshape(-1, 2),
+        "path_start": np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+        "points": cat("points", (0, 3)).reshape(-1, 3),
+        "corner": cat("corner", (0,)).astype(bool),
+        "graph_length": cat("graph_length", (0,)),
+        "taut_length": cat("taut_length", (0,)),
+        "length": cat("length", (0,)),
+        "kinds": cat("kinds", (0, 3)).reshape(-1, 3).astype(np.int64),
+        "checks": int(sum(r["checks"] for r in results)),
+        "seconds": time.perf_counter() - started,
+    }
 
 
 # ----------------------------------------------------------------------------- the build
@@ -288,78 +310,77 @@ def search_space(space, names: list[str], pois: np.ndarray, search: SearchOption
     return graph
 
 
+def source_groups(n: int, group: int) -> list[list[int]]:
+    """Sources 0..n-2 in groups of about equal work (source i has n - 1 - i paths), at most ``group`` per group."""
+    work = np.arange(n - 1, 0, -1)  # paths per source
+    if not len(work):
+        return []
+    target = max(work.sum() / max(1, int(np.ceil((n - 1) / group))), 1)
+    groups, current, load = [], [], 0
+    for source, paths in enumerate(work):
+        current.append(source)
+        load += paths
+        if load >= target or len(current) == group:
+            groups.append(current)
+            current, load = [], 0
+    if current:
+        groups.append(current)
+    return groups
+
+
 def build_repository(space, graph: SearchGraph, names: list[str], pois: np.ndarray, options: PathOptions, *,
                      executor: Executor | None = None, progress: Progress | None = None,
-                     store_dir: Path | None = None) -> Repository:
-    """All-pairs paths, one executor task per source; resumable through ``store_dir``."""
+                     store_dir: Path | None = None, group: int = 4) -> Repository:
+    """All-pairs paths, one executor task per group of sources; resumable through ``store_dir``.
+
+    Grouping sources lets their checks share the fixed cost of each batched
+    call; groups hold about equal numbers of paths (early sources have more)
+    and at most ``group`` sources, so a resumed run loses little.
+    """
     executor = executor or InlineExecutor()
     started = time.perf_counter()
     n = len(names)
-    digest = graph.digest()
     common = {
         "space": space,
         "vertices": graph.vertices,
         "clearance": graph.clearance,
         "edges": graph.edges,
-        "digest": digest,
+        "digest": graph.digest(),
         "options": asdict(options),
+        "poi_vertex": graph.poi_vertex,
     }
-    tasks = {}
-    for i in range(n - 1):
-        targets = np.arange(i + 1, n)
-        tasks[f"source-{i:04d}"] = {
-            **common,
-            "source_vertex": int(graph.poi_vertex[i]),
-            "target_pois": targets,
-            "target_vertices": graph.poi_vertex[targets],
-        }
+    tasks = {f"sources-{g[0]:04d}-{g[-1]:04d}": {**common, "source_pois": g} for g in source_groups(n, group)}
     store = TaskStore(store_dir / "paths") if store_dir is not None else None
     resumed = sum(1 for key in tasks if store is not None and key in store)
-    results = run_tasks(executor, source_task, tasks, store=store, progress=progress,
-                        description=f"optMIS paths ({n} points of interest)")
-    pairs, starts, points, corner, unreachable = [], [0], [], [], []
-    graph_length, taut_length, length, kinds = [], [], [], []
-    checks = 0
-    task_seconds = 0.0
-    offset = 0
-    for i in range(n - 1):
-        r = results[f"source-{i:04d}"]
-        targets = np.asarray(r["targets"], np.int64)
-        pairs.append(np.stack([np.full(len(targets), i), targets], axis=1))
-        sizes = np.diff(np.asarray(r["path_start"], np.int64))
-        starts.append(offset + np.cumsum(sizes))
-        offset += int(sizes.sum())
-        points.append(np.asarray(r["points"], float).reshape(-1, 3))
-        corner.append(np.asarray(r["corner"], bool))
-        unreachable.append(np.stack([np.full(len(r["unreachable"]), i), np.asarray(r["unreachable"], np.int64)],
-                                    axis=1))
-        graph_length.append(np.asarray(r["graph_length"], float))
-        taut_length.append(np.asarray(r["taut_length"], float))
-        length.append(np.asarray(r["length"], float))
-        kinds.append(np.asarray(r["kinds"], np.int64).reshape(-1, 3))
-        checks += int(r["checks"])
-        task_seconds += float(r["seconds"])
+    results = run_tasks(executor, sources_task, tasks, store=store, progress=progress,
+                        description=f"optMIS paths ({n} points of interest, {n * (n - 1) // 2} pairs)")
+    parts = [results[key] for key in tasks]
 
-    def cat(parts, shape):
-        return np.concatenate(parts) if parts else np.zeros(shape)
+    def cat(key, shape, dtype=float):
+        arrays = [np.asarray(r[key], dtype).reshape((-1, *shape[1:])) for r in parts]
+        return np.concatenate(arrays) if arrays else np.zeros(shape, dtype)
 
+    offsets = [0]
+    for r in parts:
+        offsets.extend((offsets[-1] + np.asarray(r["path_start"], np.int64)[1:]).tolist())
     repository = Repository(
         list(names),
         np.asarray(pois, float),
-        cat(pairs, (0, 2)).astype(np.int64),
-        np.concatenate([np.asarray(s, np.int64).reshape(-1) for s in starts]),
-        cat(points, (0, 3)),
-        cat(corner, (0,)).astype(bool),
-        cat(graph_length, (0,)),
-        cat(taut_length, (0,)),
-        cat(length, (0,)),
-        cat(kinds, (0, 3)).astype(np.int64),
-        cat(unreachable, (0, 2)).astype(np.int64),
+        cat("pairs", (0, 2), np.int64),
+        np.asarray(offsets, dtype=np.int64),
+        cat("points", (0, 3)),
+        cat("corner", (0,), bool),
+        cat("graph_length", (0,)),
+        cat("taut_length", (0,)),
+        cat("length", (0,)),
+        cat("kinds", (0, 3), np.int64),
+        cat("unreachable", (0, 2), np.int64),
         {
-            "tautening_checks": checks,
-            "task_seconds": task_seconds,
+            "tautening_checks": int(sum(int(r["checks"]) for r in parts)),
+            "task_seconds": float(sum(float(r["seconds"]) for r in parts)),
             "paths_s": time.perf_counter() - started,
-            "resumed_sources": resumed,
+            "tasks": len(tasks),
+            "resumed_tasks": resumed,
             "executor": executor.describe(),
         },
     )
