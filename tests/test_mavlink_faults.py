@@ -33,6 +33,10 @@ def roadmap(tmp_path_factory):
 
 #: the ground station's heartbeat expectations in these tests: 2 Hz, lost after 5 missed (2.5 s)
 QUICK_LIVENESS = {"period": 0.5, "missed": 5}
+#: in flight: 6 missed (3 s), and the vehicle at 1.5x real time, so that the loss (6 s after arming) is
+#: detected some 10.5 s into a flight of about 20 s even when this machine is slow to notice
+FLIGHT_LIVENESS = {"period": 0.5, "missed": 6}
+FLIGHT_SIM = {"heartbeat_rate": 2.0, "speed": 1.5}
 
 
 @contextlib.contextmanager
@@ -141,8 +145,7 @@ def test_rejected_mission_reports_the_vehicles_result(tmp_path, roadmap, sim, re
 
 @pytest.mark.slow
 def test_heartbeat_lost_in_flight_commands_the_failsafe_and_the_vehicle_lands(tmp_path, roadmap):
-    sim = {"heartbeat_rate": 2.0}
-    with rehearse("heartbeat", tmp_path, roadmap, sim=sim, heartbeat=QUICK_LIVENESS, figure=False) as (
+    with rehearse("heartbeat", tmp_path, roadmap, sim=FLIGHT_SIM, heartbeat=FLIGHT_LIVENESS, figure=False) as (
         pipeline,
         vehicle,
     ):
@@ -176,10 +179,10 @@ def test_heartbeat_lost_in_flight_commands_the_failsafe_and_the_vehicle_lands(tm
 
 @pytest.mark.slow
 def test_failsafe_is_commanded_even_when_the_vehicle_is_no_longer_heard(tmp_path, roadmap):
-    sim = {"heartbeat_rate": 2.0, "heartbeat_loss": {"at_s": 6, "all_telemetry": True}}
+    sim = {**FLIGHT_SIM, "heartbeat_loss": {"at_s": 6, "all_telemetry": True}}
     timeouts = {"command": 0.5, "command_retries": 2}
     with rehearse(
-        "heartbeat", tmp_path, roadmap, sim=sim, heartbeat=QUICK_LIVENESS, timeouts=timeouts, figure=False
+        "heartbeat", tmp_path, roadmap, sim=sim, heartbeat=FLIGHT_LIVENESS, timeouts=timeouts, figure=False
     ) as (pipeline, vehicle):
         outcome = run_pipeline(pipeline)
         # the ground station could not hear it; the vehicle heard the LAND command and lands (simulated time)

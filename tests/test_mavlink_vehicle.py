@@ -205,8 +205,9 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
     assert distance.max() <= 0.02 + 1e-4  # the waypoint tolerance
     # safe_prm's promise, kept in flight: outside the door the margin holds up to the tracking error
     assert metrics["clearance_threshold_m"] == MARGIN
+    # (5 mm of slack: deviations are measured at the samples, clearances along the chords between them)
     outside = metrics["flown_min_clearance_outside_critical_m"]
-    assert outside >= MARGIN - metrics["tracking_error_max_m"] - 1e-9
+    assert outside >= MARGIN - metrics["tracking_error_max_m"] - 0.005
     assert metrics["flown_min_clearance_in_critical_m"] > 0.2  # the door: 0.35 m at best
     assert metrics["tracking_error_max_m"] < 0.15
     # it took off from its pad, flew, landed on the other pad and disarmed

@@ -12,9 +12,9 @@ an obstacle refuses the flight.
 Two ways to fly it (the ``mode`` setting):
 
 * ``mission``: a mission (DO_CHANGE_SPEED, NAV_TAKEOFF, NAV_WAYPOINT...,
-  NAV_LAND) uploaded with the mission protocol, then mission mode, arming
-  and MISSION_START, each acknowledged; progress from MISSION_CURRENT and
-  MISSION_ITEM_REACHED;
+  NAV_LAND) uploaded with the mission protocol, then hold mode, arming and
+  mission mode (which starts it, exactly once), each acknowledged; progress
+  from MISSION_CURRENT and MISSION_ITEM_REACHED;
 * ``offboard``: the route time-parameterised (:mod:`.mavlink_profile`) and
   streamed as SET_POSITION_TARGET_LOCAL_NED (position, velocity and
   acceleration) on the *vehicle's* clock: every LOCAL_POSITION_NED (and a
@@ -205,29 +205,40 @@ class Flight:
             upload_repeated_requests=stats.repeated_requests,
             upload_out_of_order_requests=stats.out_of_order_requests,
         )
+        # progress of this mission only (a vehicle may have flown another before)
+        vehicle = gcs.vehicle
+        vehicle.reached.clear()
+        vehicle.current_changes.clear()
+        vehicle.mission_state = 0
+        vehicle.mission_current = -1
+        # as MAVSDK does: arm holding, then the switch to mission mode starts the mission, exactly once
+        # (a MISSION_START repeated late, its ACK lost, would start it again from wherever the vehicle is)
+        timeout = self.settings.timeouts.mode
         gcs.step = "mode change"
-        gcs.set_mode("mission", self.settings.timeouts.mode)
+        gcs.set_mode("hold", timeout)
         gcs.step = "arming"
         gcs.recording = True
-        gcs.arm(self.settings.timeouts.mode)
+        gcs.arm(timeout)
         gcs.step = "mission start"
-        gcs.command(mavlink.MAV_CMD_MISSION_START, [0, len(items) - 1])
+        gcs.set_mode("mission", timeout)
         gcs.step = "flight"
-        reached = gcs.vehicle.reached
         done_seq = len(items) - 1
 
         def finished() -> bool:
-            seqs = {seq for seq, _ in reached}
-            if done_seq not in seqs:
+            # MISSION_ITEM_REACHED comes once and may be lost: MISSION_CURRENT (streamed) backs it up
+            over = vehicle.passed(done_seq) < math.inf or vehicle.mission_state == mavlink.MISSION_STATE_COMPLETE
+            if not over:
                 return False
-            return not gcs.vehicle.armed if self.route.land else True
+            return (not vehicle.armed) if self.route.land else True
 
         def window() -> tuple[float, float]:
-            times = dict(reached)
-            return times.get(first, math.inf), times.get(last, math.inf)
+            return vehicle.passed(first), vehicle.passed(last)
+
+        def advance() -> None:
+            task.update(max((seq for seq, _ in vehicle.reached), default=-1) + 1)
 
         with self.progress.task("flying mission", total=len(items)) as task:
-            self._watch(finished, window, lambda: task.update(len({s for s, _ in reached})), allowed=("mission",))
+            self._watch(finished, window, advance, allowed=("mission",))
         return log
 
     # ------------------------------------------------------------------ offboard

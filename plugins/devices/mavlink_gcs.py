@@ -138,8 +138,11 @@ class VehicleState:
     heartbeats: int = 0
     position: PositionSample | None = None
     mission_current: int = -1
+    mission_state: int = 0
     #: (seq, vehicle time s) of every MISSION_ITEM_REACHED, in arrival order
     reached: list[tuple[int, float]] = field(default_factory=list)
+    #: (seq, vehicle time s) whenever MISSION_CURRENT showed a new current item
+    current_changes: list[tuple[int, float]] = field(default_factory=list)
     statustext: list[str] = field(default_factory=list)
 
     @property
@@ -149,6 +152,12 @@ class VehicleState:
     @property
     def vehicle_time(self) -> float:
         return self.position.time if self.position is not None else 0.0
+
+    def passed(self, seq: int) -> float:
+        """Vehicle time (s) the mission got past item ``seq``: its MISSION_ITEM_REACHED, or (that message
+        lost on a poor link) the first MISSION_CURRENT showing a later item; inf when neither came."""
+        times = [t for s, t in self.reached if s == seq] + [t for s, t in self.current_changes if s > seq]
+        return min(times, default=math.inf)
 
 
 class GroundStation:
@@ -260,7 +269,10 @@ class GroundStation:
         elif kind == "EXTENDED_SYS_STATE":
             v.landed_state = int(message.landed_state)
         elif kind == "MISSION_CURRENT":
+            if int(message.seq) != v.mission_current:
+                v.current_changes.append((int(message.seq), v.vehicle_time))
             v.mission_current = int(message.seq)
+            v.mission_state = int(getattr(message, "mission_state", 0))
         elif kind == "MISSION_ITEM_REACHED":
             v.reached.append((int(message.seq), v.vehicle_time))
         elif kind == "STATUSTEXT":
@@ -321,8 +333,20 @@ class GroundStation:
         )
 
     # ------------------------------------------------------------------ commands
-    def command(self, command: int, params: Sequence[float] = (), *, accept_unsupported: bool = False) -> int:
-        """Send a command and wait for its final COMMAND_ACK; raises unless it is accepted."""
+    def command(
+        self,
+        command: int,
+        params: Sequence[float] = (),
+        *,
+        accept_unsupported: bool = False,
+        effect: Callable[[], bool] | None = None,
+    ) -> int:
+        """Send a command and wait for its final COMMAND_ACK; raises unless it is accepted.
+
+        ``effect``: when the vehicle's telemetry already shows what the command does (armed, the
+        new mode), a lost acknowledgement is not worth a retransmission: a late duplicate could do
+        it a second time after the vehicle has moved on (arm it again after it landed).
+        """
         transaction = CommandTransaction(
             command, params, self.target, timeout=self.command_timeout, retries=self.command_retries
         )
@@ -331,6 +355,8 @@ class GroundStation:
             self.send(transaction.start(self.clock()))
             while not transaction.finished:
                 self.pump(0.1)
+                if effect is not None and not transaction.finished and effect():
+                    transaction.result = RESULT_ACCEPTED  # seen done; its ACK was lost
         finally:
             self._transactions.remove(transaction)
         if transaction.timed_out:
@@ -358,24 +384,34 @@ class GroundStation:
         """MAV_CMD_REQUEST_MESSAGE, then wait for the message itself."""
         got = []
 
-        def arrived() -> bool:
-            return bool(got)
+        def collect(messages, now) -> None:  # it may come in the same datagram burst as the ACK
+            got.extend(m for m in messages if m.get_type() == message_type)
 
-        self.command(mavlink.MAV_CMD_REQUEST_MESSAGE, [message_id])
-        deadline = self.clock() + timeout
-        while not arrived():
-            if self.clock() > deadline:
-                raise VehicleError(f"the vehicle did not send {message_type} within {timeout:g} s", step=self.step)
-            got.extend(m for m in self.pump(0.1) if m.get_type() == message_type)
+        self.tickers.append(collect)
+        try:
+            self.command(mavlink.MAV_CMD_REQUEST_MESSAGE, [message_id])
+            deadline = self.clock() + timeout
+            while not got:
+                if self.clock() > deadline:
+                    raise VehicleError(f"the vehicle did not send {message_type} within {timeout:g} s", step=self.step)
+                self.pump(0.1)
+        finally:
+            self.tickers.remove(collect)
         return got[0]
 
     def set_mode(self, mode: str, timeout: float = 5.0) -> None:
         """Switch flight mode (PX4 custom modes), wait for the ACK and for the HEARTBEAT to show it."""
-        self.command(mavlink.MAV_CMD_DO_SET_MODE, px4_mode_command(mode))
+        shown = self.vehicle.mode == mode
+
+        def changed() -> bool:
+            return self.vehicle.mode == mode and not shown
+
+        self.command(mavlink.MAV_CMD_DO_SET_MODE, px4_mode_command(mode), effect=changed)
         self.wait_for(lambda: self.vehicle.mode == mode, timeout, f"the vehicle's HEARTBEAT did not show mode {mode}")
 
     def arm(self, timeout: float = 5.0) -> None:
-        self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1])
+        was_armed = self.vehicle.armed
+        self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1], effect=lambda: self.vehicle.armed and not was_armed)
         self.wait_for(lambda: self.vehicle.armed, timeout, "the vehicle's HEARTBEAT did not show it armed")
 
     # ------------------------------------------------------------------ missions
