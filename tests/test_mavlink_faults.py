@@ -33,10 +33,12 @@ def roadmap(tmp_path_factory):
 
 #: the ground station's heartbeat expectations in these tests: 2 Hz, lost after 5 missed (2.5 s)
 QUICK_LIVENESS = {"period": 0.5, "missed": 5}
-#: in flight: 6 missed (3 s), and the vehicle at 1.5x real time, so that the loss (6 s after arming) is
-#: detected some 10.5 s into a flight of about 20 s even when this machine is slow to notice
+#: in flight: 6 missed (3 s); the vehicle at 4x real time and a slow cruise (0.5 m/s, some 60 s of
+#: flight), so that the loss (6 s after arming) is detected about 18 s into the flight, with 40 s of
+#: vehicle time (10 s of wall clock) to spare for a machine that is slow to notice
 FLIGHT_LIVENESS = {"period": 0.5, "missed": 6}
-FLIGHT_SIM = {"heartbeat_rate": 2.0, "speed": 1.5}
+FLIGHT_SIM = {"heartbeat_rate": 2.0, "speed": 4.0}
+FLIGHT_SPEED = 0.5
 
 
 @contextlib.contextmanager
@@ -145,7 +147,15 @@ def test_rejected_mission_reports_the_vehicles_result(tmp_path, roadmap, sim, re
 
 @pytest.mark.slow
 def test_heartbeat_lost_in_flight_commands_the_failsafe_and_the_vehicle_lands(tmp_path, roadmap):
-    with rehearse("heartbeat", tmp_path, roadmap, sim=FLIGHT_SIM, heartbeat=FLIGHT_LIVENESS, figure=False) as (
+    with rehearse(
+        "heartbeat",
+        tmp_path,
+        roadmap,
+        sim=FLIGHT_SIM,
+        heartbeat=FLIGHT_LIVENESS,
+        cruise_speed=FLIGHT_SPEED,
+        figure=False,
+    ) as (
         pipeline,
         vehicle,
     ):
@@ -182,7 +192,14 @@ def test_failsafe_is_commanded_even_when_the_vehicle_is_no_longer_heard(tmp_path
     sim = {**FLIGHT_SIM, "heartbeat_loss": {"at_s": 6, "all_telemetry": True}}
     timeouts = {"command": 0.5, "command_retries": 2}
     with rehearse(
-        "heartbeat", tmp_path, roadmap, sim=sim, heartbeat=FLIGHT_LIVENESS, timeouts=timeouts, figure=False
+        "heartbeat",
+        tmp_path,
+        roadmap,
+        sim=sim,
+        heartbeat=FLIGHT_LIVENESS,
+        timeouts=timeouts,
+        cruise_speed=FLIGHT_SPEED,
+        figure=False,
     ) as (pipeline, vehicle):
         outcome = run_pipeline(pipeline)
         # the ground station could not hear it; the vehicle heard the LAND command and lands (simulated time)
