@@ -50,12 +50,13 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validato
 from surgiplan.devices import Device, ExecutionReport, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.progress import NullProgress
 from surgiplan.units import Angle, Length, PositiveLength, Vec3
 
 from .mavlink_conventions import LocalFrame, MapProjection
 from .mavlink_flight import Flight, Refusal, build_route
 from .mavlink_gcs import GroundStation
-from .mavlink_link import Endpoint, VehicleError, check_connection_string, mavlink, signing_key
+from .mavlink_link import Endpoint, VehicleError, check_connection_string, enum_name, mavlink, signing_key
 from .mavlink_report import describe, flight_figure, flight_metrics, write_flight_csv
 from .mavlink_sim_settings import SimSettings
 
@@ -342,7 +343,7 @@ class MavlinkVehicle(Device):
             route = build_route(trajectory, position, on_ground, ground, s, threshold)
         except Refusal as exc:
             return ExecutionReport("stopped", {"refused": True}, message=f"refused before any motion: {exc}")
-        flight = Flight(gcs, s, self.frame, route, context.progress if context else _NoProgress(), self.geo)
+        flight = Flight(gcs, s, self.frame, route, context.progress if context else NullProgress(), self.geo)
         log = flight.fly_offboard() if s.mode == "offboard" else flight.fly_mission()
         gcs.recording = False
         return self._report(trajectory, route, flight, log, threshold, critical)
@@ -400,16 +401,7 @@ class MavlinkVehicle(Device):
         return ExecutionReport(log.status, metrics, flown if len(flown) else None, log.faults, log.message, files)
 
 
-class _NoProgress:
-    def task(self, description: str, total=None):
-        from surgiplan.progress import NullProgress
-
-        return NullProgress().task(description, total)
-
-
 def _autopilot(value: int) -> str:
-    from .mavlink_link import enum_name
-
     return enum_name("MAV_AUTOPILOT", value)
 
 
