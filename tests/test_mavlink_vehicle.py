@@ -319,3 +319,15 @@ def test_no_vehicle_is_a_clear_connect_error(tmp_path, roadmap):
     ):
         run_pipeline(load_pipeline(hall_pipeline(tmp_path, roadmap, settings)))
     assert not (tmp_path / "out" / "result.json").exists()
+
+
+def test_paths_of_other_spaces_are_refused_with_the_reason():
+    from types import SimpleNamespace
+
+    from surgiplan.devices import Trajectory
+    from surgiplan.plugins.devices.mavlink_vehicle import MavlinkVehicle
+
+    device = MavlinkVehicle(MavlinkVehicle.Settings())
+    gimbal = SimpleNamespace(kind="cast_gimbal")
+    with pytest.raises(ConfigError, match=r"flies paths of the r3 space .* plan stage 'plan' planned in 'cast_gimbal'"):
+        device.run(Trajectory(np.zeros((2, 4)), gimbal, "plan"))
