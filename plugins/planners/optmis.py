@@ -146,7 +146,7 @@ class OptMIS(Planner):
                     **metrics,
                 )
             if i != j:
-                k = int(repository._index[min(i, j) * len(repository.names) + max(i, j)])
+                k = repository.index(i, j)
                 metrics.update(
                     {
                         "graph_length_m": float(repository.graph_length[k]),

@@ -1,20 +1,28 @@
-"""optMIS shortest paths from one source to many targets (paper 001 §3.1).
+"""optMIS shortest paths from sources to many targets (paper 001 §3.1).
 
 One Dijkstra call (``scipy.sparse.csgraph.dijkstra``) from a point of
 interest gives the shortest-path tree to every vertex of the search space,
 hence the paths to all targets at once. Then, beyond the paper:
 
 * *tautening* (``taut``): the graph's paths zig-zag along tetrahedron edges
-  (about 6 % longer than the shortest path in the workspace on the hand-eye
-  scene). Each tree vertex gets an any-angle parent, an ancestor it is
-  certified to reach in a straight motion, in the manner of Theta* (Nash et
-  al. 2007), by pointer jumping (:func:`taut_parents`). This keeps a *tree*,
-  so paths from one source still share their common stretches exactly (what
-  the segmented pathmap compresses).
-* *knots*: every straight piece of a path is divided into equal intervals of
-  at most ``knot_spacing``; the natural spline through these knots follows
-  the straight pieces and rounds the turns (:mod:`.spline_paths`), and a piece
-  shared by several paths gets the same knots in all of them.
+  (about 6-7 % longer than the shortest path on the hand-eye scene). Each
+  tree vertex gets an any-angle parent, an ancestor it is certified to reach
+  in a straight motion, in the manner of Theta* (Nash et al. 2007), by
+  pointer jumping (:func:`taut_parents`). This keeps a *tree*, so paths from
+  one source still share their common stretches exactly (what the segmented
+  pathmap compresses); ``max_jump`` bounds the jumps, trading length for
+  more sharing.
+* *turn refinement* (``refine``): a turn stays where the zig-zag path
+  happened to round the obstacle; :func:`refine_corners` slides it along the
+  obstacle's edge to where the path is shortest and in as close as the legs
+  allow (shortest paths among polyhedra bend on their edges).
+* *knots*: every straight piece is cut into equal intervals of at most
+  ``knot_spacing``, with a knot ``turn_radius`` either side of each turn;
+  the natural spline through them follows the straight pieces and rounds the
+  turns locally (:mod:`.spline_paths`).
+
+Several sources are processed together (:func:`paths_from_sources`) so that
+they share each batched certified check.
 
 Lengths in metres.
 """

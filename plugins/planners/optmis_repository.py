@@ -93,12 +93,16 @@ class Repository:
     def paths(self) -> list[np.ndarray]:
         return [self.path(k) for k in range(self.n_paths)]
 
+    def index(self, i: int, j: int) -> int:
+        """Index of the stored path joining points of interest i and j (either order), -1 if none."""
+        lo, hi = min(i, j), max(i, j)
+        return int(self._index[lo * len(self.names) + hi]) if lo != hi else -1
+
     def between(self, i: int, j: int) -> np.ndarray | None:
         """The path from point of interest i to j (reversed from storage when i > j), or None if unreachable."""
         if i == j:
             return self.pois[i][None].copy()
-        lo, hi = min(i, j), max(i, j)
-        k = int(self._index[lo * len(self.names) + hi])
+        k = self.index(i, j)
         if k < 0:
             return None
         path = self.path(k)

@@ -11,7 +11,8 @@ pathmap (:mod:`.segmented_graph`). Beyond the paper (which admits that its
 planner fails for points not in the graph, §7):
 
 * a start or goal that is not a point of the pathmap is linked to it by
-  certified straight motions to its nearest pathmap points (within
+  certified straight motions to the nearest point of each of the
+  ``link_candidates`` nearest stored paths (optionally within
   ``link_radius``); when none is clear, by a short local optMIS plan in a box
   of half-size ``local_radius`` around it; when that fails too, the answer
   is ``no_path`` with the reason;
@@ -44,6 +45,7 @@ from .optmis_offline import OptMISSettings, require_r3, run_offline
 from .optmis_paths import PathOptions, paths_from_source
 from .pathmap import ALIGNMENTS, SegmentedPathmap, build_pathmap
 from .pathmap_report import table1, write_report
+from .prm_roadmap import certify_edges
 from .segmented_graph import Attachment, OnlineGraph, online_graph
 
 log = logging.getLogger(__name__)
@@ -177,6 +179,7 @@ class SegmentedAStar(Planner):
     @staticmethod
     def _artifact(pathmap: SegmentedPathmap, space, rows: list[dict]) -> PathmapArtifact:
         graph = online_graph(pathmap)
+        graph.clearance = space.clearance(graph.points)  # for links certified by covering balls
         distance, index = graph.tree.query(pathmap.pois)
         # a point of interest that no path reaches is not in the pathmap (-1)
         index = np.where(distance <= 1e-12, index, -1)
@@ -204,19 +207,27 @@ class SegmentedAStar(Planner):
         """Ways from q into the graph: a pathmap point, certified straight links, or a local plan."""
         graph, space, settings = artifact.graph, artifact.space, self.settings
         distance, v = graph.tree.query(q)
-        if distance <= 1e-12:
+        on_map = distance <= 1e-12
+        if on_map and graph.is_junction[v]:
+            # a point of interest or a branch point: the pathmap alone, as in the paper
             return graph.attachments_at_vertex(int(v), q[None], 0.0), "vertex"
+        out = graph.attachments_at_vertex(int(v), q[None], 0.0) if on_map else []
         index = self.link_candidates(artifact, q)
+        index = index[np.any(graph.points[index] != q, axis=1)]  # not to itself
         if index.size:
             targets = graph.points[index]
-            ok = space.motion_is_clear(np.repeat(q[None], len(index), 0), targets, settings.margin)
+            # two covering balls (the clearance at both ends) certify most links without a swept check
+            slack = float(space.clearance(q[None])[0]) - settings.margin
+            ok, _ = certify_edges(space, np.repeat(q[None], len(index), 0), targets, np.full(len(index), slack),
+                                  graph.clearance[index] - settings.margin, settings.margin)
             counters["link_checks"] += len(index)
-            if np.any(ok):
-                out = []
-                for vertex, point in zip(index[ok], targets[ok], strict=True):
-                    link = np.stack([q, point])
-                    out += graph.attachments_at_vertex(int(vertex), link, float(np.linalg.norm(point - q)))
-                return out, "straight"
+            for vertex, point in zip(index[ok], targets[ok], strict=True):
+                link = np.stack([q, point])
+                out += graph.attachments_at_vertex(int(vertex), link, float(np.linalg.norm(point - q)))
+            if out:
+                return out, "vertex" if on_map and not np.any(ok) else "straight"
+        if out:
+            return out, "vertex"
         counters["local_plans"] += 1
         return self._local_plan(artifact, q), "local"
 
