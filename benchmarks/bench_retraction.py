@@ -274,7 +274,8 @@ def main() -> None:
         )
     )
     notes = (
-        f"{'quick sizes; ' if args.quick else ''}{args.grasps} grasp(s) per scenario, local executor with 2 workers, "
+        f"{'quick sizes; ' if args.quick else ''}{args.samples} random and {args.guided} user-guided samples, "
+        f"{args.grasps} grasp(s) per scenario, local executor with 2 workers, "
         f"OMP_NUM_THREADS=1; planning = median of {args.repeats} lazy queries from scratch; machine shared "
         "with other jobs while it ran (timings are upper bounds)"
     )
