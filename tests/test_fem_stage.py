@@ -174,6 +174,45 @@ def test_a_step_that_fails_stops_the_sequence_and_names_the_step(tmp_path, cli):
     assert stage["files"] == ["flap.vtu", "flap.png", "flap.pvd", "flap/step_000.vtu", "flap/step_001.vtu"]
 
 
+def test_a_closed_surface_meshed_by_tetgen_runs_as_quadratic_elements(tmp_path, cli):
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("tetgen")
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=10.0)
+    ball.apply_translation((0, 0, 10))
+    ball.export(tmp_path / "ball.stl")
+    text = """
+name: ball
+length_unit: mm
+scene:
+  bounds: {min: [-20, -20, -5], max: [20, 20, 30]}
+pipeline:
+  - stage: simulate
+    name: ball
+    plugin: stvk
+    settings:
+      mesh: {file: ball.stl, order: 2}
+      material: {youngs_modulus: 2.0e4, poisson_ratio: 0.45}
+      anchored: [{region: {min: [-20, -20, 0], max: [20, 20, 0.5]}}]
+      grasp: {region: {min: [-20, -20, 19.5], max: [20, 20, 20]}, transform: {xyz: [0, 0, -4]}}
+output: {dir: out}
+"""
+    code, _, err = cli("run", write(tmp_path / "ball.yaml", text), "--out", tmp_path / "out")
+    assert code == 0, err
+    stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
+    metrics = stage["metrics"]
+    assert stage["status"] == "converged" and metrics["element_order"] == 2 and metrics["valid"]
+    # the clamp and the gripper squeeze the ball; together they carry exactly its weight (the mesh fills the
+    # polyhedral surface, whose volume trimesh measures independently)
+    vtu = meshio.read(tmp_path / "out" / "ball.vtu")
+    assert vtu.cells[0].type == "tetra10"
+    reactions = vtu.point_data["reaction_force"].sum(axis=0)
+    weight = 1000 * 9.8 * ball.volume * 1e-9  # N
+    assert reactions == pytest.approx([0, 0, weight], rel=1e-4, abs=1e-5 * weight)
+    assert metrics["grasp_force_N"][2] < -0.01  # the gripper pushes down
+    png = (tmp_path / "out" / "ball.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
 def test_shipped_configs_validate_and_the_plugin_is_registered(cli):
     assert "stvk" in default_registry().names("deformable_model")
     for name in ("flap_simulate.yaml", "cantilever_simulate.yaml", "flap_veins_simulate.yaml"):

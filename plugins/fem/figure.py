@@ -59,7 +59,8 @@ def stage_figure(
     surface = Poly3DCollection(x[triangles], facecolors=cmap(norm(np.nan_to_num(stress, nan=0.0))), linewidths=0)
     ax.add_collection3d(surface)
     edges = _outline(mesh.nodes, mesh.surface)
-    ax.add_collection3d(Line3DCollection(rest[edges], colors="0.6", linewidths=0.6))
+    if len(edges):  # a smooth closed surface (a sphere) has no feature edge
+        ax.add_collection3d(Line3DCollection(rest[edges], colors="0.6", linewidths=0.6))
     held = state.data.get("prescribed_nodes", np.empty(0, dtype=int))
     grasped = np.intersect1d(held, model.grasped_nodes())
     anchored = np.setdiff1d(held, grasped)
@@ -78,6 +79,8 @@ def stage_figure(
     ax.set_zlabel("z (mm)")
     ax.view_init(elev=25, azim=-60)
     ax.zaxis.set_major_locator(matplotlib.ticker.MaxNLocator(3))
+    ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(5))
+    ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(5))
     if len(held):
         ax.legend(loc="upper left", fontsize=7)
     bar = fig.colorbar(cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.6, pad=0.1, extend="max")
@@ -103,7 +106,7 @@ def stage_figure(
 
 
 def _outline(nodes: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Feature edges (k, 2) of a surface: edges whose two triangles are not coplanar (a box's 12 edges)."""
+    """Feature edges (k, 2) of a surface: edges whose two triangles meet at more than 25 degrees (a box: 12)."""
     corners = nodes[triangles]
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
@@ -113,5 +116,5 @@ def _outline(nodes: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     order = np.lexsort((key[:, 1], key[:, 0]))
     key, owner = key[order], owner[order]
     pair = np.flatnonzero(np.all(key[1:] == key[:-1], axis=1))  # each interior edge appears twice, adjacent
-    bend = np.einsum("ij,ij->i", normals[owner[pair]], normals[owner[pair + 1]]) < 0.99
+    bend = np.einsum("ij,ij->i", normals[owner[pair]], normals[owner[pair + 1]]) < 0.9  # bent by more than 25 degrees
     return key[pair[bend]]
