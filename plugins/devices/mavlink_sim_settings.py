@@ -100,9 +100,10 @@ class SimSettings(_Strict):
     wind: Wind = Field(default_factory=Wind)
     #: mission items the vehicle can store
     mission_capacity: int = Field(default=1000, ge=0)
-    #: the vehicle's mission protocol timeout while waiting for an item (s) and its retries
+    #: the vehicle's mission protocol timeout while waiting for an item (s) and its retries: as PX4,
+    #: a request every 250 ms, and the transfer given up after 5 s without progress
     mission_timeout: PositiveFloat = 0.25
-    mission_retries: int = Field(default=10, ge=0)
+    mission_retries: int = Field(default=20, ge=0)
     #: offboard setpoints older than this stop offboard control (PX4 COM_OF_LOSS_T); wall s with lockstep
     offboard_timeout: PositiveFloat = 1.0
     #: MAVLink 2 signing key (64 hex digits or a passphrase); unsigned frames are then rejected
