@@ -224,10 +224,12 @@ class Flight:
         gcs.step = "flight"
         done_seq = len(items) - 1
 
-        def finished() -> bool:
+        def over() -> bool:
             # MISSION_ITEM_REACHED comes once and may be lost: MISSION_CURRENT (streamed) backs it up
-            over = vehicle.passed(done_seq) < math.inf or vehicle.mission_state == mavlink.MISSION_STATE_COMPLETE
-            if not over:
+            return vehicle.passed(done_seq) < math.inf or vehicle.mission_state == mavlink.MISSION_STATE_COMPLETE
+
+        def finished() -> bool:
+            if not over():
                 return False
             return (not vehicle.armed) if self.route.land else True
 
@@ -238,7 +240,7 @@ class Flight:
             task.update(max((seq for seq, _ in vehicle.reached), default=-1) + 1)
 
         with self.progress.task("flying mission", total=len(items)) as task:
-            self._watch(finished, window, advance, allowed=("mission",))
+            self._watch(finished, window, advance, allowed=("mission",), over=over)
         return log
 
     # ------------------------------------------------------------------ offboard
@@ -321,8 +323,12 @@ class Flight:
         return log
 
     # ------------------------------------------------------------------ watching
-    def _watch(self, finished, window, advance, allowed: tuple[str, ...]) -> None:
-        """Pump until ``finished()``; heartbeat loss -> failsafe; a mode the vehicle chose itself -> stopped."""
+    def _watch(self, finished, window, advance, allowed: tuple[str, ...], over=lambda: False) -> None:
+        """Pump until ``finished()``; heartbeat loss -> failsafe; a mode the vehicle chose itself -> stopped.
+
+        Once ``over()`` (the last item reached) the vehicle may change mode by itself (PX4 holds
+        after a mission): only the landing is still awaited.
+        """
         gcs = self.gcs
         s = self.settings
         log = self.log
@@ -336,7 +342,7 @@ class Flight:
                 if finished():
                     break
                 mode = gcs.vehicle.mode
-                if mode and mode not in allowed:
+                if mode and mode not in allowed and not over():
                     log.status = "stopped"
                     log.message = f"the vehicle left {allowed[0]} mode by itself (now {mode})"
                     log.faults.append({"kind": "mode_change", "mode": mode, "vehicle_time_s": gcs.vehicle.vehicle_time})
