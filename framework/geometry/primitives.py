@@ -25,6 +25,8 @@ import numpy as np
 _EPS = 1e-300
 #: golden-section iterations: the bracket shrinks to 0.618**80 ~ 2e-17 of the segment
 _GOLDEN_ITERATIONS = 80
+#: golden-section search stops once the bracket pins the minimum down to this (m)
+_BRACKET_TOLERANCE = 1e-10
 _INV_PHI = (np.sqrt(5.0) - 1.0) / 2.0
 
 
@@ -215,8 +217,8 @@ def convex_segment_sd(sdf, a, b) -> np.ndarray:
     section search keeps a minimiser in its bracket. After the last iteration
     the true minimum differs from the value at the bracket's centre by at most
     ``|b - a| * width / 2``; that bound is subtracted, so the result is never
-    larger than the true minimum and smaller by at most ~1e-16 of the segment
-    length.
+    larger than the true minimum and smaller by at most 0.1 nm (the search
+    stops there: about 45 iterations for a 10 cm segment instead of 80).
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
@@ -230,7 +232,12 @@ def convex_segment_sd(sdf, a, b) -> np.ndarray:
     x2 = lo + _INV_PHI * (hi - lo)
     f1 = sdf(a + x1[:, None] * d, every)
     f2 = sdf(a + x2[:, None] * d, every)
+    length = np.linalg.norm(d, axis=-1)
     for _ in range(_GOLDEN_ITERATIONS):
+        # the bracket's bound (subtracted below, so the answer stays conservative) is already
+        # below 0.1 nm for every segment: more iterations only cost numpy calls
+        if n == 0 or float(np.max(length * (hi - lo))) < 2 * _BRACKET_TOLERANCE:
+            break
         left = f1 <= f2  # a minimiser lies in [lo, x2]
         hi = np.where(left, x2, hi)
         lo = np.where(left, lo, x1)
@@ -248,7 +255,7 @@ def convex_segment_sd(sdf, a, b) -> np.ndarray:
     centre = 0.5 * (lo + hi)
     value = sdf(a + centre[:, None] * d, every)
     ends = np.minimum(sdf(a, every), sdf(b, every))
-    bound = np.linalg.norm(d, axis=-1) * 0.5 * (hi - lo)
+    bound = length * 0.5 * (hi - lo)
     return np.minimum(value - bound, ends)
 
 
