@@ -331,3 +331,36 @@ def test_a_model_with_only_the_interface_gets_finite_difference_relief():
     # the finite-difference gradient leads the relief the same way as the exact moment
     turn = Rotation.from_quat(generic["q"][0, 3:]) * Rotation.from_quat(exact["q"][0, 3:]).inv()
     assert turn.magnitude() < 0.05
+
+
+class FailsAway(StVKModel):
+    """A model that raises on configurations far from the grasp (a numerical failure of the model)."""
+
+    def solve(self, constraints, initial=None):
+        if np.max(constraints.prescribed_positions[:, 2]) > 0.02:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return super().solve(constraints, initial)
+
+
+def test_a_model_that_raises_on_one_sample_loses_that_sample_not_the_chain():
+    from surgiplan.plugins.planners.retraction.equilibria import sample_chain
+
+    fem = model()
+    q0 = np.array([0.05, 0.025, 0.00125, 0, 0, 0, 1.0])
+    grasped = np.flatnonzero(np.all(np.abs(fem.rest_nodes - q0[:3]) <= [0.0035, 0.0035, 0.002], axis=1))
+    anchored = np.setdiff1d(fem.nodes_in_region([0, 0, 0], [0, 0.05, 0.0025]), grasped)
+    q = np.array(
+        [[0.048, 0.025, 0.01, 0, 0, 0, 1.0], [0.045, 0.025, 0.03, 0, 0, 0, 1.0], [0.046, 0.025, 0.012, 0, 0, 0, 1]]
+    )
+    out = sample_chain(
+        {
+            "model_class": FailsAway,
+            "model_settings": fem.settings.model_dump(mode="json"),
+            "frame": GraspFrame(fem.rest_nodes, anchored, grasped, q0),
+            "collision": None,
+            "relief": {"enabled": False, "max_iterations": 1, "max_step": 0.5, "tolerance": 0.01},
+            "configurations": q,
+        }
+    )
+    assert out["ok"].tolist() == [True, False, True]
+    assert "the deformable model failed: LinAlgError: Singular matrix" in out["reason"][1]

@@ -88,7 +88,22 @@ class _Chain:
 
     def solve(self, q: np.ndarray, initial: EquilibriumState | None) -> EquilibriumState:
         started = time.perf_counter()
-        state = self.model.solve(self.frame.constraints(q), initial=initial)
+        try:
+            state = self.model.solve(self.frame.constraints(q), initial=initial)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            # a numerical failure of the model on one configuration (e.g. a singular matrix in a
+            # degenerate state) discards that state, not the whole chain of samples
+            positions = initial.positions if initial is not None else self.frame.rest
+            state = EquilibriumState(
+                np.array(positions, dtype=float),
+                np.inf,
+                np.full(len(self.model.elements), np.inf),
+                False,
+                False,
+                0,
+                np.inf,
+                f"the deformable model failed: {type(exc).__name__}: {exc}",
+            )
         state.data.setdefault("solve_s", time.perf_counter() - started)
         newton, validation = _seconds(state)
         self.fem_s += newton
