@@ -17,11 +17,11 @@ Two ways to fly it (the ``mode`` setting):
   from MISSION_CURRENT and MISSION_ITEM_REACHED;
 * ``offboard``: the route time-parameterised (:mod:`.mavlink_profile`) and
   streamed as SET_POSITION_TARGET_LOCAL_NED (position, velocity and
-  acceleration) on the *vehicle's* clock: every LOCAL_POSITION_NED (and a
-  20 Hz wall-clock keep-alive) is answered with the setpoint for the
-  vehicle's time plus a short lead, so the stream follows the vehicle at any
-  simulation speed; PX4's rule is kept: setpoints flow before the switch to
-  offboard mode and arming.
+  acceleration) on the *vehicle's* clock (:mod:`.mavlink_stream`): one
+  setpoint for every 50 ms of vehicle time, kept 0.1 s ahead of the newest
+  LOCAL_POSITION_NED, plus a 20 Hz wall-clock keep-alive, so the stream
+  follows the vehicle at any simulation speed; PX4's rule is kept: setpoints
+  flow before the switch to offboard mode and arming.
 
 During the flight the vehicle's heartbeats are watched; when they stop the
 configured failsafe (land, return, hold) is commanded and the flight ends
@@ -42,10 +42,7 @@ from .mavlink_gcs import GroundStation, LinkLost
 from .mavlink_link import VehicleError, mavlink
 from .mavlink_mission import MissionItem
 from .mavlink_profile import TimedPath
-
-#: how far ahead of the vehicle's clock offboard setpoints are stamped (s), and the keep-alive period
-SETPOINT_LEAD = 0.1
-KEEPALIVE = 0.05
+from .mavlink_stream import SetpointStream
 
 
 class Refusal(Exception):
@@ -252,23 +249,7 @@ class Flight:
             self.route_ned, s.cruise_speed, s.acceleration, s.corner_deviation, vertical_speed=s.vertical_speed
         )
         log.profile = profile
-        state = {"start": math.inf, "last_sent": -math.inf}
-        hold = self.route_ned[0]
-
-        def setpoint(t: float):
-            if t < state["start"]:
-                return hold, np.zeros(3), np.zeros(3)
-            p, v, a = profile.sample(t - state["start"])
-            return p[0], v[0], a[0]
-
-        def stream(messages, now: float) -> None:
-            fresh = any(m.get_type() == "LOCAL_POSITION_NED" for m in messages)
-            if not fresh and now - state["last_sent"] < KEEPALIVE:
-                return
-            t = gcs.vehicle.vehicle_time + SETPOINT_LEAD
-            gcs.send([gcs.position_target(t, *setpoint(t))])
-            state["last_sent"] = now
-
+        stream = SetpointStream(gcs, profile, self.route_ned[0])
         gcs.tickers.append(stream)
         try:
             gcs.step = "offboard setpoints"
@@ -279,16 +260,15 @@ class Flight:
             gcs.step = "arming"
             gcs.recording = True
             gcs.arm(s.timeouts.mode)
-            state["start"] = gcs.vehicle.vehicle_time + 2 * SETPOINT_LEAD
-            log.profile_start = state["start"]
+            start = log.profile_start = stream.begin()
             gcs.step = "flight"
             passing = profile.waypoint_time
             path_window = (
-                state["start"] + passing[self.route.path_first],
-                state["start"] + passing[self.route.path_last],
+                start + passing[self.route.path_first],
+                start + passing[self.route.path_last],
             )
             goal = self.route_ned[-1]
-            end = state["start"] + profile.duration
+            end = start + profile.duration
 
             def arrived() -> bool:
                 position = gcs.vehicle.position
@@ -301,7 +281,7 @@ class Flight:
             total = profile.total_length
 
             def advance() -> None:
-                task.update(float(profile.arc_length(gcs.vehicle.vehicle_time - state["start"])[0]))
+                task.update(float(profile.arc_length(gcs.vehicle.vehicle_time - start)[0]))
 
             with self.progress.task("flying offboard", total=total) as task:
                 self._watch(arrived, lambda: path_window, advance, allowed=("offboard",))

@@ -23,8 +23,11 @@ chain can be rehearsed anywhere, faults included:
 Time: the physics runs at ``speed`` simulated seconds per wall second (so a
 test flight can run faster than real time); the link's own timing
 (heartbeats, protocol timeouts) stays on the wall clock. In offboard mode
-the simulation never runs ahead of the ground station's newest setpoint
-(lockstep), so a loaded machine slows the flight down instead of starving it.
+each setpoint applies at the vehicle time it is stamped for and the
+simulation never runs past the ground station's newest stamp (lockstep,
+:mod:`.mavlink_sim_offboard`), so a loaded machine slows the flight down
+instead of changing it. Gusts advance only in the air
+(:mod:`.mavlink_sim_model`): with both, a flight is reproducible from its seed.
 
 Run it on its own (``surgiplan-sim-vehicle --help``); the device starts it as
 a subprocess on a free 127.0.0.1 UDP port unless told to connect elsewhere.
@@ -48,6 +51,7 @@ from .mavlink_link import Endpoint, mavlink, signing_key
 from .mavlink_mission import MissionItem, MissionReceiver, ReceiverFaults
 from .mavlink_sim_autopilot import Autopilot
 from .mavlink_sim_model import PointMassMultirotor
+from .mavlink_sim_offboard import OffboardSetpoints, Setpoint
 from .mavlink_sim_settings import SimSettings
 
 ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
@@ -85,7 +89,8 @@ class SimulatedVehicle(Autopilot):
             faults=faults,
         )
         self._noise = np.random.default_rng(s.seed + 3)
-        self.t = 0.0
+        self.t = 0.0  # vehicle time (s): steps * step
+        self.steps = 0
         self._next_heartbeat = -math.inf
         self.armed = False
         self.mode = "position"
@@ -101,14 +106,14 @@ class SimulatedVehicle(Autopilot):
         self._landed_at: float | None = None
         self.armed_at: float | None = None
         self._armed_wall = math.inf
-        self.setpoint = None  # (time s, p, v, a)
-        self._setpoint_wall = -math.inf
+        self.offboard = OffboardSetpoints(s.offboard_timeout, s.lockstep, s.lockstep_horizon)
         self.silent = s.stop_answering is not None and s.stop_answering.step == "connect"
         self._silence_count = 0
         self.heartbeat_lost = False
         self.telemetry_lost = False
         self.position_interval = 1.0 / s.position_rate
         self._next = {"position": 0.0, "state": 0.0, "current": 0.0}
+        self._reported = -math.inf  # vehicle time of the last LOCAL_POSITION_NED
         #: (t, x, y, z, vx, vy, vz) true states at the position rate, for tests and figures
         self.trajectory: list[tuple[float, ...]] = []
         #: what happened, in words, with the vehicle time (for tests and the log)
@@ -175,8 +180,12 @@ class SimulatedVehicle(Autopilot):
             steps = int(budget / dt)
             carry = budget - steps * dt
             for _ in range(steps):
-                if self.t + dt > limit + 1e-12:
+                if (self.steps + 1) * dt > limit + 1e-9:
                     carry = 0.0
+                    if self._reported < self.t and self.position_interval > 0:
+                        # waiting for a setpoint: say where we wait, or a ground station that stamps its
+                        # setpoints from our reports (at a slow telemetry rate) would never get past here
+                        self._report_position()
                     break
                 self._physics(dt)
             for message in self.endpoint.receive():
@@ -191,10 +200,7 @@ class SimulatedVehicle(Autopilot):
                 self.endpoint.wait(max(wait, 0.0))
 
     def _time_limit(self, now: float) -> float:
-        s = self.settings
-        if self.mode == "offboard" and s.lockstep and self.setpoint is not None:
-            return self.setpoint[0] + s.lockstep_horizon
-        return math.inf
+        return self.offboard.lockstep_limit() if self.mode == "offboard" else math.inf
 
     # ------------------------------------------------------------------ sending
     def _send(self, messages) -> None:
@@ -235,19 +241,24 @@ class SimulatedVehicle(Autopilot):
 
     def _periodic(self) -> None:
         t = self.t
-        ms = round(t * 1000)
         if t >= self._next["position"] - 1e-9 and self.position_interval > 0:
-            self._next["position"] = t + self.position_interval
-            p, v = self.model.p, self.model.v
-            self.trajectory.append((t, *p, *v))
-            noisy = p + self._noise.normal(0.0, self.settings.position_noise, 3) if self.settings.position_noise else p
-            self._telemetry(mavlink.MAVLink_local_position_ned_message(ms, *noisy, *v))
+            # on multiples of the interval: reports fall on the ground station's setpoint grid (50 ms)
+            self._next["position"] = (round(t / self.position_interval) + 1) * self.position_interval
+            self._report_position()
         if t >= self._next["state"] - 1e-9:
             self._next["state"] = t + 0.2
             self._telemetry(mavlink.MAVLink_extended_sys_state_message(0, self._landed_state()))
         if t >= self._next["current"] - 1e-9:
             self._next["current"] = t + 1.0
             self._mission_current()
+
+    def _report_position(self) -> None:
+        t = self.t
+        self._reported = t
+        p, v = self.model.p, self.model.v
+        self.trajectory.append((t, *p, *v))
+        noisy = p + self._noise.normal(0.0, self.settings.position_noise, 3) if self.settings.position_noise else p
+        self._telemetry(mavlink.MAVLink_local_position_ned_message(round(t * 1000), *noisy, *v))
 
     def _mission_current(self) -> None:
         if not self.mission:
@@ -347,7 +358,7 @@ class SimulatedVehicle(Autopilot):
         return ACCEPTED
 
     def _fresh_setpoint(self) -> bool:
-        return self.setpoint is not None and time.monotonic() - self._setpoint_wall < self.settings.offboard_timeout
+        return self.offboard.fresh(time.monotonic())
 
     def _cmd_mode(self, params) -> int:
         mode = px4_mode_from_command(params[1], params[2])
@@ -442,10 +453,7 @@ class SimulatedVehicle(Autopilot):
         p = np.array([message.x, message.y, message.z])
         v = np.zeros(3) if mask & 0b111000 else np.array([message.vx, message.vy, message.vz])
         a = np.zeros(3) if mask & 0b111000000 else np.array([message.afx, message.afy, message.afz])
-        stamp = message.time_boot_ms / 1000.0
-        if self.setpoint is None or stamp >= self.setpoint[0]:
-            self.setpoint = (stamp, p, v, a)
-        self._setpoint_wall = now
+        self.offboard.receive(Setpoint(message.time_boot_ms / 1000.0, p, v, a), self.t, now)
 
 
 # ----------------------------------------------------------------------------- command line

@@ -5,8 +5,8 @@ state, airframe and telemetry), kept apart because it is the part that
 *decides* where to fly, as PX4's navigator and commander do:
 
 * the reference for the position controller in each mode: offboard (the
-  newest setpoint, extrapolated from its time stamp with its velocity and
-  acceleration), mission and return legs (:class:`Follow` along a
+  setpoint in force, see :mod:`.mavlink_sim_offboard`, extrapolated from its
+  time stamp with its velocity and acceleration), mission and return legs (:class:`Follow` along a
   :class:`~.mavlink_profile.TimedPath`), landing (descend at the landing
   speed), hold (the stopping point);
 * mission execution: DO_CHANGE_SPEED at once; a run of NAV_WAYPOINTs flown as
@@ -81,17 +81,17 @@ class Autopilot:
     def _physics(self, dt: float) -> None:
         reference = self._reference(dt)
         self.model.step(dt, reference, self.armed)
-        self.t += dt
+        # the clock counts steps: no rounding drift, so that times on a grid (telemetry, setpoints) stay on it
+        self.steps += 1
+        self.t = self.steps * dt
         self._after_step()
         self._periodic()
         self._faults()
 
     def _reference(self, dt: float):
         p = self.model.p
-        if self.mode == "offboard" and self.setpoint is not None:
-            t0, sp, sv, sa = self.setpoint
-            h = min(max(self.t - t0, -0.5), 0.5)  # a setpoint stamped for t0 holds near t0, extrapolated
-            return sp + sv * h + 0.5 * sa * h * h, sv + sa * h, sa
+        if self.mode == "offboard" and self.offboard.in_force(self.t) is not None:
+            return self.offboard.reference(self.t)
         if isinstance(self.guidance, Follow):
             return self.guidance.reference(p, dt)
         if self.mode == "land" or self._landing:
@@ -157,11 +157,7 @@ class Autopilot:
     def _offboard_watchdog(self, now: float) -> None:
         if self.mode != "offboard" or not self.armed:
             return
-        s = self.settings
-        stale = (
-            (now - self._setpoint_wall) if s.lockstep else (self.t - (self.setpoint[0] if self.setpoint else -math.inf))
-        )
-        if stale > s.offboard_timeout:
+        if self.offboard.stale(self.t, now):
             self.mode = "hold"
             self._hold_here()
             self._say("offboard setpoints lost: holding", mavlink.MAV_SEVERITY_WARNING)

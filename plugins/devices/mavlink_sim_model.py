@@ -14,6 +14,12 @@ gusts show up as tracking error. The airframe cannot exceed its top speeds
 Integration is semi-implicit Euler at a fixed step (default 10 ms). The
 ground is the plane z = ground (NED, down positive): the vehicle cannot go
 below it, and stands still on it when disarmed.
+
+Gusts act only on a vehicle in the air, so their process advances only with
+airborne time (it starts from its stationary distribution): a flight meets
+the same gusts for the same seed however long the vehicle stood on its pad
+first, which is wall-clock time for a simulation that runs faster than real
+time while a ground station connects and uploads. Flights are reproducible.
 """
 
 from __future__ import annotations
@@ -47,11 +53,19 @@ class Gusts:
         self.mean = tuple(float(x) for x in wind.mean)
         self.sigma = (wind.gust, wind.gust, 0.3 * wind.gust)
         self.tau = wind.gust_time
-        self.state = (0.0, 0.0, 0.0)
         self._rng = np.random.default_rng(seed)
+        # a stationary start: the first seconds of a flight are as gusty as any later ones
+        start = self._rng.standard_normal(3) if self.sigma[0] > 0 else np.zeros(3)
+        self.state = tuple(float(sd * n) for sd, n in zip(self.sigma, start, strict=True))
         self._draws: list = []
 
+    @property
+    def wind(self) -> tuple[float, float, float]:
+        """The wind now (NED, m/s), without advancing the process."""
+        return tuple(m + x for m, x in zip(self.mean, self.state, strict=True))
+
     def step(self, dt: float) -> tuple[float, float, float]:
+        """Advance the gusts ``dt`` s (exact Ornstein-Uhlenbeck transition); the wind after it."""
         if self.sigma[0] > 0:
             if not self._draws:  # normal draws in blocks: one generator call per thousand steps
                 self._draws = self._rng.standard_normal((1000, 3)).tolist()[::-1]
@@ -61,7 +75,7 @@ class Gusts:
             self.state = tuple(
                 x * decay + sd * spread * n for x, sd, n in zip(self.state, self.sigma, draw, strict=True)
             )
-        return tuple(m + x for m, x in zip(self.mean, self.state, strict=True))
+        return self.wind
 
 
 class PointMassMultirotor:
@@ -74,7 +88,7 @@ class PointMassMultirotor:
         self.ground = float(self.p[2])
         self.integral = np.zeros(3)
         self.gusts = Gusts(wind, seed)
-        self.wind = np.array(self.gusts.mean)
+        self.wind = np.array(self.gusts.wind)
         self.airborne = False
 
     @property
@@ -88,7 +102,8 @@ class PointMassMultirotor:
         than numpy on 3-vectors (the simulation runs a hundred of these per simulated second).
         """
         a = self.airframe
-        wx, wy, wz = self.gusts.step(dt)
+        # gusts only in the air (see the module's docstring): reproducible flights
+        wx, wy, wz = self.gusts.step(dt) if self.airborne else self.gusts.wind
         self.wind = np.array([wx, wy, wz])
         px, py, pz = (float(x) for x in self.p)
         vx, vy, vz = (float(x) for x in self.v)
@@ -119,8 +134,10 @@ class PointMassMultirotor:
                 ki = a.velocity_integral * dt
                 self.integral = np.array([ix + ki * ex, iy + ki * ey, iz + ki * ez])
             ax, ay, az = cx + drag * (wx - vx), cy + drag * (wy - vy), cz + drag * (wz - vz)
-            if self.on_ground and az >= 0:
-                self.v = np.zeros(3)  # thrust below hover: it stays on the ground
+            if self.on_ground and cz >= 0:
+                # thrust at or below hover: it stays on the ground, which holds it against the wind too
+                # (an upward gust must not lift an idling vehicle off its pad)
+                self.v = np.zeros(3)
                 return
         # the airframe's top speeds: its motors can do no more, whatever the controller asks
         vx, vy = _clip_horizontal(vx + ax * dt, vy + ay * dt, a.max_speed)

@@ -80,10 +80,12 @@ class SimSettings(_Strict):
     component_id: int = Field(default=1, ge=1, le=255)
     #: simulated seconds per wall-clock second (>1 runs faster than real time)
     speed: PositiveFloat = 1.0
-    #: in offboard mode, never run more than ``lockstep_horizon`` s ahead of the newest setpoint
-    #: (PX4 SITL's lockstep, here with the ground station): a loaded machine cannot starve the stream
+    #: in offboard mode, never run past the newest setpoint's stamp (PX4 SITL's lockstep, here with the
+    #: ground station; see mavlink_sim_offboard): a loaded machine slows a flight down, never changes it
     lockstep: bool = True
-    lockstep_horizon: PositiveFloat = 0.2
+    #: how far (s) past the newest stamp the lockstepped clock may run; above 0 the flight depends on
+    #: scheduling again (the setpoint in force is then extrapolated beyond the newest one)
+    lockstep_horizon: NonNegativeFloat = 0.0
     #: physics step (s)
     step: PositiveFloat = 0.01
     #: HEARTBEAT rate (Hz, wall clock: the link's, not the physics')
