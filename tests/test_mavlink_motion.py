@@ -178,3 +178,39 @@ def test_disarmed_vehicle_stays_on_the_ground():
     for _ in range(200):
         model.step(0.01, (np.array([5.0, 2.0, -3.0]), np.zeros(3), np.zeros(3)), armed=False)
     assert model.p == pytest.approx([1, 2, 0]) and not model.airborne
+
+
+def test_armed_vehicle_idling_on_its_pad_stays_there_in_gusts():
+    """The ground holds a vehicle whose thrust is at or below hover, against the wind too: an upward gust
+    must not lift it (it used to drift up by micrometres, and how long it idled changed the flight)."""
+    model = PointMassMultirotor(Airframe(), (1, 2, 0), Wind(mean=(0.5, 0.5, -0.4), gust=1.0), seed=3)
+    pad = (np.array([1.0, 2.0, 0.0]), np.zeros(3), np.zeros(3))
+    for _ in range(500):
+        model.step(0.01, pad, armed=True)
+    assert model.p.tolist() == [1.0, 2.0, 0.0] and model.v.tolist() == [0.0, 0.0, 0.0] and not model.airborne
+    climb = (np.array([1.0, 2.0, -1.0]), np.zeros(3), np.zeros(3))
+    model.step(0.01, climb, armed=True)
+    assert model.airborne and model.p[2] < 0  # asked to climb, it leaves the ground
+
+
+def test_gusts_depend_on_airborne_time_only():
+    """Two vehicles with the same seed, one idling on its pad ten times longer: after take-off both meet
+    the same gusts and fly the same flight, to the last bit (the pad time is wall-clock time in a
+    simulation that runs faster than real time while a ground station connects)."""
+    wind = Wind(mean=(0.3, -0.2, 0.0), gust=0.8, gust_time=1.5)
+    climb = (np.array([0.0, 0.0, -2.0]), np.zeros(3), np.zeros(3))
+    pad = (np.zeros(3), np.zeros(3), np.zeros(3))
+    flights = []
+    for idle in (20, 200):
+        model = PointMassMultirotor(Airframe(), (0, 0, 0), wind, seed=7)
+        for _ in range(idle):
+            model.step(0.01, pad, armed=True)
+        trace = []
+        for _ in range(800):
+            model.step(0.01, climb, armed=True)
+            trace.append(np.concatenate([model.p, model.v, model.wind]))
+        flights.append(np.array(trace))
+    assert np.array_equal(flights[0], flights[1])
+    # and the gusts are really there, at their standard deviation (loosely: 8 s of a 1.5 s process)
+    gust = flights[0][:, 6:8] - [0.3, -0.2]
+    assert 0.2 < gust.std() < 1.6 and np.ptp(gust[:, 0]) > 0.5

@@ -5,6 +5,8 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import math
+import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,8 +15,12 @@ from surgiplan.plugins.devices.mavlink_flight import Flight, Route
 from surgiplan.plugins.devices.mavlink_gcs import GroundStation
 from surgiplan.plugins.devices.mavlink_link import Endpoint, VehicleError, mavlink, signing_key
 from surgiplan.plugins.devices.mavlink_mission import MissionItem
+from surgiplan.plugins.devices.mavlink_profile import TimedPath
 from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle, main
+from surgiplan.plugins.devices.mavlink_sim_model import PointMassMultirotor
+from surgiplan.plugins.devices.mavlink_sim_offboard import OffboardSetpoints, Setpoint
 from surgiplan.plugins.devices.mavlink_sim_settings import SimSettings
+from surgiplan.plugins.devices.mavlink_stream import SetpointStream
 from surgiplan.plugins.devices.mavlink_vehicle import MavlinkVehicleSettings
 from surgiplan.progress import NullProgress
 
@@ -134,3 +140,144 @@ def test_mission_completes_in_gusts_even_with_a_tight_acceptance_radius():
         assert [seq for seq, _ in gcs.vehicle.reached] == [0, 1, 2]
         truth = np.array(vehicle.trajectory)[:, 1:4]
         assert truth[-1][2] == 0.0 and np.linalg.norm(truth[-1][:2] - [5.0, 0.0]) < 0.6  # gusts of 1 m/s
+
+
+# ----------------------------------------------------------------------------- offboard on the vehicle's clock
+
+
+def _setpoint(t: float, x: float) -> Setpoint:
+    return Setpoint(t, np.array([x, 0.0, -1.0]), np.array([1.0, 0.0, 0.0]), np.array([0.5, 0.0, 0.0]))
+
+
+def test_setpoint_in_force_is_the_latest_stamped_at_or_before_the_vehicle_time():
+    setpoints = OffboardSetpoints(timeout=1.0)
+    assert setpoints.lockstep_limit() == math.inf and setpoints.in_force(0.0) is None
+    # arriving out of order and ahead of the vehicle's clock (t = 10.0)
+    for stamp in (10.1, 10.05, 10.15):
+        setpoints.receive(_setpoint(stamp, stamp), t=10.0, now=0.0)
+    assert setpoints.lockstep_limit() == pytest.approx(10.15)  # the physics may advance to the newest stamp
+    assert setpoints.in_force(10.0).time == pytest.approx(10.05)  # the first holds until the clock gets on
+    assert setpoints.in_force(10.12).time == pytest.approx(10.1)
+    # the reference: constant-acceleration kinematics from the stamp, 20 ms on
+    p, v, _ = setpoints.reference(10.12)
+    h = 10.12 - 10.1
+    assert p == pytest.approx([10.1 + h + 0.25 * h * h, 0, -1]) and v == pytest.approx([1 + 0.5 * h, 0, 0])
+    # a late setpoint (older than the one in force) changes nothing; a repeated stamp replaces its content
+    setpoints.receive(_setpoint(10.05, 99.0), t=10.12, now=0.1)
+    assert setpoints.in_force(10.12).position[0] == pytest.approx(10.1)
+    setpoints.receive(_setpoint(10.15, 42.0), t=10.12, now=0.1)
+    assert setpoints.in_force(10.2).position[0] == 42.0
+    # a stamp that is not on the vehicle's clock (a ground station sending its own uptime) applies on
+    # receipt, as PX4 takes every setpoint, and releases the lockstep
+    setpoints.receive(_setpoint(3600.0, 7.0), t=10.2, now=0.2)
+    assert setpoints.unstamped == 1 and setpoints.lockstep_limit() == math.inf
+    assert setpoints.in_force(10.2).time == pytest.approx(10.2) and setpoints.in_force(10.2).position[0] == 7.0
+    # offboard loss: judged on the wall clock in lockstep (the vehicle's clock stops with the stream)
+    assert setpoints.fresh(0.5) and not setpoints.stale(10.2, 1.1) and setpoints.stale(10.2, 1.3)
+
+
+class _Station:
+    """What SetpointStream needs of a GroundStation: the vehicle's clock and a send that records."""
+
+    def __init__(self) -> None:
+        self.vehicle = SimpleNamespace(vehicle_time=0.0)
+        self.sent: list = []
+        self.position_target = GroundStation.position_target.__get__(self)
+        self.target = (1, 1)
+
+    def send(self, messages) -> None:
+        self.sent.extend(messages)
+
+
+def test_stream_sends_every_grid_time_once_in_order_whatever_the_pumps():
+    """Reports arrive one, several or none per pump (scheduling); the stream still sends each 50 ms grid
+    time of the vehicle's clock exactly once, in order, 0.1 s ahead, each the timed path at its stamp."""
+    profile = TimedPath.along(np.array([[0.0, 0, -1], [4.0, 0, -1], [4.0, 3, -1]]), 2.0, 1.0, 0.05)
+    station = _Station()
+    stream = SetpointStream(station, profile, hold=[0.0, 0.0, -1.0])
+    station.vehicle.vehicle_time = 12.35
+    stream([], now=0.0)
+    start = stream.begin()
+    assert start == pytest.approx(12.55)  # a grid time two leads on
+    rng = np.random.default_rng(0)
+    wall = 0.0
+    for _ in range(400):
+        station.vehicle.vehicle_time += 0.05 * rng.integers(0, 3)  # 0, 1 or 2 reports since the last pump
+        wall += 0.01
+        stream([], now=wall)
+    stamps = np.array([m.time_boot_ms for m in station.sent])
+    assert stamps[0] == 12450 and stamps[-1] == round(station.vehicle.vehicle_time * 1000) + 100
+    steps = np.diff(stamps)
+    assert set(steps) <= {0, 50} and np.all(stamps % 50 == 0)  # the grid, in order (0: a keep-alive repeat)
+    fresh = np.concatenate([[True], steps > 0])
+    assert len(np.unique(stamps)) == fresh.sum() == (stamps[-1] - stamps[0]) // 50 + 1  # none skipped
+    # each setpoint is the timed path at its stamp (the hold before the start), as float32 on the wire
+    t = stamps / 1000
+    position = np.array([[m.x, m.y, m.z] for m in station.sent])
+    velocity = np.array([[m.vx, m.vy, m.vz] for m in station.sent])
+    flying = t >= start - 1e-9
+    p, v, _ = profile.sample(t[flying] - start)
+    assert position[flying] == pytest.approx(p, abs=1e-5) and velocity[flying] == pytest.approx(v, abs=1e-5)
+    assert np.all(position[~flying] == [0.0, 0.0, -1.0]) and np.all(velocity[~flying] == 0.0)
+    # keep-alives: only after 50 ms of wall clock without anything new
+    before = len(station.sent)
+    stream([], now=wall + 0.01)
+    assert len(station.sent) == before
+    stream([], now=wall + 0.06)
+    assert len(station.sent) == before + 1 and station.sent[-1].time_boot_ms == stamps[-1]
+
+
+def _offboard_flight(stall: float, **sim):
+    """A short offboard flight (take-off, an L through a corner, landing) at 20x real time, the ground
+    station stalling up to ``stall`` s (wall) at random in each pump; returns the simulator's states
+    (vehicle time from the profile's start, NED position) and the flight log."""
+    rng = np.random.default_rng()
+
+    def stalls(messages, now) -> None:
+        if stall and rng.random() < 0.5:
+            time.sleep(rng.uniform(0, stall))
+
+    settings = MavlinkVehicleSettings(mode="offboard", cruise_speed=2.0, land=False)
+    with station(speed=20.0, wind={"mean": [0.3, -0.2, 0.0], "gust": 0.4}, seed=5, **sim) as (gcs, vehicle):
+        gcs.set_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, settings.telemetry_rate)
+        gcs.wait_for(lambda: gcs.vehicle.position is not None, 5, "no position")
+        gcs.tickers.append(stalls)
+        route = Route(np.array([[0.0, 0, 0], [0, 0, 1.5], [4, 0, 1.5], [4, 3, 1.5]]), 1, 3, takeoff=True, land=False)
+        flight = Flight(gcs, settings, LocalFrame((0.0, 0.0, 0.0), heading=0.0), route, NullProgress())
+        log = flight.fly_offboard()
+        gcs.tickers.remove(stalls)
+        unstamped = vehicle.offboard.unstamped
+    states = np.array(vehicle.trajectory)
+    states[:, 0] -= log.profile_start
+    # from the profile's start to its end (the vehicle then holds until the test stops it)
+    return states[(states[:, 0] > -1e-9) & (states[:, 0] <= log.profile.duration + 1e-9)], log, unstamped
+
+
+def test_offboard_flight_is_the_same_however_the_ground_station_is_scheduled():
+    """The lockstep: the same seed flies the same flight, to rounding, whether the ground station answers
+    at once or stalls at random for up to 30 ms (0.6 s of vehicle time), and that flight is the airframe
+    tracking the timed path itself (an offline simulation of the model against the exact profile)."""
+    calm, log, unstamped = _offboard_flight(stall=0.0)
+    stalled, _, _ = _offboard_flight(stall=0.03)
+    assert log.status == "completed" and unstamped == 0
+    # the same to rounding (the flights start at different vehicle times, so their clocks' floats differ)
+    assert calm.shape == stalled.shape and np.abs(calm - stalled).max() < 1e-9
+    # independently: the airframe model (from rest on its pad, in the same gusts: the simulator seeds its
+    # airframe with seed + 1, and gusts advance only in the air) fed the setpoint in force at each instant:
+    # the timed path sampled at the last 50 ms grid time, extrapolated at constant acceleration
+    sim = SimSettings(wind={"mean": [0.3, -0.2, 0.0], "gust": 0.4}, seed=5)
+    model = PointMassMultirotor(sim.airframe, sim.home, sim.wind, seed=sim.seed + 1)
+    steps = round(calm[-1, 0] / sim.step)
+    k = np.arange(steps)
+    h = (k % 5) * sim.step  # 5 steps of 10 ms per grid time
+    p, v, a = log.profile.sample(k * sim.step - h)
+    reference = (p + v * h[:, None] + 0.5 * a * h[:, None] ** 2, v + a * h[:, None], a)
+    replay = [model.p.copy()]
+    for i in k:
+        model.step(sim.step, (reference[0][i], reference[1][i], reference[2][i]), armed=True)
+        replay.append(model.p.copy())
+    replay = np.array(replay)[np.round(calm[:, 0] / sim.step).astype(int)]
+    assert np.abs(calm[:, 1:4] - replay).max() < 1e-6  # setpoints travel as float32
+    # against the timed path itself the gusts (0.4 m/s, with a position loop of 1 s) show, and stay bounded
+    tracking = np.linalg.norm(calm[:, 1:4] - log.profile.sample(calm[:, 0])[0], axis=1)
+    assert 0.05 < tracking.max() < 0.3

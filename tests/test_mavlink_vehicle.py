@@ -228,9 +228,12 @@ def test_offboard_flight_streams_setpoints_on_the_vehicle_clock(tmp_path, roadma
     assert metrics["setpoint_error_max_m"] < 0.15
     # the setpoint path rounds corners by at most 5 cm: deviation from the plan = that plus tracking
     assert metrics["tracking_error_max_m"] <= metrics["setpoint_error_max_m"] + 0.05 + 0.02 + 1e-9
-    # the stream never lapsed: no offboard loss on the vehicle, and more than PX4's minimum of 2 Hz
+    # the stream never lapsed: no offboard loss on the vehicle, one setpoint per 50 ms of its clock (PX4 asks
+    # for 2 Hz at least), every one stamped on that clock and applied at its stamp (lockstep: the error above
+    # is the same on a loaded machine; tests/test_mavlink_sim.py proves it with a stalling ground station)
     assert not any("setpoints lost" in text for _, text in vehicle.events)
-    assert metrics["setpoints_sent"] >= 2 * metrics["flight_time_s"]
+    assert metrics["setpoints_sent"] >= 20 * metrics["path_time_s"]
+    assert vehicle.offboard.unstamped == 0 and vehicle.offboard.received >= metrics["setpoints_sent"] * 0.99
     assert any(text == "mode offboard" for _, text in vehicle.events)
     assert not vehicle.armed
 

@@ -100,8 +100,6 @@ class OffboardSetpoints:
             self._pending[i] = setpoint
         else:
             self._pending.insert(i, setpoint)
-        if self.current is None:
-            self.current = self._pending.pop(0)  # the first ever holds until the clock reaches the next
 
     # ------------------------------------------------------------------ using
     def in_force(self, t: float) -> Setpoint | None:
@@ -109,6 +107,8 @@ class OffboardSetpoints:
         pending = self._pending
         while pending and pending[0].time <= t + 1e-9:
             self.current = pending.pop(0)
+        if self.current is None and pending:
+            return pending[0]  # none due yet (the stream has just begun): the earliest, extrapolated back
         return self.current
 
     def reference(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -130,7 +130,7 @@ class OffboardSetpoints:
 
     def fresh(self, now: float) -> bool:
         """A setpoint came within the timeout (wall clock): PX4's condition for offboard mode and arming."""
-        return self.current is not None and now - self.received_wall < self.timeout
+        return self.received > 0 and now - self.received_wall < self.timeout
 
     def stale(self, t: float, now: float) -> bool:
         """Offboard loss: no setpoint for longer than the timeout (see the module docstring)."""
