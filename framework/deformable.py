@@ -46,6 +46,13 @@ class EquilibriumState:
     external forces, Π in paper 002); ``stress`` (elements,) Pa, the largest
     absolute principal value of the second Piola-Kirchhoff stress per
     element; ``valid``: no inverted element and no self-penetration.
+
+    ``reaction_forces`` (optional; ``None`` when the model does not compute
+    them): (k, 3) N, the force each prescribed node's constraint exerts on
+    the tissue, one row per entry of ``Constraints.prescribed_nodes`` in
+    that order (a coordinate that is not held has none). At an equilibrium
+    this is dΠ/d(prescribed position) (envelope theorem), so a planner gets
+    the gradient of Π with respect to a grasp without extra solves.
     """
 
     positions: np.ndarray
@@ -57,6 +64,7 @@ class EquilibriumState:
     residual: float
     message: str = ""
     data: dict[str, Any] = field(default_factory=dict)
+    reaction_forces: np.ndarray | None = None
 
 
 class DeformableModel(ABC):
@@ -79,7 +87,13 @@ class DeformableModel(ABC):
 
     @abstractmethod
     def solve(self, constraints: Constraints, initial: EquilibriumState | None = None) -> EquilibriumState:
-        """The static equilibrium under ``constraints``, warm-started from ``initial``."""
+        """The static equilibrium under ``constraints``, warm-started from ``initial``.
+
+        A configuration the model cannot solve (a degenerate state, a
+        numerical failure) is answered, not raised: a state with ``valid``
+        and ``converged`` False and the reason in ``message``. The answer
+        should depend on the arguments only, not on earlier solves.
+        """
 
     def run_stage(self, context: StageContext) -> StageResult:
         """Run a ``simulate`` stage (one equilibrium or a sweep) from this model's settings."""

@@ -164,12 +164,29 @@ def test_steps_apply_the_grasp_quasi_statically_and_write_a_paraview_series(tmp_
 
 
 def test_a_step_that_fails_stops_the_sequence_and_names_the_step(tmp_path, cli):
-    text = FLAP_STEPS.replace("steps: 3", "steps: 3\n      solver: {max_iterations: 6}")  # step 0 needs 4
+    # the budget: what step 0 (the flap settling from rest) needs, less than step 1 (a third of the motion)
+    flap = model(
+        [0.03, 0.03, 0.002],
+        [6, 6, 2],
+        pattern="five",
+        anchored=[{"region": {"min": [0, 0, 0], "max": [0, 0.03, 0.002]}}],
+        grasp={
+            "region": {"min": [0.0275, 0.0125, 0], "max": [0.03, 0.0175, 0.002]},
+            "transform": {"xyz": [-0.003, 0, 0.009], "rpy": [0, -np.pi / 6, 0]},
+        },
+        base_plane={},
+    )
+    settled = flap.solve(flap.stage_constraints(0.0))
+    budget = settled.iterations
+    assert flap.solve(flap.stage_constraints(1 / 3), initial=settled).iterations > budget
+    text = FLAP_STEPS.replace("steps: 3", f"steps: 3\n      solver: {{max_iterations: {budget}}}")
     code, _, _ = cli("run", write(tmp_path / "flap.yaml", text), "--out", tmp_path / "out")
     assert code == 1
     stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
     assert stage["status"] == "failed"
-    assert stage["message"].startswith("step 1 of 3 (33% of the motion): did not converge in 6 Newton iterations")
+    assert stage["message"].startswith(
+        f"step 1 of 3 (33% of the motion): did not converge in {budget} Newton iterations"
+    )
     assert stage["metrics"]["step_converged"] == [True, False]
     assert stage["files"] == ["flap.vtu", "flap.png", "flap.pvd", "flap/step_000.vtu", "flap/step_001.vtu"]
 

@@ -21,7 +21,7 @@ Use from Python (a planner calls this thousands of times)::
         c = model.grasp_constraints(jaws, pose)     # anchors from the settings + grasped nodes
         state = model.solve(c, initial=state)       # warm start + predictor
         state.positions, state.energy, state.stress, state.valid, state.converged
-        state.data["surface_triangles"], state.data["reaction_forces"]
+        state.reaction_forces                       # (k, 3) N, one row per prescribed node of c
 
 * :meth:`StVKModel.grasp_constraints` holds the settings' anchored nodes
   and moves ``nodes`` to ``transform`` applied to their rest positions
@@ -33,14 +33,26 @@ Use from Python (a planner calls this thousands of times)::
   (m,) Pa: per element, the largest absolute principal value of the second
   Piola-Kirchhoff stress (paper §IV-D); valid: no inverted element and no
   self-crossing of the boundary surface; converged, iterations, residual
-  (N), message. ``data`` holds ``surface_triangles`` (t, 3) (outward,
-  shared by all states), ``reaction_forces`` (k, 3) N on the prescribed
-  nodes (what the gripper and anchors apply), ``volume_ratio`` (m,),
+  (N), message; ``reaction_forces`` (k, 3) N, what each constraint of
+  ``constraints.prescribed_nodes`` (in that order) applies to the tissue,
+  which at an equilibrium is dΠ/d(prescribed position). ``data`` holds
+  ``surface_triangles`` (t, 3) (outward, shared by all states),
+  ``prescribed_nodes`` (the held nodes, sorted) and ``reaction_field``
+  (n, 3) N (zero where nothing is held), ``volume_ratio`` (m,),
   ``min_volume_ratio``, ``inverted_elements``, ``self_intersections``
   (crossing triangle pairs), ``elastic_energy``, ``external_work``,
   ``contact_energy`` (J), ``energy_history`` (Π after each corrector
-  step), ``predictor_steps``, ``definite_steps``, ``line_search_cuts``,
-  ``solve_s``.
+  step), ``predictor_steps``, ``definite_steps``, ``quasi_newton_steps``,
+  ``factorizations``, ``line_search_cuts``, ``solve_s``.
+* A solve never raises on a configuration it cannot handle (a degenerate
+  or inverted state, a singular tangent): its state says ``converged``
+  or ``valid`` False and why. Only malformed constraints raise.
+* Answers depend on the constraints and the start positions only. The
+  model keeps the factored tangents at the start positions of its last few
+  solves (:attr:`StVKModel.START_FACTORS`); a solve from exactly those
+  positions (each relief step of a retraction sample, and the next sample,
+  start from one state) skips that factorisation and gets the same bits.
+  :meth:`StVKModel.clear_caches` frees them.
 * :meth:`StVKModel.evaluate_state` gives the same outputs for given
   positions without solving.
 * Constraints may hold nodes along some axes only (rollers, symmetry
@@ -56,7 +68,9 @@ Use from Python (a planner calls this thousands of times)::
 
 from __future__ import annotations
 
+import hashlib
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,7 +85,7 @@ from .intersection import self_intersections
 from .loads import BasePlane, ExternalLoads, work_equivalent_masses
 from .material import ImageMap, MaterialField
 from .mesh import TetMesh, box_mesh, read_tet_mesh, tetrahedralize_surface
-from .newton import EquilibriumSolver, NewtonResult, SolverOptions
+from .newton import CachedFactor, EquilibriumSolver, NewtonResult, SolverOptions
 from .settings import RegionModel, StVKSettings
 from .stage import run_simulate_stage, stage_constraints
 from .stvk import StVKElements
@@ -174,7 +188,10 @@ class StVKModel(DeformableModel):
             tangent=settings.solver.tangent,
         )
         self._solver: EquilibriumSolver | None = None
-        self._factor = None
+        #: factored tangents at the start positions of recent solves: a later solve from exactly the same
+        #: positions (e.g. each relief step of a sample, and the next sample, start from its state) skips
+        #: that factorisation; a hit gives the very bits a miss computes
+        self._start_factors: OrderedDict[bytes, CachedFactor] = OrderedDict()
 
     # ------------------------------------------------------------------ the interface's properties
     @property
@@ -223,7 +240,7 @@ class StVKModel(DeformableModel):
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_solver"] = None  # index arrays and factor caches: rebuilt on first use
-        state["_factor"] = None
+        state["_start_factors"] = OrderedDict()
         return state
 
     # ------------------------------------------------------------------ node sets
@@ -332,22 +349,52 @@ class StVKModel(DeformableModel):
 
     # ------------------------------------------------------------------ equilibria
     def solve(self, constraints: Constraints, initial: EquilibriumState | None = None) -> EquilibriumState:
-        """The static equilibrium under ``constraints``, warm-started from ``initial`` (see the module docstring)."""
+        """The static equilibrium under ``constraints``, warm-started from ``initial`` (see the module docstring).
+
+        The answer depends on ``constraints`` and ``initial.positions`` only,
+        never on what this model solved before (see :meth:`clear_caches`).
+        A configuration the solver cannot handle (a degenerate or inverted
+        state, a singular tangent, non-finite numbers) gives a state with
+        ``converged``/``valid`` False and the reason in ``message``; only
+        malformed constraints (shapes, indices) raise ``ValueError``.
+        """
         started = time.perf_counter()
         prescribed, goal = self._prescribed(constraints)
         self.loads.set_forces(constraints.external_forces)
         x0 = self.mesh.nodes
-        factor = None
         if initial is not None:
             start = np.asarray(initial.positions, dtype=float)
-            if start.shape == x0.shape and np.all(self.kernel.volume_ratio(start) > 0):
+            if start.shape == x0.shape and np.all(np.isfinite(start)) and np.all(self.kernel.volume_ratio(start) > 0):
                 x0 = start
-                factor = self._factor  # a tangent of a nearby state, reused while it pays off
-        result = self.solver.solve(x0.ravel(), prescribed, goal, self.options, factor)
-        self._factor = result.factor
-        state = self._state(result.x.reshape(-1, 3), prescribed, result)
+        key = self._factor_key(x0, prescribed)
+        try:
+            result = self.solver.solve(x0.ravel(), prescribed, goal, self.options, self._start_factors.get(key))
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            # the checks in the solver should leave nothing to catch here; a state is still better than a crash
+            result = NewtonResult(x0.ravel().copy(), False, 0, np.inf, np.nan, np.inf)
+            result.message = f"numerical failure of the solver: {type(exc).__name__}: {exc}"
+        if result.start_factor is not None:
+            self._start_factors[key] = result.start_factor
+            self._start_factors.move_to_end(key)
+            while len(self._start_factors) > self.START_FACTORS:
+                self._start_factors.popitem(last=False)
+        state = self._state(result.x.reshape(-1, 3), prescribed, result, constraints)
         state.data["solve_s"] = time.perf_counter() - started
         return state
+
+    #: factorisations kept, keyed by the positions they were computed at (a few MB each)
+    START_FACTORS = 3
+
+    def _factor_key(self, x: np.ndarray, prescribed: np.ndarray) -> bytes:
+        """What a start factorisation is a function of: positions, held dofs, tangent policy (contact included)."""
+        digest = hashlib.blake2b(np.ascontiguousarray(x, dtype=float).tobytes(), digest_size=20)
+        digest.update(np.packbits(prescribed).tobytes())
+        digest.update(self.options.tangent.encode())
+        return digest.digest()
+
+    def clear_caches(self) -> None:
+        """Drop the kept factorisations (memory only: answers never depend on them)."""
+        self._start_factors.clear()
 
     def evaluate_state(self, positions, constraints: Constraints | None = None) -> EquilibriumState:
         """Energy, stress and validity of given positions (n, 3), without solving.
@@ -371,13 +418,17 @@ class StVKModel(DeformableModel):
             x.ravel(), residual <= self.options.residual_tol * scale, 0, residual, scale, energy, "evaluated"
         )
         result.gradient = grad
-        return self._state(x, prescribed, result)
+        return self._state(x, prescribed, result, constraints)
 
-    def _state(self, x: np.ndarray, prescribed: np.ndarray, result: NewtonResult) -> EquilibriumState:
+    def _state(
+        self, x: np.ndarray, prescribed: np.ndarray, result: NewtonResult, constraints: Constraints
+    ) -> EquilibriumState:
+        finite = bool(np.all(np.isfinite(x)))
         ratio = self.kernel.volume_ratio(x)
-        inverted = int(np.count_nonzero(ratio <= 0))
+        degenerate = ~(ratio > 0)  # inverted, flat, or not a number
+        inverted = int(np.count_nonzero(degenerate))
         crossings = 0
-        if self.settings.self_intersection:
+        if self.settings.self_intersection and finite:
             crossings = len(self_intersections(x, self.surface_triangles))
         elastic = self.kernel.evaluate(x, gradient=False).energy
         loads = self.loads.evaluate(x, gradient=False)
@@ -385,29 +436,30 @@ class StVKModel(DeformableModel):
         reactions = np.zeros((self.mesh.n_nodes, 3))
         if grad is not None:
             reactions.ravel()[prescribed] = grad[prescribed]
-        held = np.flatnonzero(prescribed.reshape(-1, 3).any(axis=1))
         stress = self.kernel.max_principal_stress(x) if inverted == 0 else np.full(len(ratio), np.inf)
         message = result.message
-        if inverted:
+        if not finite:
+            message += "; positions that are not finite numbers"
+        elif inverted:
             message += f"; {inverted} inverted elements"
         if crossings:
             message += f"; the surface crosses itself ({crossings} triangle pairs)"
+        nodes = np.asarray(constraints.prescribed_nodes, dtype=np.int64).ravel()
         return EquilibriumState(
             positions=x,
             energy=float(elastic + loads.energy) if inverted == 0 else np.inf,
             stress=stress,
-            valid=inverted == 0 and crossings == 0,
-            converged=result.converged,
+            valid=finite and inverted == 0 and crossings == 0,
+            converged=result.converged and finite,
             iterations=result.iterations,
             residual=result.residual,
-            message=message,
+            message=message.removeprefix("; "),
             data={
                 "surface_triangles": self.surface_triangles,
-                "prescribed_nodes": held,
-                "reaction_forces": reactions[held],
+                "prescribed_nodes": np.flatnonzero(prescribed.reshape(-1, 3).any(axis=1)),
                 "reaction_field": reactions,
                 "volume_ratio": ratio,
-                "min_volume_ratio": float(ratio.min()),
+                "min_volume_ratio": float(np.nanmin(ratio)) if finite else float("nan"),
                 "inverted_elements": inverted,
                 "self_intersections": crossings,
                 "elastic_energy": float(elastic),
@@ -417,11 +469,13 @@ class StVKModel(DeformableModel):
                 "energy_history": list(result.energy_history),
                 "predictor_steps": result.predictor_steps,
                 "definite_steps": result.definite_steps,
+                "quasi_newton_steps": result.quasi_newton_steps,
                 "line_search_cuts": result.line_search_cuts,
                 "factorizations": result.factorizations,
                 "trace": list(result.trace),
                 "newton_s": result.seconds,
             },
+            reaction_forces=reactions[nodes] if grad is not None else None,
         )
 
     # ------------------------------------------------------------------ the simulate stage

@@ -1,4 +1,4 @@
-"""Static equilibrium by Newton's method with a line search, warm start and predictor.
+"""Static equilibrium by Newton's method with a line search, warm start, predictor and quasi-Newton reuse.
 
 Patil & Alterovitz §V ("Solving for static equilibrium") solve the reduced
 system ``Phi(u~) = f~_ext`` over the free nodes with nonlinear conjugate
@@ -16,10 +16,31 @@ handful of iterations where nonlinear CG needs hundreds:
   nodes jumping alone (which would crush the elements around them). The
   step is cut (halved) while it would invert an element; what remains of the
   motion is applied by the next step.
-* **Corrector.** With the prescribed nodes in place, Newton steps
-  ``K_ff d = -g_f`` with a backtracking (Armijo) line search on Π: the
-  energy never increases, and a step that would invert an element has
-  infinite energy and is cut.
+* **Corrector.** With the prescribed nodes in place, steps ``d = -H g_f``
+  with a backtracking (Armijo) line search on Π: the energy never
+  increases, and a step that would invert an element has infinite energy
+  and is cut. The backtracking interpolates Π along the step (the minimiser
+  of the quadratic through Π(0), Π'(0) and Π(t), kept within [t/10, t/2]:
+  Nocedal & Wright, *Numerical Optimization*, 2nd ed., §3.5), so a poor
+  first trial costs one or two evaluations instead of many halvings.
+* **Quasi-Newton reuse of a factorisation.** A factorisation costs about
+  ten energy evaluations, and on a thin flap far from its equilibrium a
+  Newton step only shrinks the residual two- to fivefold, so refactoring at
+  every step is wasteful. After a factorisation of the tangent K at x_k,
+  the following steps use ``H = `` the L-BFGS inverse built on ``K^-1``
+  from the secant pairs (s, y) of the steps since x_k (the two-loop
+  recursion, Nocedal & Wright Algorithm 7.4, with the factored tangent as
+  the initial matrix instead of a multiple of the identity, as Liu, Bouaziz
+  & Kavan do for hyperelastic simulation, ACM TOG 36(3) 2017): one
+  triangular solve and a few dot products a step, and curvature learnt
+  along the way. The tangent is factored again when such a step shrinks
+  the residual less, per unit of cost, than the last Newton step did
+  (``rho_qn > rho_newton^(1 / (1 + c))``, c = ``refactor_cost``: near the
+  solution, where Newton converges quadratically, that is at once), when
+  it does not shrink it at all, when its line search fails, or after
+  ``max_reuse_steps`` steps. Newton's quadratic convergence
+  is kept near the solution (a fresh factorisation is a Newton step) and
+  the answer is the same equilibrium to the same tolerances.
 * **Indefinite tangents.** ``tangent="auto"`` uses the exact tangent while
   it is positive definite and, where it is not (a buckling or snapping flap
   on its way to equilibrium), the exact tangent plus the smallest multiple
@@ -36,6 +57,12 @@ handful of iterations where nonlinear CG needs hundreds:
   ``step_tol`` times the mean edge length. Otherwise, after
   ``max_iterations`` or a failed line search, the result says it did not
   converge and why.
+* **Determinism.** A solve is a function of its start positions, its
+  constraints and its options alone: it keeps no memory between solves. A
+  warm start may be handed the factorisation of the tangent *at its start
+  positions* (:attr:`NewtonResult.start_factor` of an earlier solve from
+  the same positions), which it would otherwise compute as its first step:
+  that saves the time and changes no bit of the answer.
 
 Linear algebra: SuperLU on the fixed, pre-ordered pattern of
 :class:`~.assembly.TangentPattern` (no ordering work per factorisation).
@@ -68,10 +95,16 @@ class SolverOptions:
     armijo: float = 1e-4
     #: smallest line-search fraction before giving up
     min_step_fraction: float = 1e-8
-    #: a reused factorisation is refreshed when a step shrinks the residual by less than this factor
-    chord_contraction: float = 0.25
-    #: steps with one factorisation at most
-    max_chord_steps: int = 12
+    #: a factorisation and its tangent cost about this many quasi-Newton steps (1 triangular solve, 2-3 Π evaluations)
+    refactor_cost: float = 6.0
+    #: the contraction a Newton step is credited with before one has been measured in the solve
+    nominal_contraction: float = 0.1
+    #: a quasi-Newton step converges only this many times within the tolerance (see the module docstring)
+    quasi_newton_margin: float = 100.0
+    #: quasi-Newton steps with one factorisation at most
+    max_reuse_steps: int = 30
+    #: secant pairs the L-BFGS update keeps on top of the factored tangent (0: plain chord steps)
+    history: int = 4
 
 
 @dataclass
@@ -89,10 +122,12 @@ class NewtonResult:
     definite_steps: int = 0
     line_search_cuts: int = 0
     factorizations: int = 0
+    #: corrector steps taken with a reused factorisation (L-BFGS on top of it)
+    quasi_newton_steps: int = 0
     #: (step kind, line-search fraction, residual after the step) per iteration
     trace: list[tuple[str, float, float]] = field(default_factory=list)
-    #: the last factored tangent, for warm-started solves
-    factor: CachedFactor | None = None
+    #: the factored tangent at the start positions (given or computed), for later solves from there
+    start_factor: CachedFactor | None = None
     #: (3n,) gradient of Π at x, N (on prescribed dofs: the reactions)
     gradient: np.ndarray | None = None
     #: Π after each corrector step (constraints fixed); never increases
@@ -159,10 +194,12 @@ class EquilibriumSolver:
     ) -> NewtonResult:
         """Equilibrium from flat positions ``x0`` (3n,) with dofs ``prescribed`` (bool (3n,)) at ``targets``.
 
-        ``targets`` (3n,) is read only where ``prescribed``. ``factor``: a
-        factored tangent of a nearby state with the same prescribed dofs
-        (e.g. :attr:`NewtonResult.factor` of the solve this one is
-        warm-started from), used until it stops paying off.
+        ``targets`` (3n,) is read only where ``prescribed``. ``factor``: the
+        factored tangent *at x0* with the same prescribed dofs and tangent
+        policy (:attr:`NewtonResult.start_factor` of an earlier solve that
+        started from exactly these positions); the solve would compute it
+        as its first step, so passing it saves that time and nothing else
+        changes. A factorisation of any other state must not be passed.
         """
         options = options or SolverOptions()
         started = time.perf_counter()
@@ -175,10 +212,19 @@ class EquilibriumSolver:
         if grad is None:
             result.message = "the start state has an inverted element"
             return result
-        if factor is not None and not np.array_equal(factor.prescribed, prescribed):
+        if factor is not None and not (
+            np.array_equal(factor.prescribed, prescribed) and factor.policy == options.tangent
+        ):
             factor = None
+        result.start_factor = factor
+        # the diagonal shift an indefinite tangent needed, remembered within this solve only
+        shift = factor.shift if factor is not None else self.MIN_SHIFT
         refresh = factor is None
-        chord_steps = 0
+        newton = True  # the kind of the last step
+        given = factor is not None  # its first step is the Newton step a computed one would give
+        reuse_steps = 0
+        newton_contraction = options.nominal_contraction  # residual after / before the last Newton corrector step
+        pairs: list[tuple[np.ndarray, np.ndarray, float]] = []  # L-BFGS (s, y, 1 / s.y) since the factorisation
         last_step = 0.0 if np.array_equal(x[prescribed], goal) else np.inf
         step_limit = options.step_tol * self.length_scale
         while True:
@@ -191,58 +237,69 @@ class EquilibriumSolver:
             )
             residual = float(np.abs(grad[free]).max(initial=0.0))
             result.residual, result.residual_scale, result.energy = residual, scale, energy
+            tolerance = options.residual_tol * scale
+            if not newton:
+                tolerance /= options.quasi_newton_margin
             if not moving:
                 if not result.energy_history or result.energy_history[-1] != energy:
                     result.energy_history.append(energy)
                 # forces cannot be resolved below their rounding error: a tolerance under it is unreachable
                 floor = factor.rounding if factor is not None else 0.0
-                if residual <= max(options.residual_tol * scale, floor) and last_step <= step_limit:
+                settled = last_step <= step_limit or not free.any()  # nothing free: nothing to settle
+                if residual <= max(tolerance, floor) and settled:
                     result.converged = True
                     result.message = f"converged in {result.iterations} Newton iterations"
-                    if residual > options.residual_tol * scale:
+                    if residual > tolerance:
                         result.message += f" (residual at the rounding floor of the forces, {floor:.2g} N)"
                     break
             if result.iterations >= options.max_iterations:
-                result.message = (
-                    f"did not converge in {options.max_iterations} Newton iterations: residual force "
-                    f"{residual:.3g} N, tolerance {options.residual_tol * scale:.3g} N"
+                result.message = f"did not converge in {options.max_iterations} Newton iterations: " + (
+                    f"{float(np.abs(pending).max()):.3g} m of the prescribed motion left (each step "
+                    "towards it would invert an element)"
+                    if moving
+                    else f"residual force {residual:.3g} N, tolerance {options.residual_tol * scale:.3g} N"
                 )
                 break
             result.iterations += 1
             direction = None
-            if not refresh and factor is not None and chord_steps < options.max_chord_steps:
-                direction = self._chord_direction(factor, grad, prescribed, pending)
-                chord = direction is not None
+            newton = False
+            if not refresh and factor is not None and (given or reuse_steps < options.max_reuse_steps):
+                direction = self._direction(factor, grad, prescribed, pending, pairs)
+                newton = given
+                if direction is None and newton:
+                    result.message = "no descent direction: the tangent is not positive definite"
+                    break
+            given = False
             if direction is None:
-                factor = self._factor(x, prescribed, options, result)
+                factor, shift = self._factor(x, prescribed, options, result, shift)
                 if factor is None:
                     result.message = "the tangent stiffness matrix is singular even after regularisation"
                     break
+                if result.start_factor is None and result.iterations == 1:
+                    result.start_factor = factor  # x is still x0
                 result.factorizations += 1
-                chord_steps = 0
-                direction = self._chord_direction(factor, grad, prescribed, pending)
-                chord = False
+                reuse_steps, pairs, newton = 0, [], True
+                direction = self._direction(factor, grad, prescribed, pending, pairs)
                 if direction is None:  # not a descent direction even with the surrogate
                     result.message = "no descent direction: the tangent is not positive definite"
                     break
             refresh = False
             if moving:
-                fraction = self._cut_to_valid(x, direction, result)
+                fraction, x_new = self._cut_to_valid(x, direction, prescribed, goal, pending, result)
                 if fraction is None:
                     result.message = (
                         "the prescribed motion cannot be applied without inverting elements "
                         f"({float(np.abs(pending).max()):.3g} m left)"
                     )
                     break
-                x = x + fraction * direction
-                x[prescribed] = goal - (1.0 - fraction) * pending if fraction < 1.0 else goal
+                x = x_new
                 result.predictor_steps += 1
                 last_step = np.inf
                 refresh = fraction < 1.0
             else:
                 fraction = self._line_search(x, energy, grad, direction, free, options, result)
                 if fraction is None:
-                    if chord:  # a stale tangent may be to blame: retry with a fresh one
+                    if not newton:  # the reused tangent may be to blame: retry with a fresh one
                         refresh = True
                         continue
                     result.message = (
@@ -250,63 +307,91 @@ class EquilibriumSolver:
                         f"{residual:.3g} N, tolerance {options.residual_tol * scale:.3g} N"
                     )
                     break
-                x = x + fraction * direction
-                last_step = fraction * float(np.abs(direction).max())
-                if chord:
-                    chord_steps += 1
+                step = fraction * direction
+                x = x + step
+                last_step = float(np.abs(step).max())
+                if not newton:
+                    reuse_steps += 1
+                    result.quasi_newton_steps += 1
             new_energy, new_grad = self.gradient(x)
             if new_grad is None:  # cannot happen after the checks above; be safe
                 result.message = "a step inverted an element"
                 break
             new_residual = float(np.abs(new_grad[free]).max(initial=0.0))
             result.trace.append(
-                (("chord" if chord else "newton") + (" predictor" if moving else ""), fraction, new_residual)
+                (("newton" if newton else "quasi-newton") + (" predictor" if moving else ""), fraction, new_residual)
             )
-            # a reused factorisation must keep shrinking the residual fast, or be refreshed
-            if chord and not moving and new_residual > options.chord_contraction * residual:
-                refresh = True
+            if not moving:
+                if options.history:
+                    self._remember(pairs, step, new_grad - grad, prescribed, options.history)
+                contraction = new_residual / residual if residual > 0 else 0.0
+                if newton:
+                    newton_contraction = contraction
+                elif contraction > min(1.0, max(newton_contraction, 1e-16) ** (1.0 / (1.0 + options.refactor_cost))):
+                    # per unit of cost the last Newton step shrank the residual faster: factor again
+                    refresh = True
             energy, grad = new_energy, new_grad
         result.x = x
         result.gradient = grad
-        result.factor = factor
         result.seconds = time.perf_counter() - started
         return result
 
-    def _factor(self, x, prescribed, options, result) -> CachedFactor | None:
+    @staticmethod
+    def _remember(pairs, step, change, prescribed, history: int) -> None:
+        """Keep the secant pair (s, y) of a corrector step (free dofs) when its curvature s.y is positive."""
+        y = change.copy()
+        y[prescribed] = 0.0
+        s = step.copy()
+        s[prescribed] = 0.0
+        sy = float(s @ y)
+        if sy > 1e-12 * float(np.sqrt((s @ s) * (y @ y))):  # otherwise the update would not stay definite
+            pairs.append((s, y, 1.0 / sy))
+            if len(pairs) > history:
+                pairs.pop(0)
+
+    def _factor(self, x, prescribed, options, result, shift: float) -> tuple[CachedFactor | None, float]:
         """Factor the tangent at x (see ``tangent`` in the module docstring); ``None`` if nothing factors.
 
         ``auto``: the exact tangent when it is positive definite (positive
         pivots); otherwise the exact tangent plus ``tau`` times its mean free
-        diagonal, tau growing eightfold until the factorisation is definite
-        (Nocedal & Wright, *Numerical Optimization*, 2nd ed., Algorithm 3.3:
-        the step keeps the exact curvature where it is positive and is
-        damped only as much as needed), remembering tau for the next time;
-        the surrogate tangent is the last resort.
+        diagonal, tau growing eightfold from ``shift`` until the
+        factorisation is definite (Nocedal & Wright, *Numerical
+        Optimization*, 2nd ed., Algorithm 3.3: the step keeps the exact
+        curvature where it is positive and is damped only as much as
+        needed); the surrogate tangent is the last resort. Returns the
+        factor and the shift to start from next time within this solve.
         """
+        factor = None
         if options.tangent == "definite":
-            return self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
+            factor = self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
+            return self._finish(factor, options, shift)
         _, _, data = self.tangent(x, False)
         constrained = self.pattern.constrain(data, prescribed)
         factor = self._try_factor(x, prescribed, False, data=data, constrained=constrained)
         if options.tangent == "exact" or (factor is not None and factor.positive_pivots()):
-            return factor
+            return self._finish(factor, options, shift)
         result.definite_steps += 1
         free_diagonal = self.pattern.diagonal[~prescribed]
         scale = float(np.abs(constrained[free_diagonal]).mean()) if len(free_diagonal) else 1.0
-        tau = self._shift
+        tau = shift
         while tau <= 1.0:
             shifted = constrained.copy()
             shifted[free_diagonal] += tau * scale
             factor = self._try_factor(x, prescribed, True, data=data, constrained=shifted)
             if factor is not None and factor.positive_pivots():
-                self._shift = max(tau / 8.0, self.MIN_SHIFT)  # start lower next time: the need passes
-                return factor
+                return self._finish(factor, options, max(tau / 8.0, self.MIN_SHIFT))  # the need passes: start lower
             tau *= 8.0
-        return self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
+        factor = self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
+        return self._finish(factor, options, shift)
+
+    @staticmethod
+    def _finish(factor: CachedFactor | None, options: SolverOptions, shift: float) -> tuple[CachedFactor | None, float]:
+        if factor is not None:
+            factor.policy, factor.shift = options.tangent, shift
+        return factor, shift
 
     #: smallest relative diagonal shift tried for an indefinite tangent
     MIN_SHIFT = 1e-4
-    _shift = MIN_SHIFT
 
     def _try_factor(
         self, x, prescribed, definite: bool, data=None, constrained=None, regularise: float = 0.0
@@ -328,31 +413,63 @@ class EquilibriumSolver:
         )
         return CachedFactor(lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite, rounding)
 
-    def _chord_direction(self, factor: CachedFactor, grad, prescribed, pending) -> np.ndarray | None:
-        """The step (3n,) with a factored tangent: free part solved, prescribed part the pending motion."""
-        rhs = -grad
-        if np.any(pending != 0.0):
-            motion = np.zeros_like(grad)
-            motion[prescribed] = pending
-            rhs = rhs - self.pattern.matvec(factor.data, motion)
-        rhs[prescribed] = factor.diagonal[prescribed] * pending  # scaled identity rows: returns the motion
-        direction = factor.lu.solve(rhs)
+    def _direction(self, factor: CachedFactor, grad, prescribed, pending, pairs) -> np.ndarray | None:
+        """The step (3n,): with the pending prescribed motion, the predictor ``K_ff d_f = -(g_f + K_fc d_c)``;
+        else the L-BFGS step on top of the factored tangent (``pairs`` empty: ``K d = -g``, a Newton or
+        chord step). ``None`` when it is not finite or, in the corrector, not a descent direction."""
+        moving = bool(np.any(pending != 0.0))
+        if moving or not pairs:
+            rhs = -grad
+            if moving:
+                motion = np.zeros_like(grad)
+                motion[prescribed] = pending
+                rhs = rhs - self.pattern.matvec(factor.data, motion)
+            rhs[prescribed] = factor.diagonal[prescribed] * pending  # scaled identity rows: returns the motion
+            direction = factor.lu.solve(rhs)
+            direction[prescribed] = pending  # exactly, not as rounded by the solve
+        else:  # the two-loop recursion (Nocedal & Wright, Algorithm 7.4) with H0 = K^-1
+            q = grad.copy()
+            q[prescribed] = 0.0
+            alphas = []
+            for s, y, rho in reversed(pairs):
+                alpha = rho * float(s @ q)
+                q -= alpha * y
+                alphas.append(alpha)
+            r = factor.lu.solve(q)
+            r[prescribed] = 0.0
+            for (s, y, rho), alpha in zip(pairs, reversed(alphas), strict=True):
+                r += (alpha - rho * float(y @ r)) * s
+            direction = -r
         if not np.all(np.isfinite(direction)):
             return None
-        if not np.any(pending != 0.0) and float(np.dot(grad, direction)) >= 0.0:
+        if not moving and float(np.dot(grad, direction)) >= 0.0:
             return None
         return direction
 
-    def _cut_to_valid(self, x, direction, result) -> float | None:
+    def _cut_to_valid(self, x, direction, prescribed, goal, pending, result) -> tuple[float | None, np.ndarray]:
+        """The largest fraction (halving from 1) of a predictor step that inverts no element, and that state.
+
+        The prescribed dofs land exactly on ``goal - (1 - fraction) pending``
+        (the state tested is the state taken: ``x + d`` would round them).
+        """
         fraction = 1.0
         while fraction >= 1e-4:
-            if np.isfinite(self.energy(x + fraction * direction)):
-                return fraction
+            trial = x + fraction * direction
+            trial[prescribed] = goal - (1.0 - fraction) * pending if fraction < 1.0 else goal
+            if np.isfinite(self.energy(trial)):
+                return fraction, trial
             fraction *= 0.5
             result.line_search_cuts += 1
-        return None
+        return None, x
 
     def _line_search(self, x, energy, grad, direction, free, options, result) -> float | None:
+        """Armijo backtracking on Π along ``direction``: the accepted fraction, or ``None``.
+
+        Each cut goes to the minimiser of the quadratic through Π(0), Π'(0)
+        and the rejected trial, kept within [1/10, 1/2] of the trial
+        (Nocedal & Wright §3.5); a trial that inverts an element (Π = inf)
+        is quartered.
+        """
         slope = float(np.dot(grad, direction))
         fraction = 1.0
         residual = float(np.abs(grad[free]).max(initial=0.0))
@@ -366,7 +483,14 @@ class EquilibriumSolver:
                 _, trial_grad = self.gradient(trial)
                 if trial_grad is not None and float(np.abs(trial_grad[free]).max(initial=0.0)) < residual:
                     return fraction
-            fraction *= 0.5
+            curvature = value - energy - slope * fraction
+            if not np.isfinite(value):
+                fraction *= 0.25
+            elif curvature > 0 and abs(value - energy) > 1e-9 * abs(energy):
+                best = -slope * fraction * fraction / (2.0 * curvature)
+                fraction = min(max(best, 0.1 * fraction), 0.5 * fraction)
+            else:  # Π's change is near its rounding error: the interpolation would fit noise
+                fraction *= 0.5
             result.line_search_cuts += 1
         return None
 
@@ -382,6 +506,10 @@ class CachedFactor:
     definite: bool
     #: N: the rounding error of the internal forces near this state, a floor for the residual
     rounding: float = 0.0
+    #: the tangent policy it was built under (``SolverOptions.tangent``)
+    policy: str = "auto"
+    #: the relative diagonal shift the next indefinite tangent starts from (see ``EquilibriumSolver._factor``)
+    shift: float = 1e-4
 
     def positive_pivots(self) -> bool:
         """Whether every pivot is positive: for a symmetric matrix factored without pivoting, definiteness."""

@@ -295,13 +295,15 @@ class StVKElements:
         """S (p, m, 3, 3) in Pa at every quadrature point, including the volume penalty's ``kappa ln J C^-1``."""
         out = []
         for f in self.deformation_gradients(x):
-            det = self._det(f)
+            det, cof = self._det_and_cofactor(f)
             e, tr = self._strain(f)
-            s = self._stvk_stress(e, tr).transpose(2, 0, 1)
-            c = 2.0 * e.transpose(2, 0, 1) + _EYE
-            with np.errstate(divide="ignore", invalid="ignore"):
-                s = s + (self.kappa * np.log(det))[:, None, None] * np.linalg.inv(c)
-            out.append(s)
+            s = self._stvk_stress(e, tr)
+            # C^-1 = F^-1 F^-T from the cofactors in closed form: a degenerate element (det F = 0, or
+            # underflowing pivots) gives inf or nan here, never a LinAlgError from a batched inverse
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                inv_t = cof / det
+                s += (self.kappa * np.log(det)) * _matmul(inv_t.transpose(1, 0, 2), inv_t)
+            out.append(s.transpose(2, 0, 1))
         return np.stack(out)
 
     def second_piola_kirchhoff(self, x: np.ndarray) -> np.ndarray:
@@ -319,9 +321,10 @@ class StVKElements:
             s = s.transpose(1, 2, 0)
             bad = ~np.all(np.isfinite(s), axis=(0, 1))
             s[:, :, bad] = 0.0
-            low, _, high = symmetric_eigenvalues(s)
-            value = np.maximum(np.abs(low), np.abs(high))
-            value[bad] = np.inf
+            with np.errstate(over="ignore", invalid="ignore"):
+                low, _, high = symmetric_eigenvalues(s)
+                value = np.maximum(np.abs(low), np.abs(high))
+            value[bad | ~np.isfinite(value)] = np.inf  # a degenerate element: unbounded stress
             out = value if out is None else np.maximum(out, value)
         return out
 

@@ -53,20 +53,6 @@ def deformable_model(cls: type[DeformableModel], settings: dict[str, Any]) -> De
     return model
 
 
-def forget_factorization(model: DeformableModel) -> None:
-    """Make the next warm-started solve independent of the solves before it.
-
-    ``stvk`` reuses the tangent factorised by its previous solve for a
-    warm-started one (a speed-up when consecutive solves are close). A chain
-    that starts from a stored state would then depend on whatever the worker
-    solved before (another task, another edge), and results on the executor's
-    scheduling; dropping the cache at each chain's start keeps them
-    reproducible. Models without such a cache are untouched.
-    """
-    if getattr(model, "_factor", None) is not None:
-        model._factor = None
-
-
 def _seconds(state: EquilibriumState) -> tuple[float, float]:
     """(Newton, validity checks) seconds of a solve; all of it is Newton's when the model does not say."""
     total = float(state.data.get("solve_s", 0.0))
@@ -79,6 +65,9 @@ class _Chain:
 
     def __init__(self, args: dict[str, Any]) -> None:
         self.model = deformable_model(args["model_class"], args["model_settings"])
+        cls = args["model_class"]
+        #: how messages name the model: its plugin name, else its class
+        self.model_name = args.get("model_name") or f"{cls.__module__}.{cls.__qualname__}"
         self.frame: GraspFrame = args["frame"]
         self.collision: CollisionModel | None = args["collision"]  # None: the caller checks collisions
         if self.collision is not None:
@@ -90,9 +79,9 @@ class _Chain:
         started = time.perf_counter()
         try:
             state = self.model.solve(self.frame.constraints(q), initial=initial)
-        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-            # a numerical failure of the model on one configuration (e.g. a singular matrix in a
-            # degenerate state) discards that state, not the whole chain of samples
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            # the interface asks a model to answer a configuration it cannot solve with an invalid state
+            # (stvk does); a third-party model that raises instead loses that state, not the whole chain
             positions = initial.positions if initial is not None else self.frame.rest
             state = EquilibriumState(
                 np.array(positions, dtype=float),
@@ -102,7 +91,7 @@ class _Chain:
                 False,
                 0,
                 np.inf,
-                f"the deformable model failed: {type(exc).__name__}: {exc}",
+                f"the deformable model '{self.model_name}' failed: {type(exc).__name__}: {exc}",
             )
         state.data.setdefault("solve_s", time.perf_counter() - started)
         newton, validation = _seconds(state)
@@ -137,14 +126,16 @@ def _moment(chain: _Chain, state: EquilibriumState, q: np.ndarray) -> np.ndarray
     the prescribed positions is the reaction (the force the constraint
     applies), so turning the grasped nodes by ω about the gripper origin
     changes Π by ω · Σ (x_i - p) × f_i. ``None`` when the model does not
-    report its reactions (``data["reaction_field"]``, (n, 3) N).
+    report its reactions (:attr:`EquilibriumState.reaction_forces`, one row
+    per prescribed node: the anchored nodes, then the grasped ones, as
+    :meth:`GraspFrame.constraints` lists them).
     """
-    field = state.data.get("reaction_field")
-    if field is None:
+    reactions = state.reaction_forces
+    grasped = chain.frame.grasped
+    if reactions is None or np.shape(reactions) != (len(chain.frame.anchored) + len(grasped), 3):
         return None
-    nodes = chain.frame.grasped
-    arms = np.asarray(state.positions)[nodes] - q[:3]
-    return np.cross(arms, np.asarray(field)[nodes]).sum(axis=0)
+    arms = np.asarray(state.positions)[grasped] - q[:3]
+    return np.cross(arms, np.asarray(reactions, dtype=float)[len(chain.frame.anchored) :]).sum(axis=0)
 
 
 def _moment_by_differences(chain: _Chain, state: EquilibriumState, q: np.ndarray, h: float = 0.01) -> np.ndarray:
@@ -243,6 +234,7 @@ def sample_chain(args: dict[str, Any]) -> dict[str, Any]:
     alpha = None
     for i, q in enumerate(configurations):  # a chain: each solve starts from the one before
         state = chain.solve(q, previous)
+        sampled = state
         if state.converged and state.valid and relief["enabled"]:
             out["grasp_stress_before"][i] = _near_grasp_stress(chain, state)
             q, state, iterations, angle, alpha = relieve(chain, q, state, relief, alpha)
@@ -255,7 +247,7 @@ def sample_chain(args: dict[str, Any]) -> dict[str, Any]:
         if state.converged and state.valid:
             out["energy"][i] = state.energy
             out["max_stress"][i] = float(np.max(state.stress))
-            previous = state  # a failed solve never becomes the next one's start
+            previous = sampled  # a failed solve never becomes the next one's start
         out["ok"][i] = not reasons[i]
     out["reason"] = reasons
     out.update(chain.totals())
@@ -290,7 +282,6 @@ def edge_chain(args: dict[str, Any]) -> dict[str, Any]:
     tolerance = float(args["branch_tolerance"])
     valid, reasons, max_energy, max_stress, energies = [], [], [], [], []
     for edge in args["edges"]:
-        forget_factorization(chain.model)
         state = _initial(chain, edge["start"])
         reason = ""
         top_energy, top_stress, along = -np.inf, -np.inf, []
@@ -342,7 +333,6 @@ def path_chain(args: dict[str, Any]) -> dict[str, Any]:
         "stress": np.zeros((m, elements), dtype=np.float32),
     }
     reasons = []
-    forget_factorization(chain.model)
     state = _initial(chain, args["start"])
     for i, q in enumerate(configurations):
         state = chain.solve(q, state)

@@ -92,13 +92,7 @@ def generate(setup: Setup) -> list[GraspRoadmap]:
     tasks: dict[str, dict[str, Any]] = {}
     chunks: list[tuple[int, slice]] = []
     for k, q in enumerate(configurations):
-        shared = {
-            "model_class": setup.model_class,
-            "model_settings": setup.model_settings,
-            "frame": setup.frames[k],
-            "collision": None,
-            "relief": relief,
-        }
+        shared = {**setup.chain_args(k), "collision": None, "relief": relief}
         identity = _digest(
             {
                 "model": [f"{setup.model_class.__module__}.{setup.model_class.__qualname__}", setup.model_settings],

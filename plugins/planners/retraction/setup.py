@@ -94,6 +94,7 @@ class Setup:
         """The arguments every equilibrium task of this grasp shares."""
         return {
             "model_class": self.model_class,
+            "model_name": self.settings.deformable.plugin,
             "model_settings": self.model_settings,
             "frame": self.frames[grasp],
             "collision": self.collisions[grasp],
