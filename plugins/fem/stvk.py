@@ -116,6 +116,7 @@ class StVKElements:
         #: global degrees of freedom (k, 3, m) of each element's nodes: 3 node + axis
         self.dofs = 3 * self._tets_t[:, None, :] + np.arange(3)[None, :, None]
         self._dofs_flat = self.dofs.ravel()
+        self._gather = np.ascontiguousarray(self.dofs.transpose(1, 0, 2))  # (3, k, m): axis, node, element
 
     @property
     def n_elements(self) -> int:
@@ -128,7 +129,8 @@ class StVKElements:
 
     # ------------------------------------------------------------------ kinematics
     def _element_positions(self, x: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(np.asarray(x, dtype=float).reshape(-1, 3).T)[:, self._tets_t]  # (3, k, m)
+        """Node positions per element (3, k, m), gathered straight from the flat positions (one take)."""
+        return np.asarray(x, dtype=float).ravel()[self._gather]
 
     def deformation_gradient(self, x: np.ndarray, point: int = 0) -> np.ndarray:
         """F (3, 3, m) at node positions x (n, 3), at quadrature point ``point`` (linear: the only one)."""
