@@ -14,6 +14,12 @@ Everything over real MAVLink 2 on 127.0.0.1 UDP, with the simulated vehicle in a
    0.35 m planned) and outside it (0.5 m threshold), re-measured on the scene.
 3. speed: simulated seconds per wall second the simulator sustains while flying a mission
    (asked for 1000x).
+4. lockstep: the hall's offboard flight repeated with one seed while the ground station stalls at
+   random (0-20 ms in half its pumps, i.e. up to 0.4 s of vehicle time at 20x), with the vehicle in
+   lockstep (it never steps past the newest setpoint's stamp) beside the reference it replaces
+   (``lockstep_horizon: 0.2``: up to 0.2 s past it, extrapolating): the spread of
+   setpoint_error_max_m over the repeats (0 means reproducible), and the wall time per flight
+   (what the lockstep's round trips cost).
 
     python benchmarks/bench_mavlink.py [--quick]
 """
@@ -21,7 +27,9 @@ Everything over real MAVLink 2 on 127.0.0.1 UDP, with the simulated vehicle in a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import random
 import statistics
 import sys
 import tempfile
@@ -134,8 +142,8 @@ def hall_plan(artifact: Path) -> str:
     return stage.replace("out/hall-flight/roadmap.npz", str(artifact))
 
 
-def fly(tmp: Path, artifact: Path, mode: str, gust: float, seed: int) -> dict:
-    sim = SimSettings(speed=20.0, seed=seed, wind={"mean": [0.3, 0.4, 0.0], "gust": gust})
+def fly(tmp: Path, artifact: Path, mode: str, gust: float, seed: int, **sim_settings) -> dict:
+    sim = SimSettings(speed=20.0, seed=seed, wind={"mean": [0.3, 0.4, 0.0], "gust": gust}, **sim_settings)
     vehicle = SimulatedVehicle(sim).start()
     try:
         settings = {
@@ -182,6 +190,7 @@ def bench_tracking(gusts, seeds) -> list[dict]:
                         "completed": f"{len(ok)}/{len(runs)}",
                         "tracking_error_max_m": med("tracking_error_max_m"),
                         "tracking_error_rms_m": med("tracking_error_rms_m"),
+                        "setpoint_error_max_m": med("setpoint_error_max_m"),
                         "door_min_clearance_m": med("flown_min_clearance_in_critical_m"),
                         "outside_min_clearance_m": med("flown_min_clearance_outside_critical_m"),
                         "below_threshold_outside_m": med("flown_length_below_threshold_outside_critical_m"),
@@ -189,6 +198,55 @@ def bench_tracking(gusts, seeds) -> list[dict]:
                     }
                 )
                 print(table(rows[-1:], list(rows[-1])), flush=True)
+    return rows
+
+
+@contextlib.contextmanager
+def stalling_ground_station(stall: float, seed: int):
+    """Every GroundStation pump stalls, half of the time, for up to ``stall`` s (a loaded machine)."""
+    original = GroundStation.pump
+    rng = random.Random(seed)
+
+    def pump(self, timeout: float = 0.0):
+        if stall and rng.random() < 0.5:
+            time.sleep(rng.uniform(0.0, stall))
+        return original(self, timeout)
+
+    GroundStation.pump = pump
+    try:
+        yield
+    finally:
+        GroundStation.pump = original
+
+
+def bench_lockstep(stall: float, repeats: int) -> list[dict]:
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        tmp = Path(folder)
+        artifact = tmp / "roadmap.npz"
+        fly(tmp, artifact, "offboard", 0.3, 1)  # builds the roadmap, outside the timings
+        for horizon in (0.0, 0.2):
+            errors, walls, completed = [], [], 0
+            for repeat in range(repeats):
+                started = time.perf_counter()
+                with stalling_ground_station(stall, repeat):
+                    metrics = fly(tmp, artifact, "offboard", 0.3, 1, lockstep_horizon=horizon)
+                walls.append(time.perf_counter() - started)
+                completed += metrics["status"] == "completed"
+                errors.append(metrics["setpoint_error_max_m"])
+            rows.append(
+                {
+                    "benchmark": "lockstep",
+                    "lockstep_horizon_s": horizon,
+                    "stall_s": stall,
+                    "completed": f"{completed}/{repeats}",
+                    "setpoint_error_max_m_min": round(min(errors), 4),
+                    "setpoint_error_max_m_max": round(max(errors), 4),
+                    "spread_m": round(max(errors) - min(errors), 6),
+                    "wall_s_median": round(statistics.median(walls), 2),
+                }
+            )
+            print(table(rows[-1:], list(rows[-1])), flush=True)
     return rows
 
 
@@ -233,14 +291,16 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         rows = bench_upload([20], [0.0, 0.2], 2) + bench_tracking([0.3], 1) + bench_speed(2.0)
+        rows += bench_lockstep(0.02, 2)
     else:
         rows = bench_upload([20, 100], [0.0, 0.1, 0.2, 0.3, 0.4], 5) + bench_tracking([0.0, 0.3, 0.6, 0.9], 3)
-        rows += bench_speed(10.0)
+        rows += bench_speed(10.0) + bench_lockstep(0.02, 5)
     notes = (
         "MAVLink 2 over 127.0.0.1 UDP, simulated vehicle in a thread of this process; upload times are wall "
         "clock (protocol timeouts: vehicle 0.25 s per item, 20 retries; ground station 1.5 s, 5 retries, "
         "3 transfers); "
-        "predicted_s is the mission protocol's expectation from its timeouts; tracking flights at 20x real time"
+        "predicted_s is the mission protocol's expectation from its timeouts; tracking flights at 20x real time; "
+        "lockstep: one seed flown repeatedly with a ground station stalling at random (spread 0: reproducible)"
     )
     if args.quick:
         return  # a check of the script; results/mavlink.json holds full runs only

@@ -281,3 +281,43 @@ def test_offboard_flight_is_the_same_however_the_ground_station_is_scheduled():
     # against the timed path itself the gusts (0.4 m/s, with a position loop of 1 s) show, and stay bounded
     tracking = np.linalg.norm(calm[:, 1:4] - log.profile.sample(calm[:, 0])[0], axis=1)
     assert 0.05 < tracking.max() < 0.3
+
+
+@pytest.mark.parametrize("lockstep", [True, False])
+def test_offboard_loss_holds_the_vehicle_where_the_stream_stopped(lockstep):
+    """PX4's offboard loss (COM_OF_LOSS_T) on the simulated vehicle: in lockstep its clock stops at the last
+    stamp with the stream, so the loss is judged on the wall clock (``offboard_timeout`` wall s) and costs
+    no flight time; without lockstep the clock runs on, and the loss comes ``offboard_timeout`` s of
+    vehicle time after the last setpoint. Either way it then holds in the air."""
+    sim = {"speed": 20.0, "lockstep": lockstep, "offboard_timeout": 1.0}
+    with station(**sim) as (gcs, vehicle):
+        gcs.set_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20)
+        gcs.wait_for(lambda: gcs.vehicle.position is not None, 5, "no position")
+        profile = TimedPath.along(np.array([[0.0, 0, 0], [0, 0, -1.5], [6, 0, -1.5]]), 1.0, 1.0, 0.05, 0.5)
+        stream = SetpointStream(gcs, profile, hold=[0.0, 0.0, 0.0])
+        gcs.tickers.append(stream)
+        gcs.wait_for(lambda: vehicle.offboard.received > 0, 5, "no setpoint")
+        gcs.set_mode("offboard")
+        gcs.arm()
+        start = stream.begin()
+        gcs.wait_for(lambda: gcs.vehicle.vehicle_time >= start + 4.0, 20, "no flight")
+        gcs.tickers.remove(stream)  # the ground station falls silent mid-leg
+        silent = time.monotonic()
+        gcs.wait_for(lambda: gcs.vehicle.mode == "hold", 10, "no offboard loss")
+        waited = time.monotonic() - silent
+        last = vehicle.offboard.newest
+        (lost,) = [t for t, text in vehicle.events if text == "offboard setpoints lost: holding"]
+        gcs.wait_for(lambda: gcs.vehicle.vehicle_time >= lost + 6.0, 10, "no hold")
+        held = np.array(vehicle.trajectory)
+    assert vehicle.offboard.unstamped == 0
+    if lockstep:
+        assert lost == pytest.approx(last, abs=1e-9)  # the clock waited at the newest stamp
+        assert waited >= 1.0 - 0.05  # for offboard_timeout of wall clock
+    else:
+        assert lost == pytest.approx(last + 1.0, abs=0.02)  # offboard_timeout of vehicle time later
+    # holding in the air: it brakes to a stop near where it was (a position loop of 1 s) and stays there
+    at_loss = held[np.searchsorted(held[:, 0], lost), 1:4]
+    after = held[held[:, 0] >= lost + 4.0]
+    assert np.all(after[:, 3] < -1.0) and np.ptp(after[:, 1:4], axis=0).max() < 0.1
+    assert np.linalg.norm(after[-1, 1:4] - at_loss) < 0.5  # braked, not flown on along the leg to x = 6 m
+    assert np.linalg.norm(after[-1, 4:7]) < 0.05

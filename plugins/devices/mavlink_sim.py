@@ -188,6 +188,7 @@ class SimulatedVehicle(Autopilot):
                         self._report_position()
                     break
                 self._physics(dt)
+                self._offboard_watchdog(now)  # offboard loss on the step it falls due (vehicle time)
             for message in self.endpoint.receive():
                 self._handle(message, now)
             self._send(self.receiver.on_timer(now))
