@@ -5,7 +5,9 @@
   never an exception (it used to raise LinAlgError from the stress).
 * A solve is a function of its constraints and its start positions: the
   same warm-started solve gives the same bits whatever the model solved
-  before, with or without its kept factorisations, in a fresh model.
+  before, with or without its kept factorisations, in a fresh model;
+  the start state's ``tangent_shift`` (where an indefinite tangent's
+  diagonal shift starts) is one of those inputs.
 * ``EquilibriumState.reaction_forces`` (the interface's field) is, row by
   row in the constraints' order, dΠ/d(prescribed position): checked against
   central differences of Π over re-solved equilibria, and against the
@@ -23,6 +25,7 @@ import pytest
 from fem_support import face, model, on
 from surgiplan.deformable import Constraints
 from surgiplan.plugins.fem import AxisConstraints
+from surgiplan.plugins.fem.newton import EquilibriumSolver
 
 FLAP = (0.03, 0.03, 0.002)
 
@@ -177,3 +180,29 @@ def test_the_quasi_newton_corrector_finds_the_equilibrium_plain_newton_finds():
     assert np.abs(quasi.positions - newton.positions).max() < 1e-6 * FLAP[0]
     assert quasi.energy == pytest.approx(newton.energy, rel=1e-9)
     assert np.abs(quasi.reaction_forces - newton.reaction_forces).max() < 1e-5 * np.abs(newton.reaction_forces).max()
+
+
+def test_a_solve_continues_the_diagonal_shift_of_its_start_state_and_stays_deterministic():
+    """A state carries the shift its indefinite tangents needed (``tangent_shift``); a solve from it starts there.
+
+    The kept factorisation at a start state is keyed on that shift too: the
+    same positions with another shift are another start, each a function of
+    its inputs alone, and both reach the same equilibrium.
+    """
+    m = flap()
+    start = m.solve(lifted(m, 0.004))
+    assert start.data["tangent_shift"] == EquilibriumSolver.MIN_SHIFT  # nothing indefinite on the way
+    target = lifted(m, 0.012, 1.2)  # the flap buckles on its way there: an indefinite tangent is shifted
+    plain = m.solve(target, initial=start)
+    assert plain.converged and plain.data["definite_steps"] >= 1
+    assert plain.data["tangent_shift"] > EquilibriumSolver.MIN_SHIFT  # what that tangent needed
+    # the same positions, another start shift (more than needed: the steps are damped more, the answer is the same)
+    hint = dataclasses.replace(start, data={**start.data, "tangent_shift": 1.0})
+    hinted = m.solve(target, initial=hint)
+    assert hinted.converged and not _same(hinted, plain)
+    again = m.solve(target, initial=start)  # not given the factorisation kept for the hinted start
+    m.clear_caches()
+    assert _same(plain, again) and _same(plain, m.solve(target, initial=start))
+    assert _same(hinted, m.solve(target, initial=hint))
+    assert np.abs(hinted.positions - plain.positions).max() < 1e-6 * FLAP[0]  # the same equilibrium
+    assert hinted.energy == pytest.approx(plain.energy, rel=1e-9)

@@ -43,11 +43,12 @@ Use from Python (a planner calls this thousands of times)::
   (crossing triangle pairs), ``elastic_energy``, ``external_work``,
   ``contact_energy`` (J), ``energy_history`` (Π after each corrector
   step), ``predictor_steps``, ``definite_steps``, ``quasi_newton_steps``,
-  ``factorizations``, ``line_search_cuts``, ``solve_s``.
+  ``factorizations``, ``line_search_cuts``, ``tangent_shift``, ``solve_s``.
 * A solve never raises on a configuration it cannot handle (a degenerate
   or inverted state, a singular tangent): its state says ``converged``
   or ``valid`` False and why. Only malformed constraints raise.
-* Answers depend on the constraints and the start positions only. The
+* Answers depend on the constraints and the start state only (its
+  positions and its ``tangent_shift``, see :meth:`StVKModel.solve`). The
   model keeps the factored tangents at the start positions of its last few
   solves (:attr:`StVKModel.START_FACTORS`); a solve from exactly those
   positions (each relief step of a retraction sample, and the next sample,
@@ -351,8 +352,14 @@ class StVKModel(DeformableModel):
     def solve(self, constraints: Constraints, initial: EquilibriumState | None = None) -> EquilibriumState:
         """The static equilibrium under ``constraints``, warm-started from ``initial`` (see the module docstring).
 
-        The answer depends on ``constraints`` and ``initial.positions`` only,
-        never on what this model solved before (see :meth:`clear_caches`).
+        The answer depends on ``constraints``, ``initial.positions`` and
+        ``initial.data["tangent_shift"]`` only, never on what this model
+        solved before (see :meth:`clear_caches`). ``tangent_shift`` (set on
+        every state this model returns) is the relative diagonal shift the
+        solve that found ``initial`` would give its next indefinite tangent:
+        a solve continuing from it starts its search for a definite
+        tangent there, which saves factorisations along a chain of nearby
+        states (absent: the smallest shift).
         A configuration the solver cannot handle (a degenerate or inverted
         state, a singular tangent, non-finite numbers) gives a state with
         ``converged``/``valid`` False and the reason in ``message``; only
@@ -362,13 +369,17 @@ class StVKModel(DeformableModel):
         prescribed, goal = self._prescribed(constraints)
         self.loads.set_forces(constraints.external_forces)
         x0 = self.mesh.nodes
+        shift = None
         if initial is not None:
             start = np.asarray(initial.positions, dtype=float)
             if start.shape == x0.shape and np.all(np.isfinite(start)) and np.all(self.kernel.volume_ratio(start) > 0):
                 x0 = start
-        key = self._factor_key(x0, prescribed)
+                shift = self._shift_hint(initial)
+        key = self._factor_key(x0, prescribed, shift)
         try:
-            result = self.solver.solve(x0.ravel(), prescribed, goal, self.options, self._start_factors.get(key))
+            result = self.solver.solve(
+                x0.ravel(), prescribed, goal, self.options, self._start_factors.get(key), shift=shift
+            )
         except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             # the checks in the solver should leave nothing to catch here; a state is still better than a crash
             result = NewtonResult(x0.ravel().copy(), False, 0, np.inf, np.nan, np.inf)
@@ -385,12 +396,22 @@ class StVKModel(DeformableModel):
     #: factorisations kept, keyed by the positions they were computed at (a few MB each)
     START_FACTORS = 3
 
-    def _factor_key(self, x: np.ndarray, prescribed: np.ndarray) -> bytes:
-        """What a start factorisation is a function of: positions, held dofs, tangent policy (contact included)."""
+    def _factor_key(self, x: np.ndarray, prescribed: np.ndarray, shift: float | None = None) -> bytes:
+        """What a start factorisation is a function of: positions, held dofs, tangent policy (contact included),
+        and the diagonal shift an indefinite tangent there starts from."""
         digest = hashlib.blake2b(np.ascontiguousarray(x, dtype=float).tobytes(), digest_size=20)
         digest.update(np.packbits(prescribed).tobytes())
         digest.update(self.options.tangent.encode())
+        digest.update(np.float64(np.nan if shift is None else shift).tobytes())
         return digest.digest()
+
+    @staticmethod
+    def _shift_hint(initial: EquilibriumState) -> float | None:
+        """The warm start's ``tangent_shift`` (see :meth:`solve`), if it carries a usable one."""
+        value = initial.data.get("tangent_shift") if isinstance(initial.data, dict) else None
+        if isinstance(value, (int, float)) and np.isfinite(value) and value > 0:
+            return float(value)
+        return None
 
     def clear_caches(self) -> None:
         """Drop the kept factorisations (memory only: answers never depend on them)."""
@@ -472,6 +493,7 @@ class StVKModel(DeformableModel):
                 "quasi_newton_steps": result.quasi_newton_steps,
                 "line_search_cuts": result.line_search_cuts,
                 "factorizations": result.factorizations,
+                "tangent_shift": result.shift,
                 "trace": list(result.trace),
                 "newton_s": result.seconds,
             },

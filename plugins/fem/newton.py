@@ -135,6 +135,8 @@ class NewtonResult:
     gradient: np.ndarray | None = None
     #: Π after each corrector step (constraints fixed); never increases
     energy_history: list[float] = field(default_factory=list)
+    #: the relative diagonal shift a next indefinite tangent would start from (a hint for a following solve)
+    shift: float = 1e-4
     seconds: float = 0.0
 
 
@@ -194,6 +196,7 @@ class EquilibriumSolver:
         targets: np.ndarray,
         options: SolverOptions | None = None,
         factor: CachedFactor | None = None,
+        shift: float | None = None,
     ) -> NewtonResult:
         """Equilibrium from flat positions ``x0`` (3n,) with dofs ``prescribed`` (bool (3n,)) at ``targets``.
 
@@ -203,14 +206,23 @@ class EquilibriumSolver:
         started from exactly these positions); the solve would compute it
         as its first step, so passing it saves that time and nothing else
         changes. A factorisation of any other state must not be passed.
+        ``shift``: the relative diagonal shift an indefinite tangent is
+        first tried with (default ``MIN_SHIFT``), e.g. the
+        :attr:`NewtonResult.shift` of the solve this one continues (a
+        chain of nearby states tends to need the same shift: starting
+        there saves the factorisations of the levels below it). A given
+        ``factor`` must have been computed under the same ``shift``.
         """
         options = options or SolverOptions()
         started = time.perf_counter()
+        # the diagonal shift an indefinite tangent starts from: the caller's hint, then what this solve needed
+        start_shift = self.MIN_SHIFT if shift is None else min(max(float(shift), self.MIN_SHIFT), 1.0)
         x = np.array(x0, dtype=float).ravel()
         prescribed = np.asarray(prescribed, dtype=bool)
         free = ~prescribed
         goal = np.asarray(targets, dtype=float).ravel()[prescribed]
         result = NewtonResult(x, False, 0, np.inf, np.nan, np.inf)
+        result.shift = start_shift
         energy, grad = self.gradient(x)
         if grad is None:
             result.message = "the start state has an inverted element"
@@ -220,8 +232,7 @@ class EquilibriumSolver:
         ):
             factor = None
         result.start_factor = factor
-        # the diagonal shift an indefinite tangent needed, remembered within this solve only
-        shift = factor.shift if factor is not None else self.MIN_SHIFT
+        shift = factor.shift if factor is not None else start_shift
         refresh = factor is None
         newton = True  # the kind of the last step
         given = factor is not None  # its first step is the Newton step a computed one would give
@@ -385,6 +396,8 @@ class EquilibriumSolver:
             shifted[free_diagonal] += tau * scale
             factor = self._try_factor(x, prescribed, True, data=data, constrained=shifted)
             if factor is not None and factor.positive_pivots():
+                # for a following solve: the level that was needed, or lower when it sufficed at once
+                result.shift = tau if tau > shift else max(tau / 8.0, self.MIN_SHIFT)
                 return self._finish(factor, options, max(tau / 8.0, self.MIN_SHIFT))  # the need passes: start lower
             tau *= 8.0
         factor = self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
