@@ -67,6 +67,11 @@ def test_candidate_pairs_are_exactly_the_overlapping_boxes():
     expected = set(zip(i[overlap[i, j]].tolist(), j[overlap[i, j]].tolist(), strict=True))
     assert {tuple(sorted(p)) for p in pairs.tolist()} == expected
     assert len(pairs) == len(expected)  # no duplicates
+    assert np.all(pairs[:, 0] < pairs[:, 1])
+    for count in (0, 1):
+        assert candidate_pairs(lower[:count], upper[:count]).shape == (0, 2)
+    flat = candidate_pairs(lower * [1, 1, 0], upper * [1, 1, 0])  # boxes of no thickness along z still overlap
+    assert {tuple(p) for p in flat.tolist()} >= expected
 
 
 def test_a_state_that_passes_through_itself_is_invalid():

@@ -7,8 +7,8 @@ cross each other.
 
 Method, vectorised over triangle pairs:
 
-1. broad phase: sweep and prune of the triangles' bounding boxes along the
-   axis of largest spread, then the other two axes;
+1. broad phase: the pairs of overlapping bounding boxes (a k-d tree over
+   the boxes' centres, :func:`candidate_pairs`);
 2. pairs that share an edge are skipped (they meet along it); pairs that
    share one vertex meet there, and cross beyond it exactly when the edge
    opposite the shared vertex of one triangle crosses the other triangle;
@@ -30,6 +30,7 @@ without crossing.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 
 def _orient(a, b, c, d) -> np.ndarray:
@@ -53,59 +54,26 @@ def segments_cross_triangles(p, q, a, b, c, tol: float = 0.0) -> np.ndarray:
     return straddle & inside
 
 
-_FORWARD = np.array(
-    [(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1) if (dx, dy, dz) > (0, 0, 0)]
-)
-
-
 def candidate_pairs(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """Pairs (k, 2) of boxes [lower, upper] (t, 3) that overlap.
+    """Pairs (k, 2) of boxes [lower, upper] (t, 3) that overlap, each once (i < j).
 
-    A uniform grid whose cells are as large as the largest box along each
-    axis: two boxes can only overlap if the cells of their lower corners are
-    neighbours, so each box is paired with the boxes of its own cell and of
-    the 13 "forward" neighbour cells, then the boxes are compared.
+    Two boxes overlap only if their centres are, along every axis, at most
+    the largest box size along that axis apart: in coordinates scaled by
+    those sizes, within a Chebyshev distance of 1. A k-d tree (scipy's
+    ``cKDTree.query_pairs``, compiled) finds those pairs, then the boxes
+    themselves are compared (about three times faster than the uniform
+    grid of cells of that size it replaces, which did the same in numpy).
     """
-    size = np.maximum((upper - lower).max(axis=0), 1e-300)
-    cell = np.floor((lower - lower.min(axis=0)) / size).astype(np.int64)
-    dims = cell.max(axis=0) + 3
-    cell += 1  # so that neighbours of border cells have valid keys
-
-    def key(c):
-        return (c[..., 0] * dims[1] + c[..., 1]) * dims[2] + c[..., 2]
-
-    keys = key(cell)
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    firsts, seconds = [], []
-    # same cell: each box with the boxes after it in the sorted order
-    end = np.searchsorted(sorted_keys, keys, side="right")
-    starts = [(rank + 1, end)]
-    for offset in _FORWARD:
-        neighbour = key(cell + offset)
-        starts.append(
-            (
-                np.searchsorted(sorted_keys, neighbour, side="left"),
-                np.searchsorted(sorted_keys, neighbour, side="right"),
-            )
-        )
-    for start, stop in starts:
-        counts = np.maximum(stop - start, 0)
-        total = int(counts.sum())
-        if total == 0:
-            continue
-        box = np.repeat(np.arange(len(keys)), counts)
-        position = np.repeat(start - np.cumsum(counts) + counts, counts) + np.arange(total)
-        firsts.append(box)
-        seconds.append(order[position])
-    if not firsts:
+    lower = np.asarray(lower, dtype=float)
+    upper = np.asarray(upper, dtype=float)
+    if len(lower) < 2:
         return np.empty((0, 2), dtype=np.int64)
-    i = np.concatenate(firsts)
-    j = np.concatenate(seconds)
+    size = np.maximum((upper - lower).max(axis=0), 1e-300)
+    centre = (0.5 * (lower + upper)) / size
+    pairs = cKDTree(centre).query_pairs(1.0, p=np.inf, output_type="ndarray").astype(np.int64, copy=False)
+    i, j = pairs[:, 0], pairs[:, 1]
     keep = np.all((lower[i] <= upper[j]) & (lower[j] <= upper[i]), axis=1)
-    return np.column_stack([i[keep], j[keep]])
+    return pairs[keep]
 
 
 def _one_side(corners: np.ndarray, normals: np.ndarray, points: np.ndarray, tol: float) -> np.ndarray:
