@@ -281,6 +281,38 @@ def test_rotation_relief_follows_the_energy_gradient_and_relieves_the_grasp():
     assert relaxed.stress[near].max() < state.stress[near].max()
 
 
+def test_the_relief_stops_once_the_moment_has_fallen_to_the_given_fraction():
+    from scipy.spatial.transform import Rotation
+    from surgiplan.plugins.planners.retraction.settings import ReliefModel
+
+    assert ReliefModel().model_dump()["moment_ratio"] == 0.2  # the planner's default
+    fem = model()
+    q0 = np.array([0.05, 0.025, 0.00125, 0, 0, 0, 1.0])
+    grasped = np.flatnonzero(np.all(np.abs(fem.rest_nodes - q0[:3]) <= [0.0035, 0.0035, 0.002], axis=1))
+    anchored = np.setdiff1d(fem.nodes_in_region([0, 0, 0], [0, 0.05, 0.0025]), grasped)
+    chain = _Chain.__new__(_Chain)
+    chain.model, chain.frame, chain.collision, chain.fem_s, chain.validation_s = (
+        fem,
+        GraspFrame(fem.rest_nodes, anchored, grasped, q0),
+        None,
+        0.0,
+        0.0,
+    )
+    twisted = configuration([0.04, 0.025, 0.012], Rotation.from_euler("xyz", [0.5, -0.3, 0.4]).as_matrix())
+    state = chain.solve(twisted, chain.rest())
+    moment = float(np.linalg.norm(_moment(chain, state, twisted)))
+    options = {"max_step": 0.5, "tolerance": 0.01, "max_iterations": 4}
+    full = relieve(chain, twisted, state, {**options, "moment_ratio": 0.0})
+    q1, first, iterations, _, _ = relieve(chain, twisted, state, {**options, "max_iterations": 1})
+    after_first = float(np.linalg.norm(_moment(chain, first, q1)))
+    assert full[2] >= 2 and iterations == 1 and after_first < moment  # the first step is taken and helps
+    ratio = 0.5 * (after_first / moment + 1.0)  # above what the first step leaves: the descent stops there
+    q1, first, iterations, _, _ = relieve(chain, twisted, state, {**options, "moment_ratio": ratio})
+    assert iterations == 1 and first.energy < state.energy
+    assert np.linalg.norm(_moment(chain, first, q1)) <= ratio * moment
+    assert first.energy >= full[1].energy  # what the further steps would have gained, given up
+
+
 def test_a_grasp_that_already_exposes_the_area_needs_no_motion(tmp_path):
     def uncovered(d):
         settings = d["pipeline"][0]["settings"]

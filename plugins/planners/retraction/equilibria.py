@@ -156,13 +156,19 @@ def relieve(chain: _Chain, q: np.ndarray, state: EquilibriumState, options: dict
     nearby state has a similar rotational stiffness); default: a step of
     ``max_step``. Returns (q, state, iterations, total rotation angle in rad,
     the last step length per unit moment). A step that fails (not converged,
-    invalid) or does not lower Π is shrunk.
+    invalid) or does not lower Π is shrunk. Stops after ``max_iterations``
+    trial steps, when a step would turn less than ``tolerance``, or once the
+    moment has fallen to ``moment_ratio`` of the sample's (optional, default
+    0: never; where Π is about quadratic in the rotation, further steps
+    could gain about that ratio squared of what the relief gained, each at
+    the price of a solve).
     """
     gradient = _moment(chain, state, q)
     if gradient is None:
         gradient = _moment_by_differences(chain, state, q)
     norm = float(np.linalg.norm(gradient))
     max_step, tolerance = float(options["max_step"]), float(options["tolerance"])
+    settled = float(options.get("moment_ratio", 0.0)) * norm  # N m: a moment this small ends the descent
     if not norm > 0:
         return q, state, 0, 0.0, alpha
     if alpha is None or not alpha > 0:
@@ -190,6 +196,8 @@ def relieve(chain: _Chain, q: np.ndarray, state: EquilibriumState, options: dict
         curvature = float(step @ change)
         alpha = float(step @ step) / curvature if curvature > 0 else 2.0 * alpha
         q, state, gradient = turned, new, new_gradient
+        if float(np.linalg.norm(gradient)) <= settled:
+            break
     total = float((Rotation.from_quat(q[3:]) * start_rotation.inv()).magnitude())
     return q, state, iterations, total, alpha
 

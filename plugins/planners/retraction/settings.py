@@ -161,6 +161,10 @@ class ReliefModel(_Strict):
     max_step: Angle = 0.5235987755982988
     #: stop when a step turns less than this
     tolerance: Angle = 0.017453292519943295
+    #: stop once the jaws' moment |dΠ/dω| is at most this fraction of its value at the sample (0: never):
+    #: near the optimal rotation the energy is about quadratic in it, so what further steps could still
+    #: gain is about this fraction squared of what the relief has gained (0.2: 4 %), at a solve each
+    moment_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.2
 
 
 class VisibilityModel(_Strict):
