@@ -163,7 +163,7 @@ def fly(tmp: Path, artifact: Path, mode: str, gust: float, seed: int, **sim_sett
         path.write_text(text)
         outcome = run_pipeline(load_pipeline(path))
         stage = json.loads((outcome.output_dir / "result.json").read_text())["stages"][1]
-        return stage["metrics"] | {"status": stage["status"]}
+        return stage["metrics"] | {"status": stage["status"], "message": stage.get("message")}
     finally:
         vehicle.stop()
 

@@ -238,6 +238,24 @@ def test_offboard_flight_streams_setpoints_on_the_vehicle_clock(tmp_path, roadma
     assert not vehicle.armed
 
 
+def test_offboard_flight_in_strong_gusts_arrives_in_the_air_and_lands_vertically(tmp_path, roadmap):
+    """Gusts of 0.9 m/s: the setpoints end at the path's end in the air, where the vehicle can still correct
+    until it arrives; then NAV_LAND. (Streaming the landing leg too, a touchdown the gusts put more than the
+    acceptance radius beside the goal never arrived: the flight timed out on the ground.)"""
+    with simulated(wind={"mean": [0.3, 0.4, 0.0], "gust": 0.9}) as vehicle:
+        settings = external(vehicle, mode="offboard", cruise_speed=1.5, figure=False)
+        outcome, document, stage, table = fly(tmp_path, roadmap, settings)
+        events = [text for _, text in vehicle.events]
+        touchdown = np.array(vehicle.trajectory)[-1, 1:4]
+    assert outcome.ok and stage["status"] == "completed", stage.get("message")
+    assert "mode land" in events and "landed" in events and not vehicle.armed
+    assert not stage["metrics"].get("faults")
+    # it arrived within the acceptance radius (0.1 m) of the path's end in the air, then came down on the
+    # spot: the gusts move it during the descent no more than they move it in flight
+    assert touchdown[2] == pytest.approx(0.0, abs=1e-6)  # on the ground (NED down 0)
+    assert stage["metrics"]["final_position_error_m"] <= 0.1 + stage["metrics"]["tracking_error_max_m"]
+
+
 def test_flight_is_refused_when_the_approach_crosses_a_wall(tmp_path, roadmap):
     # the vehicle stands in room B (scene 14, 3): the straight approach to room A's pad crosses the wall
     # and, deepest, pillar A1 (the message names the obstacle it comes closest to)

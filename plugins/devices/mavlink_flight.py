@@ -17,7 +17,7 @@ Two ways to fly it (the ``mode`` setting):
   from MISSION_CURRENT and MISSION_ITEM_REACHED;
 * ``offboard``: the route time-parameterised (:mod:`.mavlink_profile`) and
   streamed as SET_POSITION_TARGET_LOCAL_NED (position, velocity and
-  acceleration) on the *vehicle's* clock (:mod:`.mavlink_stream`): one
+  acceleration) up to the path's end, then NAV_LAND, on the *vehicle's* clock (:mod:`.mavlink_stream`): one
   setpoint for every 50 ms of vehicle time, kept 0.1 s ahead of the newest
   LOCAL_POSITION_NED, plus a 20 Hz wall-clock keep-alive, so the stream
   follows the vehicle at any simulation speed; PX4's rule is kept: setpoints
@@ -245,8 +245,12 @@ class Flight:
         s = self.settings
         gcs = self.gcs
         log = self.log
+        # the setpoints end at the path's end, in the air; the landing is PX4's land mode, vertical from
+        # wherever the vehicle arrived (as the mission's NAV_LAND): flown as setpoints, a touchdown a gust
+        # put beside the goal could never arrive (the vehicle cannot move on the ground)
+        airborne = self.route_ned[: self.route.path_last + 1]
         profile = TimedPath.along(
-            self.route_ned, s.cruise_speed, s.acceleration, s.corner_deviation, vertical_speed=s.vertical_speed
+            airborne, s.cruise_speed, s.acceleration, s.corner_deviation, vertical_speed=s.vertical_speed
         )
         log.profile = profile
         stream = SetpointStream(gcs, profile, self.route_ned[0])
@@ -267,7 +271,7 @@ class Flight:
                 start + passing[self.route.path_first],
                 start + passing[self.route.path_last],
             )
-            goal = self.route_ned[-1]
+            goal = airborne[-1]
             end = start + profile.duration
 
             def arrived() -> bool:
