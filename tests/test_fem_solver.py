@@ -8,6 +8,8 @@
   before, with or without its kept factorisations, in a fresh model;
   the start state's ``tangent_shift`` (where an indefinite tangent's
   diagonal shift starts) is one of those inputs.
+* A large motion is predicted in two Euler steps and reaches the
+  equilibrium one step reaches, with fewer iterations.
 * ``EquilibriumState.reaction_forces`` (the interface's field) is, row by
   row in the constraints' order, dΠ/d(prescribed position): checked against
   central differences of Π over re-solved equilibria, and against the
@@ -190,6 +192,8 @@ def test_a_solve_continues_the_diagonal_shift_of_its_start_state_and_stays_deter
     its inputs alone, and both reach the same equilibrium.
     """
     m = flap()
+    # one Euler predictor step: the flap buckles on its way (two steps avoid that, see the next test)
+    m.options = dataclasses.replace(m.options, predictor_residual=0.0)
     start = m.solve(lifted(m, 0.004))
     assert start.data["tangent_shift"] == EquilibriumSolver.MIN_SHIFT  # nothing indefinite on the way
     target = lifted(m, 0.012, 1.2)  # the flap buckles on its way there: an indefinite tangent is shifted
@@ -206,3 +210,23 @@ def test_a_solve_continues_the_diagonal_shift_of_its_start_state_and_stays_deter
     assert _same(hinted, m.solve(target, initial=hint))
     assert np.abs(hinted.positions - plain.positions).max() < 1e-6 * FLAP[0]  # the same equilibrium
     assert hinted.energy == pytest.approx(plain.energy, rel=1e-9)
+
+
+def test_a_large_motion_is_predicted_in_two_steps_and_reaches_the_same_equilibrium():
+    """A predictor step that would leave a large residual is halved, the tangent factored at the midpoint."""
+    m = flap()
+    start = m.solve(lifted(m, 0.004))
+    target = lifted(m, 0.012, 1.2)  # 8 mm up and turned by 69 degrees
+    two = m.solve(target, initial=start)
+    small = m.solve(lifted(m, 0.0041), initial=start)  # 0.1 mm: the linear prediction is good
+    m.options = dataclasses.replace(m.options, predictor_residual=0.0)
+    m.clear_caches()
+    one = m.solve(target, initial=start)
+    assert two.converged and one.converged and small.converged
+    assert two.data["predictor_steps"] == 2 and one.data["predictor_steps"] == 1
+    assert small.data["predictor_steps"] == 1
+    assert two.data["definite_steps"] < one.data["definite_steps"]  # no buckling tangent on the way
+    assert two.iterations < one.iterations
+    assert np.abs(two.positions - one.positions).max() < 1e-6 * FLAP[0]  # the same equilibrium
+    assert two.energy == pytest.approx(one.energy, rel=1e-9)
+    assert np.abs(two.reaction_forces - one.reaction_forces).max() < 1e-5 * np.abs(one.reaction_forces).max()
