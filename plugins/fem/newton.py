@@ -113,7 +113,7 @@ class SolverOptions:
     history: int = 4
     #: the first predictor step is halved (and the tangent factored again at the midpoint) when the whole
     #: step would leave a residual force above this times the force scale (0: never; see the module docstring)
-    predictor_residual: float = 0.3
+    predictor_residual: float = 0.1
 
 
 @dataclass
