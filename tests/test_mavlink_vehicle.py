@@ -244,7 +244,7 @@ def test_offboard_flight_in_strong_gusts_arrives_in_the_air_and_lands_vertically
     acceptance radius beside the goal never arrived: the flight timed out on the ground.)"""
     with simulated(wind={"mean": [0.3, 0.4, 0.0], "gust": 0.9}) as vehicle:
         settings = external(vehicle, mode="offboard", cruise_speed=1.5, figure=False)
-        outcome, document, stage, table = fly(tmp_path, roadmap, settings)
+        outcome, _, stage, _ = fly(tmp_path, roadmap, settings)
         events = [text for _, text in vehicle.events]
         touchdown = np.array(vehicle.trajectory)[-1, 1:4]
     assert outcome.ok and stage["status"] == "completed", stage.get("message")
