@@ -285,6 +285,10 @@ class Controller:
         ``on_start(t0)`` is called with the clock time of the first cycle (arms injected faults).
         """
         self.stop_holding()
+        if self.clock.realtime:
+            # the first cycle is now: the hold loop's schedule may have lapsed while the trajectory was
+            # timed and the axes placed, which skips no cycle of the trajectory (missed_cycles counts those)
+            self._next = None
         trajectory = np.atleast_2d(np.asarray(trajectory, dtype=float))
         targets = np.round(trajectory * self.cpu).astype(np.int64)
         m = len(trajectory)

@@ -378,10 +378,10 @@ class Cia402Device(Device):
                 if self.simulator is not None:
                     self.simulator.arm(t0)
 
+        # everything is computed: only now stop holding (in real time the drives' SYNC watchdog would trip
+        # during a long computation), so that missed_cycles counts the trajectory's cycles alone
+        self.controller.stop_holding()
         if place:
-            # everything is computed: only now stop holding (in real time the drives' SYNC watchdog
-            # would trip during a long computation) and place the axes
-            self.controller.stop_holding()
             self.simulator.place(q[0])
             self.controller.hold = np.round(q[0] * self.controller.cpu).astype(np.int64)
             self.placed = True
