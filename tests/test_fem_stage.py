@@ -124,6 +124,21 @@ output: {dir: out}
 """
 
 
+def lifted_and_turned_flap():
+    """A 30 x 30 x 2 mm flap anchored along one edge, its far edge grasped, lifted 9 mm and turned 30 degrees."""
+    return model(
+        (0.03, 0.03, 0.002),
+        (6, 6, 2),
+        pattern="five",
+        anchored=[{"region": {"min": [0, 0, 0], "max": [0, 0.03, 0.002]}}],
+        grasp={
+            "region": {"min": [0.0275, 0.0125, 0], "max": [0.03, 0.0175, 0.002]},
+            "transform": {"xyz": [-0.003, 0, 0.009], "rpy": [0, -np.pi / 6, 0]},
+        },
+        base_plane={},
+    )
+
+
 def test_steps_apply_the_grasp_quasi_statically_and_write_a_paraview_series(tmp_path, cli):
     code, _, err = cli("run", write(tmp_path / "flap.yaml", FLAP_STEPS), "--out", tmp_path / "out")
     assert code == 0, err
@@ -140,17 +155,7 @@ def test_steps_apply_the_grasp_quasi_statically_and_write_a_paraview_series(tmp_
     assert [float(d.get("timestep")) for d in datasets] == pytest.approx([0, 1 / 3, 2 / 3, 1], abs=1e-6)
     # the last step is the one-shot equilibrium (a hyperelastic static answer does not depend on the path
     # here), and each step holds the grasp at its fraction of the rigid motion (slerp about the pivot)
-    m = model(
-        (0.03, 0.03, 0.002),
-        (6, 6, 2),
-        pattern="five",
-        anchored=[{"region": {"min": [0, 0, 0], "max": [0, 0.03, 0.002]}}],
-        grasp={
-            "region": {"min": [0.0275, 0.0125, 0], "max": [0.03, 0.0175, 0.002]},
-            "transform": {"xyz": [-0.003, 0, 0.009], "rpy": [0, -np.pi / 6, 0]},
-        },
-        base_plane={},
-    )
+    m = lifted_and_turned_flap()
     one_shot = m.solve(m.stage_constraints())
     final = meshio.read(tmp_path / "out" / "flap.vtu")
     assert np.abs(final.points - one_shot.positions).max() < 1e-6 * 0.03
@@ -165,17 +170,7 @@ def test_steps_apply_the_grasp_quasi_statically_and_write_a_paraview_series(tmp_
 
 def test_a_step_that_fails_stops_the_sequence_and_names_the_step(tmp_path, cli):
     # the budget: what step 0 (the flap settling from rest) needs, less than step 1 (a third of the motion)
-    flap = model(
-        [0.03, 0.03, 0.002],
-        [6, 6, 2],
-        pattern="five",
-        anchored=[{"region": {"min": [0, 0, 0], "max": [0, 0.03, 0.002]}}],
-        grasp={
-            "region": {"min": [0.0275, 0.0125, 0], "max": [0.03, 0.0175, 0.002]},
-            "transform": {"xyz": [-0.003, 0, 0.009], "rpy": [0, -np.pi / 6, 0]},
-        },
-        base_plane={},
-    )
+    flap = lifted_and_turned_flap()
     settled = flap.solve(flap.stage_constraints(0.0))
     budget = settled.iterations
     assert flap.solve(flap.stage_constraints(1 / 3), initial=settled).iterations > budget
