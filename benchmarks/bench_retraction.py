@@ -49,8 +49,6 @@ from surgiplan.plugins.planners.retraction.lazy import LazyPlanner
 from surgiplan.plugins.planners.retraction.planner import RetractionPlanner
 from surgiplan.progress import RichProgress
 
-#: the machine's load average when the run began (the notes say whether the timings are upper bounds)
-LOAD_AT_START = (0.0, 0.0, 0.0)
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 #: (config, stage, the surgeon's estimate of the final gripper position in mm, paper's Table I row)
 SCENARIOS = {
@@ -137,8 +135,7 @@ def plan_once(data: dict, grasp_xyz, sampling: dict, goal, executor, store: Path
 
 
 def main() -> None:
-    global LOAD_AT_START
-    LOAD_AT_START = os.getloadavg()
+    load_at_start = os.getloadavg()[0]  # the notes say whether the timings are upper bounds
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="reduced sizes (checks the script, not the numbers)")
     parser.add_argument("--grasps", type=int, default=2)
@@ -281,7 +278,7 @@ def main() -> None:
         f"{'quick sizes; ' if args.quick else ''}{args.samples} random and {args.guided} user-guided samples, "
         f"{args.grasps} grasp(s) per scenario, local executor with 2 workers, "
         f"OMP_NUM_THREADS=1; planning = median of {args.repeats} lazy queries from scratch; load average "
-        f"at the start {LOAD_AT_START[0]:.1f} on {os.cpu_count()} cores (timings are upper bounds when it is high)"
+        f"at the start {load_at_start:.1f} on {os.cpu_count()} cores (timings are upper bounds when it is high)"
     )
     path = save("retraction", rows + [{"table": "detail", **d} for d in detail], notes)
     print(f"wrote {path}")
