@@ -280,6 +280,8 @@ def main() -> None:
         f"OMP_NUM_THREADS=1; planning = median of {args.repeats} lazy queries from scratch; load average "
         f"at the start {load_at_start:.1f} on {os.cpu_count()} cores (timings are upper bounds when it is high)"
     )
+    if args.quick:
+        return  # a check of the script: results/retraction.json holds full runs only
     path = save("retraction", rows + [{"table": "detail", **d} for d in detail], notes)
     print(f"wrote {path}")
 
