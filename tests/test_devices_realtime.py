@@ -48,6 +48,10 @@ def test_real_time_clock_paces_the_loop_at_the_control_rate(block_world, tmp_pat
         assert report.metrics["tracking_error_rms_m"] < 1e-3  # within the following-error window
 
 
+@pytest.mark.skip(
+    reason="udp_multicast sends to a 239.x group on the default route, off the machine; "
+    "skipped until the loopback-only transport of issue 15 replaces it"
+)
 @pytest.mark.slow
 def test_drives_in_another_process_over_udp_multicast_with_the_real_hardware_code_path(block_world, tmp_path):
     """Real drives are a configuration change away: the same device, a real python-can interface,
