@@ -2,7 +2,7 @@
 
 1. Control-loop rate in real-time mode with 4 drives (the CAST gimbal): the
    gimbal's gap path executed at 100, 250, 500 and 1000 Hz, the drives in a
-   process of their own reached over python-can's udp_multicast interface
+   process of their own reached over surgiplan's loopback python-can interface (a hub on 127.0.0.1)
    (``surgiplan-sim-drives``: the master's process does only what it would
    do with hardware), side by side with the drives simulated in a thread of
    the master's process (``clock: realtime`` on the virtual bus). Per rate:
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import random
+import socket
 import statistics
 import subprocess
 import sys
@@ -57,7 +57,6 @@ from surgiplan.plugins.devices.bus import frame_bits, worst_case_bits
 from surgiplan.plugins.devices.kinematics import DifferentialIK, KinematicModel, urdf_path
 
 ROOT = Path(__file__).resolve().parent.parent
-CHANNEL = "239.74.163.2"
 
 
 def percentile(values, q: float) -> float:
@@ -66,16 +65,18 @@ def percentile(values, q: float) -> float:
 
 @contextlib.contextmanager
 def drives_process(initial):
-    """Four simulated drives in another process on udp_multicast; yields the bus settings."""
-    port = random.Random().randint(40000, 49000)
+    """Four simulated drives in another process on the loopback bus (127.0.0.1); yields the bus settings."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
     command = [sys.executable, "-m", "surgiplan.plugins.devices.sim_drives", "--device", "cast_gimbal"]
-    command += ["--interface", "udp_multicast", "--channel", CHANNEL, "--option", f"port={port}"]
+    command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "0.2", "--initial", *map(str, initial)]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     try:
         if process.stdout.readline().strip() != "ready":
             raise RuntimeError("the drive simulator did not start")
-        yield {"interface": "udp_multicast", "channel": CHANNEL, "options": {"port": port}}, process.pid
+        yield {"interface": "loopback", "channel": str(port), "options": {"hub": "join"}}, process.pid
     finally:
         process.terminate()
         process.wait(timeout=10)
@@ -96,7 +97,7 @@ def control_loop(scene, rates, repeat: int) -> list[dict]:
     path = gimbal_path(space, GAP_TIPS)
     back = path[::-1]
     rows = []
-    for mode in ("separate process (udp_multicast)", "in-process thread (virtual bus)"):
+    for mode in ("separate process (loopback bus)", "in-process thread (virtual bus)"):
         for rate in rates:
             periods, work, missed, missing, completed, cycles, load, worst = [], [], 0, 0, 0, 0, [], []
             # supervision generous enough for a loaded machine: what is measured is the loop, not a stop

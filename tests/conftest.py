@@ -8,6 +8,7 @@ package opt in with the ``with_example_plugin`` fixture.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -19,6 +20,33 @@ from surgiplan import registry
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
 DATA = Path(__file__).resolve().parent / "data"
+
+# ----------------------------------------------------------------------------- loopback only
+# Every socket the suite (and each Python process it starts) binds, connects or sends to must be on
+# loopback: tests/netguard/sitecustomize.py refuses anything else and logs it; a test that tried fails.
+NETGUARD = Path(__file__).resolve().parent / "netguard"
+_NETGUARD_LOG = Path(os.environ.setdefault("SURGIPLAN_NETGUARD_LOG", f"/tmp/surgiplan-netguard-{os.getpid()}.log"))
+os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(NETGUARD), os.environ.get("PYTHONPATH")) if p)
+_site = sys.modules.get("sitecustomize")
+if _site is not None and Path(getattr(_site, "__file__", "") or "").parent == NETGUARD:
+    _netguard = _site  # this pytest was itself started by a guarded test: the guard is already in
+else:
+    _spec = importlib.util.spec_from_file_location("surgiplan_netguard", NETGUARD / "sitecustomize.py")
+    _netguard = importlib.util.module_from_spec(_spec)
+    _spec.loader.exec_module(_netguard)
+sys.modules["surgiplan_netguard"] = _netguard
+_netguard.install()
+
+
+@pytest.fixture(autouse=True)
+def _loopback_only():
+    _NETGUARD_LOG.unlink(missing_ok=True)
+    yield
+    if _NETGUARD_LOG.exists():
+        text = _NETGUARD_LOG.read_text()
+        _NETGUARD_LOG.unlink(missing_ok=True)
+        pytest.fail(f"this test used a non-loopback address (tests send only to 127.0.0.1 / ::1):\n{text}")
+
 
 os.environ["SURGIPLAN_PLUGIN_PACKAGES"] = "surgiplan"
 os.environ.pop("SURGIPLAN_DISABLE_PLUGINS", None)

@@ -1,5 +1,6 @@
 """Real-time mode: the control loop paced by the monotonic clock, the drives in a thread or in a
-process of their own reached over a real python-can interface (udp_multicast).
+process of their own reached over a real python-can interface (surgiplan's ``loopback``: a hub on
+127.0.0.1, so nothing leaves the machine).
 
 This machine is shared and loaded, so these tests give the supervision generous time-outs and check
 what real time must deliver regardless: the pacing (median cycle period), the frames per cycle, and
@@ -8,6 +9,7 @@ that the motion arrives; timings themselves are measured in benchmarks/bench_dev
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 
@@ -48,27 +50,27 @@ def test_real_time_clock_paces_the_loop_at_the_control_rate(block_world, tmp_pat
         assert report.metrics["tracking_error_rms_m"] < 1e-3  # within the following-error window
 
 
-@pytest.mark.skip(
-    reason="udp_multicast sends to a 239.x group on the default route, off the machine; "
-    "skipped until the loopback-only transport of issue 15 replaces it"
-)
-@pytest.mark.slow
-def test_drives_in_another_process_over_udp_multicast_with_the_real_hardware_code_path(block_world, tmp_path):
-    """Real drives are a configuration change away: the same device, a real python-can interface,
-    no simulator in this process (canopen's own receive thread), the drives in another process."""
-    import random
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
 
+
+@pytest.mark.slow
+def test_drives_in_another_process_over_the_loopback_bus_with_the_real_hardware_code_path(block_world, tmp_path):
+    """Real drives are a configuration change away: the same device, a real python-can interface,
+    no simulator in this process (canopen's own receive thread), the drives in another process
+    reached through the loopback hub on 127.0.0.1 that the drives' process hosts."""
     space = gimbal_space(block_world)
     path = gimbal_path(space, GAP_TIPS)
-    port = random.Random().randint(40000, 49000)
-    channel = "239.74.163.2"
+    port = _free_port()
     command = [sys.executable, "-m", "surgiplan.plugins.devices.sim_drives", "--device", "cast_gimbal"]
-    command += ["--interface", "udp_multicast", "--channel", channel, "--option", f"port={port}"]
+    command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "0.5", "--initial", *map(str, path[0])]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     try:
         assert process.stdout.readline().strip() == "ready"
-        bus = {"interface": "udp_multicast", "channel": channel, "options": {"port": port}}
+        bus = {"interface": "loopback", "channel": port, "options": {"hub": "join"}}
         settings = {"fulcrum": FULCRUM, "bus": bus, **LENIENT}
         with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
             assert device.simulator is None and device.clock.realtime  # the hardware code path
@@ -78,7 +80,7 @@ def test_drives_in_another_process_over_udp_multicast_with_the_real_hardware_cod
             np.testing.assert_allclose(device.joint_positions(), path[-1], atol=1e-4)
             m = report.metrics
             assert m["tracking_error_rms_m"] < 1e-3
-            # per cycle on the wire: SYNC, 4 RPDOs, 4 TPDOs (echoes of our own frames are not counted)
+            # per cycle on the wire: SYNC, 4 RPDOs, 4 TPDOs
             assert m["frames"] == pytest.approx(9 * m["cycles"], rel=0.05)
     finally:
         process.terminate()

@@ -1,7 +1,10 @@
 """The CAN transport: opening a python-can bus, fault injection, and bus load.
 
 ``bus: {interface: virtual}`` (the default) is python-can's in-process
-virtual bus, shared by the master and the simulated drives; any other
+virtual bus, shared by the master and the simulated drives;
+``{interface: loopback, channel: PORT}`` reaches simulated drives in another
+process (``surgiplan-sim-drives``) through a hub on 127.0.0.1
+(:mod:`.can_loopback`: nothing leaves the machine); any other
 python-can interface (``{interface: socketcan, channel: can0}``,
 ``{interface: pcan, channel: PCAN_USBBUS1}``, ...) talks to real drives with
 the same code. A bus that cannot be opened is a :class:`BusError` naming the
@@ -48,7 +51,7 @@ from typing import Annotated, Any, Literal
 
 import can
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, PositiveInt
+from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, PositiveInt, field_validator
 from surgiplan.errors import SurgiplanError
 
 
@@ -105,12 +108,18 @@ class BusSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
     #: python-can interface name: virtual (simulated drives), socketcan, pcan, kvaser, ...
     interface: str = "virtual"
-    #: default for the virtual bus: a channel of its own per device, so parallel buses never meet
+    #: default for the virtual bus: a channel of its own per device, so parallel buses never meet;
+    #: loopback: a port on 127.0.0.1 (a number is accepted)
     channel: str | None = None
     bitrate: PositiveInt = 1_000_000
     #: further keyword arguments for python-can's Bus (interface-specific)
     options: dict[str, Any] = Field(default_factory=dict)
     faults: list[Fault] = Field(default_factory=list)
+
+    @field_validator("channel", mode="before")
+    @classmethod
+    def _channel_text(cls, value: Any) -> Any:
+        return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
     @property
     def simulated(self) -> bool:

@@ -4,14 +4,15 @@
 runs the drives of a device (``cast_gimbal``: 4 axes, ``gripper6``: 6) in real
 time on the bus you name, as real drives would be: outside the process of the
 master, reached only through CAN frames. A pipeline then talks to them with
-exactly the settings it would use for hardware, e.g. over python-can's
-``udp_multicast`` interface (no CAN hardware or kernel module needed)::
+exactly the settings it would use for hardware. The default interface is
+surgiplan's ``loopback`` (a python-can interface: a hub on 127.0.0.1 that
+this process hosts; no CAN hardware or kernel module needed, and nothing
+leaves the machine)::
 
-    surgiplan-sim-drives --device cast_gimbal --interface udp_multicast \\
-        --channel 239.74.163.2 --option port=43113 --initial 0 0.6 0.12 0
+    surgiplan-sim-drives --device cast_gimbal --channel 43113 --initial 0 0.6 0.12 0
 
     # in the pipeline's execute stage
-    settings: {bus: {interface: udp_multicast, channel: 239.74.163.2, options: {port: 43113}}}
+    settings: {bus: {interface: loopback, channel: 43113}}
 
 or on a virtual SocketCAN interface (``ip link add dev vcan0 type vcan``) with
 ``--interface socketcan --channel vcan0``. The drives use the device's
@@ -73,8 +74,10 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="surgiplan-sim-drives", description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=sorted(DEVICES), default="cast_gimbal")
-    parser.add_argument("--interface", required=True, help="python-can interface (udp_multicast, socketcan, ...)")
-    parser.add_argument("--channel", required=True)
+    parser.add_argument(
+        "--interface", default="loopback", help="python-can interface (default loopback: 127.0.0.1 only)"
+    )
+    parser.add_argument("--channel", required=True, help="loopback: a port on 127.0.0.1; socketcan: vcan0, ...")
     parser.add_argument("--option", type=_option, action="append", default=[], help="bus option KEY=VALUE")
     parser.add_argument("--node-ids", type=int, nargs="+")
     parser.add_argument("--initial", type=float, nargs="+", help="joint positions at power-up (SI)")

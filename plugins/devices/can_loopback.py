@@ -1,0 +1,446 @@
+"""A loopback-only inter-process CAN bus for python-can: ``interface: loopback``.
+
+Processes on one machine share one CAN bus through a small TCP hub bound to
+the loopback address: the master in a pipeline and simulated drives in a
+process of their own (``surgiplan-sim-drives``) exchange frames exactly as
+over a real interface, with nothing ever leaving the machine. It is a
+python-can interface registered through python-can's ``can.interface`` entry
+points, so any python-can program (canopen's ``Network``, ``can.logger``,
+``can.viewer``) opens it by name::
+
+    bus = can.Bus(interface="loopback", channel="43113")          # or "127.0.0.1:43113", "[::1]:43113"
+
+The channel is a TCP port on 127.0.0.1 (or ``HOST:PORT`` with a loopback
+host: 127.0.0.0/8, ::1 or ``localhost``); any other host is refused. The
+first bus opened on a channel hosts the hub in a daemon thread of its process
+(``hub="auto"``, the default; ``"host"`` insists on hosting, ``"join"`` on
+joining one); the buses opened later connect to it. Every frame one bus sends
+reaches every other bus on the channel, in order; a bus does not receive its
+own frames unless ``receive_own_messages=True`` (as SocketCAN). When the
+host's bus shuts down the hub closes and the other buses' ``recv`` raise
+``can.CanOperationError`` saying so, as a bus whose cable was pulled.
+
+Why not an existing transport: python-can's ``udp_multicast`` sends to a
+239.x group on the default route, i.e. out of the machine's LAN interface;
+``socketcand`` needs the socketcand daemon and SocketCAN (Linux kernel
+modules); python-can-remote (0.3.0) targets python-can 3, carries its own
+websocket implementation and listens on all interfaces by default.
+
+Wire format (little endian), one record per frame: ``<dIBB`` (timestamp s,
+arbitration id, flags, data length) then the data bytes (0-64). Flags: 1
+extended id, 2 remote, 4 error, 8 CAN FD, 16 bit-rate switch, 32 error-state
+indicator. Every socket operation has a time-out; a peer that does not read
+its frames for ``send_timeout`` seconds is disconnected rather than allowed
+to stall the bus.
+"""
+
+from __future__ import annotations
+
+import errno
+import ipaddress
+import queue
+import select
+import selectors
+import socket
+import struct
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import can
+
+HEADER = struct.Struct("<dIBB")
+#: what the hub sends a bus once it is on the bus: frames sent after the bus's constructor returned reach it
+GREETING = b"SPCANHUB\x01"
+_EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = 1, 2, 4, 8, 16, 32
+#: a record can never be longer than this; anything else on the socket is not this protocol
+_MAX_DATA = 64
+
+
+class LoopbackError(can.CanInitializationError):
+    """The loopback channel is malformed, not on loopback, or cannot be hosted or joined."""
+
+
+def parse_channel(channel: Any) -> tuple[str, int]:
+    """``"43113"``, ``43113``, ``"127.0.0.1:43113"``, ``"[::1]:43113"``, ``"localhost:43113"`` -> (host, port).
+
+    Raises :class:`LoopbackError` for a non-loopback host or a bad port.
+    """
+    text = str(channel).strip()
+    host, port_text = "127.0.0.1", text
+    if text.startswith("["):  # [v6]:port
+        end = text.find("]")
+        if end < 0 or text[end + 1 : end + 2] != ":":
+            raise LoopbackError(f"loopback CAN channel '{text}': expected [ADDRESS]:PORT")
+        host, port_text = text[1:end], text[end + 2 :]
+    elif ":" in text:
+        host, _, port_text = text.rpartition(":")
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise LoopbackError(f"loopback CAN channel '{text}': the port '{port_text}' is not a number") from None
+    if not 1 <= port <= 65535:
+        raise LoopbackError(f"loopback CAN channel '{text}': port {port} is outside 1-65535")
+    if host == "localhost":
+        host = "127.0.0.1"
+    try:
+        address = ipaddress.ip_address(host)
+    except ValueError:
+        raise LoopbackError(
+            f"loopback CAN channel '{text}': '{host}' is not an IP address (use 127.0.0.1 or ::1)"
+        ) from None
+    if not address.is_loopback:
+        raise LoopbackError(
+            f"loopback CAN channel '{text}': {host} is not a loopback address; this interface never "
+            "sends a frame off the machine (use 127.0.0.1 or ::1)"
+        )
+    return str(address), port
+
+
+def encode(msg: can.Message) -> bytes:
+    flags = (
+        (_EXTENDED if msg.is_extended_id else 0)
+        | (_REMOTE if msg.is_remote_frame else 0)
+        | (_ERROR if msg.is_error_frame else 0)
+        | (_FD if msg.is_fd else 0)
+        | (_BRS if msg.bitrate_switch else 0)
+        | (_ESI if msg.error_state_indicator else 0)
+    )
+    data = bytes(msg.data) if msg.data is not None else b""
+    if len(data) > _MAX_DATA:
+        raise can.CanOperationError(f"a CAN frame carries at most {_MAX_DATA} bytes, got {len(data)}")
+    length = msg.dlc if msg.is_remote_frame else len(data)
+    return HEADER.pack(msg.timestamp or time.time(), msg.arbitration_id, flags, length) + (
+        b"" if msg.is_remote_frame else data
+    )
+
+
+class _Reader:
+    """Splits a byte stream into frame records."""
+
+    def __init__(self) -> None:
+        self.buffer = bytearray()
+
+    def feed(self, chunk: bytes) -> None:
+        self.buffer += chunk
+
+    def records(self) -> list[bytes]:
+        out = []
+        buffer = self.buffer
+        offset = 0
+        while len(buffer) - offset >= HEADER.size:
+            _, _, flags, length = HEADER.unpack_from(buffer, offset)
+            if length > _MAX_DATA:
+                raise can.CanOperationError("loopback CAN hub: malformed record (a peer that is not a CAN bus?)")
+            size = HEADER.size + (0 if flags & _REMOTE else length)
+            if len(buffer) - offset < size:
+                break
+            out.append(bytes(buffer[offset : offset + size]))
+            offset += size
+        if offset:
+            del buffer[:offset]
+        return out
+
+
+def decode(record: bytes, channel: str) -> can.Message:
+    _, arbitration_id, flags, length = HEADER.unpack_from(record)
+    remote = bool(flags & _REMOTE)
+    return can.Message(
+        timestamp=time.time(),  # stamped on reception, as a CAN controller does
+        arbitration_id=arbitration_id,
+        is_extended_id=bool(flags & _EXTENDED),
+        is_remote_frame=remote,
+        is_error_frame=bool(flags & _ERROR),
+        is_fd=bool(flags & _FD),
+        bitrate_switch=bool(flags & _BRS),
+        error_state_indicator=bool(flags & _ESI),
+        dlc=length,
+        data=None if remote else record[HEADER.size :],
+        channel=channel,
+        is_rx=True,
+    )
+
+
+def _family(host: str) -> int:
+    return socket.AF_INET6 if ":" in host else socket.AF_INET
+
+
+class _Hub:
+    """The hub a hosting bus runs: accepts the other buses and relays every record to every peer."""
+
+    def __init__(self, listener: socket.socket, deliver, send_timeout: float, name: str) -> None:
+        self.listener = listener
+        self.deliver = deliver  # records to the hosting bus itself
+        self.send_timeout = send_timeout
+        self.lock = threading.Lock()
+        #: one sender at a time: records from several threads must not interleave on a socket
+        self.send_lock = threading.Lock()
+        self.peers: dict[socket.socket, _Reader] = {}
+        self.selector = selectors.DefaultSelector()
+        self.selector.register(listener, selectors.EVENT_READ)
+        self.closed = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"loopback-can-hub {name}", daemon=True)
+        self.thread.start()
+
+    def broadcast(self, record: bytes, source: socket.socket | None) -> None:
+        with self.lock:
+            peers = [p for p in self.peers if p is not source]
+        failed = []
+        with self.send_lock:
+            for peer in peers:
+                try:
+                    peer.sendall(record)
+                except OSError:  # it hung up or stopped reading for send_timeout: it leaves the bus
+                    failed.append(peer)
+        for peer in failed:
+            self._drop(peer)
+
+    def _drop(self, peer: socket.socket) -> None:
+        with self.lock:
+            if self.peers.pop(peer, None) is None:
+                return
+        try:
+            self.selector.unregister(peer)
+        except (KeyError, ValueError):
+            pass
+        peer.close()
+
+    def _run(self) -> None:
+        while not self.closed.is_set():
+            try:
+                events = self.selector.select(timeout=0.1)
+            except (OSError, ValueError):  # closed under us
+                break
+            for key, _ in events:
+                sock = key.fileobj
+                if sock is self.listener:
+                    try:
+                        peer, _ = self.listener.accept()
+                    except OSError:
+                        continue
+                    peer.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    peer.settimeout(self.send_timeout)
+                    with self.send_lock:  # on the bus from here: no broadcast falls between the two
+                        with self.lock:
+                            self.peers[peer] = _Reader()
+                        try:
+                            peer.sendall(GREETING)
+                        except OSError:
+                            pass
+                    self.selector.register(peer, selectors.EVENT_READ)
+                    continue
+                try:
+                    chunk = sock.recv(65536)
+                except (OSError, TimeoutError):
+                    chunk = b""
+                if not chunk:
+                    self._drop(sock)
+                    continue
+                reader = self.peers.get(sock)
+                if reader is None:
+                    continue
+                reader.feed(chunk)
+                try:
+                    records = reader.records()
+                except can.CanOperationError:
+                    self._drop(sock)
+                    continue
+                for record in records:
+                    self.deliver(record)
+                    self.broadcast(record, sock)
+
+    def close(self) -> None:
+        self.closed.set()
+        self.thread.join(timeout=2.0)
+        with self.lock:
+            peers = list(self.peers)
+            self.peers.clear()
+        for peer in peers:
+            try:
+                peer.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            peer.close()
+        self.selector.close()
+        self.listener.close()
+
+
+class LoopbackBus(can.BusABC):
+    """A CAN bus shared by the processes of one machine through a hub on the loopback interface.
+
+    :param channel: the hub's port on 127.0.0.1, or ``HOST:PORT`` with a loopback host.
+    :param hub: ``"auto"`` (host the hub if nobody does, else join it), ``"host"`` or ``"join"``.
+    :param receive_own_messages: also receive the frames this bus sends.
+    :param connect_timeout: how long ``join`` waits for a hub to accept (s).
+    :param send_timeout: a peer that does not take a frame within this time is disconnected (s).
+    :param bitrate: the nominal bit rate (only reported: nothing is slowed down).
+    """
+
+    def __init__(
+        self,
+        channel: Any = None,
+        can_filters=None,
+        hub: str = "auto",
+        receive_own_messages: bool = False,
+        connect_timeout: float = 2.0,
+        send_timeout: float = 1.0,
+        bitrate: int = 1_000_000,
+        **kwargs: object,
+    ) -> None:
+        if channel is None:
+            raise LoopbackError("loopback CAN needs a channel: a port on 127.0.0.1, e.g. channel: 43113")
+        if hub not in ("auto", "host", "join"):
+            raise LoopbackError(f"loopback CAN: hub must be auto, host or join, not '{hub}'")
+        self.host, self.port = parse_channel(channel)
+        self.bitrate = bitrate
+        self.receive_own_messages = receive_own_messages
+        self.send_timeout = float(send_timeout)
+        self.channel_info = f"loopback CAN {self._address_text()}"
+        self._send_lock = threading.Lock()
+        self._hub: _Hub | None = None
+        self._rx: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+        self._sock: socket.socket | None = None
+        self._reader = _Reader()
+        self._pending: deque[bytes] = deque()
+        self._hub_closed = False
+
+        listener = None
+        if hub in ("auto", "host"):
+            listener = self._try_listen(required=hub == "host")
+        if listener is not None:
+            self._hub = _Hub(listener, self._rx.put, self.send_timeout, self._address_text())
+            self.role = "host"
+        else:
+            self._sock = self._join(float(connect_timeout))
+            self.role = "join"
+        super().__init__(channel=str(channel), can_filters=can_filters, **kwargs)
+
+    def _address_text(self) -> str:
+        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
+
+    def _try_listen(self, required: bool) -> socket.socket | None:
+        sock = socket.socket(_family(self.host), socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((self.host, self.port))
+            sock.listen(16)
+        except OSError as exc:
+            sock.close()
+            if exc.errno == errno.EADDRINUSE and not required:
+                return None
+            raise LoopbackError(f"cannot host the loopback CAN hub on {self._address_text()}: {exc}") from None
+        return sock
+
+    def _join(self, connect_timeout: float) -> socket.socket:
+        deadline = time.monotonic() + connect_timeout
+        last: OSError | None = None
+        for _ in range(1000):  # bounded: a hub that is still starting refuses for a moment
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                break
+            try:
+                sock = socket.create_connection((self.host, self.port), timeout=remaining)
+            except OSError as exc:
+                last = exc
+                time.sleep(min(0.02, max(0.0, deadline - time.monotonic())))
+                continue
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            greeting = b""
+            try:  # the hub greets a bus once it relays frames to it
+                sock.settimeout(max(0.05, deadline - time.monotonic()))
+                while len(greeting) < len(GREETING):
+                    chunk = sock.recv(len(GREETING) - len(greeting))
+                    if not chunk:
+                        break
+                    greeting += chunk
+            except OSError as exc:
+                last = exc
+            if greeting != GREETING:
+                sock.close()
+                if last is None:
+                    last = OSError(f"port {self.port} answered, but not as a loopback CAN hub")
+                    break
+                continue
+            sock.settimeout(self.send_timeout)
+            return sock
+        raise LoopbackError(
+            f"no loopback CAN hub answers on {self._address_text()} within {connect_timeout:g} s ({last}); "
+            "start the other side first (e.g. surgiplan-sim-drives) or use hub: auto"
+        )
+
+    # ------------------------------------------------------------------ python-can interface
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._is_shutdown:
+            raise can.CanOperationError(f"{self.channel_info} is shut down")
+        record = encode(msg)
+        if self._hub is not None:
+            self._hub.broadcast(record, None)
+        else:
+            with self._send_lock:
+                try:
+                    self._sock.sendall(record)
+                except OSError as exc:
+                    raise can.CanOperationError(
+                        f"{self.channel_info}: the hub is gone ({exc}); its host process ended or stopped reading"
+                    ) from None
+        if self.receive_own_messages:
+            self._rx.put(record)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self._sock is None:  # the host: the hub thread queues what the others send
+            try:
+                record = self._rx.get(timeout=timeout) if timeout is None or timeout > 0 else self._rx.get_nowait()
+            except queue.Empty:
+                return None, False
+            return decode(record, self.channel_info), False
+        # a joined bus: frames of our own (receive_own_messages) first, then the socket
+        try:
+            return decode(self._rx.get_nowait(), self.channel_info), False
+        except queue.Empty:
+            pass
+        if self._pending:
+            return decode(self._pending.popleft(), self.channel_info), False
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            if self._hub_closed:
+                raise can.CanOperationError(f"{self.channel_info}: the hub closed (its host's bus shut down)")
+            remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
+            try:
+                readable, _, _ = select.select([self._sock], [], [], remaining)
+                if not readable:
+                    return None, False
+                chunk = self._sock.recv(65536)
+            except (OSError, ValueError) as exc:
+                if self._is_shutdown:
+                    return None, False
+                raise can.CanOperationError(f"{self.channel_info}: {exc}") from None
+            if not chunk:
+                if self._is_shutdown:
+                    return None, False
+                self._hub_closed = True
+                raise can.CanOperationError(f"{self.channel_info}: the hub closed (its host's bus shut down)")
+            self._reader.feed(chunk)
+            records = self._reader.records()
+            if records:
+                self._pending.extend(records[1:])
+                return decode(records[0], self.channel_info), False
+            if deadline is not None and time.monotonic() >= deadline:
+                return None, False
+
+    def shutdown(self) -> None:
+        if self._is_shutdown:
+            return
+        super().shutdown()
+        if self._hub is not None:
+            self._hub.close()
+        if self._sock is not None:
+            try:
+                self._sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self._sock.close()
+
+    @staticmethod
+    def _detect_available_configs() -> list:
+        return []
