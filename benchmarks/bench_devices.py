@@ -52,9 +52,9 @@ from surgiplan import load_scene
 from surgiplan.devices import Trajectory
 from surgiplan.errors import SurgiplanError
 from surgiplan.geometry.transforms import Pose
-from surgiplan.plugins.devices import CastGimbalDevice
-from surgiplan.plugins.devices.bus import frame_bits, worst_case_bits
-from surgiplan.plugins.devices.kinematics import DifferentialIK, KinematicModel, urdf_path
+from surgiplan.plugins.devices.canopen.bus import frame_bits, worst_case_bits
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
+from surgiplan.plugins.devices.kinematics.model import DifferentialIK, KinematicModel, urdf_path
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -69,7 +69,7 @@ def drives_process(initial):
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    command = [sys.executable, "-m", "surgiplan.plugins.devices.sim_drives", "--device", "cast_gimbal"]
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", "cast_gimbal"]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "0.2", "--initial", *map(str, initial)]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
@@ -220,7 +220,11 @@ def clik(model: pin.Model, data: pin.Data, frame: int, target: pin.SE3, q: np.nd
 def inverse_kinematics(scene, waypoints: int) -> list[dict]:
     rows = []
     space = gimbal_space(scene)
-    gimbal = KinematicModel(urdf_path("cast_gimbal"), "tip", Pose.from_xyz_rpy(FULCRUM["xyz"], FULCRUM["rpy"]))
+    gimbal = KinematicModel(
+        urdf_path("surgiplan.plugins.devices.cast_gimbal", "cast_gimbal"),
+        "tip",
+        Pose.from_xyz_rpy(FULCRUM["xyz"], FULCRUM["rpy"]),
+    )
     tips = np.linspace(GAP_TIPS[0], GAP_TIPS[-1], waypoints)
     ik = DifferentialIK(gimbal)
     qp, _ = median_time(lambda: ik.solve_positions(tips, gimbal.neutral()), repeat=5)
@@ -245,7 +249,11 @@ def inverse_kinematics(scene, waypoints: int) -> list[dict]:
         }
     )
 
-    arm = KinematicModel(urdf_path("gripper6"), "jaws", Pose.from_xyz_rpy(ARM_BASE["xyz"], ARM_BASE["rpy"]))
+    arm = KinematicModel(
+        urdf_path("surgiplan.plugins.devices.gripper6", "gripper6"),
+        "jaws",
+        Pose.from_xyz_rpy(ARM_BASE["xyz"], ARM_BASE["rpy"]),
+    )
     q_path = np.linspace([0.2, 0.3, 0.8, 0.1, 0.9, -0.2], [-0.4, 0.5, 0.4, -0.3, 1.2, 0.6], waypoints)
     poses = arm.tip_poses(q_path)
     arm_ik = DifferentialIK(arm)

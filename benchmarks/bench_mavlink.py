@@ -42,11 +42,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import save, table
 from surgiplan import load_pipeline, run_pipeline
-from surgiplan.plugins.devices.mavlink_gcs import GroundStation
-from surgiplan.plugins.devices.mavlink_link import Endpoint, VehicleError, mavlink
-from surgiplan.plugins.devices.mavlink_mission import MissionItem
-from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle
-from surgiplan.plugins.devices.mavlink_sim_settings import SimSettings
+from surgiplan.plugins.devices.mavlink.gcs import GroundStation
+from surgiplan.plugins.devices.mavlink.link import Endpoint, VehicleError, mavlink
+from surgiplan.plugins.devices.mavlink.mission import MissionItem
+from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
+from surgiplan.plugins.devices.mavlink.sim.vehicle import SimulatedVehicle
 
 ROOT = Path(__file__).resolve().parent.parent
 ITEM_TIMEOUT, COUNT_TIMEOUT = 0.25, 1.5

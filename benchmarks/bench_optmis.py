@@ -54,13 +54,13 @@ from common import RESULTS, save, table
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from surgiplan import LocalExecutor, PlanningProblem, load_scene
-from surgiplan.plugins.planners.optmis import search_between
-from surgiplan.plugins.planners.optmis_offline import OptMISSettings, run_offline
-from surgiplan.plugins.planners.optmis_paths import PathOptions
-from surgiplan.plugins.planners.optmis_repository import build_repository
-from surgiplan.plugins.planners.pathmap import build_pathmap, reconstruction_error
-from surgiplan.plugins.planners.pathmap_report import PAPER_M, table1, write_report
-from surgiplan.plugins.planners.segmented_astar import SegmentedAStar, SegmentedAStarSettings
+from surgiplan.plugins.planners.optmis.offline import OptMISSettings, run_offline
+from surgiplan.plugins.planners.optmis.paths import PathOptions
+from surgiplan.plugins.planners.optmis.planner import search_between
+from surgiplan.plugins.planners.optmis.repository import build_repository
+from surgiplan.plugins.planners.segmented_astar.pathmap import build_pathmap, reconstruction_error
+from surgiplan.plugins.planners.segmented_astar.report import PAPER_M, table1, write_report
+from surgiplan.plugins.planners.segmented_astar.search import SegmentedAStar, SegmentedAStarSettings
 from surgiplan.spaces import R3Space
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -130,7 +130,7 @@ def visibility_reference(space, pois: np.ndarray, spacing: float = 0.002) -> np.
 
 
 def rrt_star_reference(scene, space, pairs, pois, seconds: float):
-    from surgiplan.plugins.planners.ompl_bridge import OmplPlanner, OmplSettings
+    from surgiplan.plugins.planners.ompl_bridge.bridge import OmplPlanner, OmplSettings
 
     planner = OmplPlanner(OmplSettings(planner="RRTstar", time_limit=seconds, seed=1, simplify=True))
     session = planner.build(PlanningProblem(scene, space))
@@ -186,7 +186,7 @@ def online(scene, space, repository, graph, pairs_count: int, rng):
         search_between(space, graph, a, b, settings)
         t_search.append(time.perf_counter() - t0)
     rows["search"] = np.array(t_search)
-    from surgiplan.plugins.planners.ompl_bridge import OmplPlanner, OmplSettings
+    from surgiplan.plugins.planners.ompl_bridge.bridge import OmplPlanner, OmplSettings
 
     ompl = OmplPlanner(OmplSettings(planner="RRTConnect", time_limit=5.0, seed=1, simplify=True))
     session = ompl.build(PlanningProblem(scene, space))
@@ -348,7 +348,7 @@ def main() -> None:
     print(table(sweep, list(sweep[0])))
 
     # 6. Fig. 6: A = p66 -> B = p41, after 60 % of the way a new goal C = p73 (the planner draws it)
-    from surgiplan.plugins.planners.segmented_astar import ReplanSettings
+    from surgiplan.plugins.planners.segmented_astar.search import ReplanSettings
 
     figure = RESULTS / "optmis_replanning.png"
     fig6 = SegmentedAStar(SegmentedAStarSettings(replan=ReplanSettings(goal="p73", at=0.6, figure=str(figure))))

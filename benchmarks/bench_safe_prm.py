@@ -35,8 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from common import save, table
 from helpers import coal_scene_segment_distance
 from surgiplan import PlanningProblem, load_scene
-from surgiplan.plugins.planners import prm_query
-from surgiplan.plugins.planners.safe_prm import SafePRM, SafePRMSettings
+from surgiplan.plugins.planners.safe_prm import query as prm_query
+from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
 from surgiplan.spaces import R3Space
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -82,7 +82,7 @@ def run_safe_prm(scene, space, milestones, seed, level):
 
 
 def run_ompl(scene, space, milestones, margin):
-    from surgiplan.plugins.planners.ompl_bridge import OmplPlanner, OmplSettings
+    from surgiplan.plugins.planners.ompl_bridge.bridge import OmplPlanner, OmplSettings
 
     start, goal = scene.points["entry"], scene.points["target"]
     motion = "discrete" if margin == 0 else "certified"

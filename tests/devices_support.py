@@ -60,7 +60,7 @@ def active(device_cls, settings: dict, scene, tmp_path: Path):
 @contextlib.contextmanager
 def configured_gimbal(scene, tmp_path: Path, settings: dict | None = None):
     """A configured (inactive) cast_gimbal on the simulated bus, fulcrum FULCRUM."""
-    from surgiplan.plugins.devices import CastGimbalDevice
+    from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
 
     device = CastGimbalDevice(_settings(CastGimbalDevice, {"fulcrum": FULCRUM, **(settings or {})}))
     try:
@@ -99,7 +99,7 @@ def execute(device_cls, settings: dict, path, space, scene, tmp_path: Path):
 
 
 def _read_positions(device):
-    from surgiplan.plugins.devices.bus import BusError
+    from surgiplan.plugins.devices.canopen.bus import BusError
 
     try:
         return device.joint_positions()
@@ -108,7 +108,7 @@ def _read_positions(device):
 
 
 def simulator_state(simulator, i: int) -> str:
-    from surgiplan.plugins.devices import drives
+    from surgiplan.plugins.devices.canopen import drives
 
     return drives._STATES[simulator.state[i]]
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from surgiplan.plugins.devices.can_loopback import LoopbackError, parse_channel
+from surgiplan.plugins.devices.canopen.loopback import LoopbackError, parse_channel
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -50,9 +50,10 @@ def test_every_bus_on_a_channel_receives_every_other_buss_frames_in_order_and_no
 
 def test_frame_fields_survive_the_trip():
     port = free_port()
-    with can.Bus(interface="loopback", channel=f"127.0.0.1:{port}") as a, can.Bus(
-        interface="loopback", channel=str(port), receive_own_messages=True
-    ) as b:
+    with (
+        can.Bus(interface="loopback", channel=f"127.0.0.1:{port}") as a,
+        can.Bus(interface="loopback", channel=str(port), receive_own_messages=True) as b,
+    ):
         sent = [
             frame(0x7FF, bytes(range(8))),
             frame(0x1ABCDEF0, b"\x01", is_extended_id=True),
@@ -182,9 +183,7 @@ def test_device_tests_pass_in_a_network_namespace_with_only_loopback():
         f"exec {sys.executable} -m pytest -q -p no:cacheprovider "
         "tests/test_devices_realtime.py tests/test_can_loopback.py -k 'not namespace'"
     )
-    result = subprocess.run(
-        [unshare, "-rn", "sh", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
+    result = subprocess.run([unshare, "-rn", "sh", "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert result.returncode != 97, "the namespace has an interface besides lo"
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert " passed" in result.stdout and "failed" not in result.stdout

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from devices_support import reference_frame_bits
 from pydantic import ValidationError
-from surgiplan.plugins.devices.bus import (
+from surgiplan.plugins.devices.canopen.bus import (
     ArmedFaults,
     BusError,
     BusSettings,

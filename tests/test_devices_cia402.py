@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from surgiplan.plugins.devices import cia402
+from surgiplan.plugins.devices.canopen import cia402
 
 # CiA 402-2 (IEC 61800-7-201) Table 28: statusword bits 0-3, 5, 6 per state, as (mask, value) written
 # from the standard's "xxxx xxxx x0xx 0000"-style patterns, not from canopen or the code under test

@@ -11,7 +11,7 @@ import struct
 import numpy as np
 import pytest
 from devices_support import configured_gimbal
-from surgiplan.plugins.devices import cia402
+from surgiplan.plugins.devices.canopen import cia402
 
 
 @pytest.fixture
@@ -134,7 +134,7 @@ def test_motor_respects_its_velocity_and_current_limits_and_faults_on_following_
 
 
 def simulator_state(device, i):
-    from surgiplan.plugins.devices import drives
+    from surgiplan.plugins.devices.canopen import drives
 
     return drives._STATES[device.simulator.state[i]]
 

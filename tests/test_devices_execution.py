@@ -19,7 +19,8 @@ from devices_support import (
 )
 from helpers import coal_scene_segment_distance
 from scipy.spatial.transform import Rotation
-from surgiplan.plugins.devices import CastGimbalDevice, Gripper6Device
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
+from surgiplan.plugins.devices.gripper6 import Gripper6Device
 from surgiplan.spaces import R3Space, SE3Settings, SE3Space
 
 GIMBAL = {"fulcrum": FULCRUM}

@@ -11,9 +11,9 @@ import pytest
 from conftest import CONFIGS
 from devices_support import FULCRUM, GAP_TIPS, active, context, execute, gimbal_path, gimbal_space
 from surgiplan.devices import LifecycleState, Trajectory
-from surgiplan.plugins.devices import CastGimbalDevice
-from surgiplan.plugins.devices import cia402 as p402
-from surgiplan.plugins.devices.bus import BusError
+from surgiplan.plugins.devices.canopen import cia402 as p402
+from surgiplan.plugins.devices.canopen.bus import BusError
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
 
 STOPPED = {p402.QUICK_STOP_ACTIVE, p402.FAULT, p402.SWITCH_ON_DISABLED}
 

@@ -8,16 +8,24 @@ import pytest
 from devices_support import ARM_BASE, FULCRUM, gimbal_space, urdf_forward_kinematics
 from scipy.spatial.transform import Rotation
 from surgiplan.geometry.transforms import Pose
-from surgiplan.plugins.devices.kinematics import DifferentialIK, KinematicModel, urdf_path
+from surgiplan.plugins.devices.kinematics.model import DifferentialIK, KinematicModel, urdf_path
 from surgiplan.spaces import CastGimbalSettings
 
 
 def gimbal_model(fulcrum=FULCRUM) -> KinematicModel:
-    return KinematicModel(urdf_path("cast_gimbal"), "tip", Pose.from_xyz_rpy(fulcrum["xyz"], fulcrum["rpy"]))
+    return KinematicModel(
+        urdf_path("surgiplan.plugins.devices.cast_gimbal", "cast_gimbal"),
+        "tip",
+        Pose.from_xyz_rpy(fulcrum["xyz"], fulcrum["rpy"]),
+    )
 
 
 def arm_model() -> KinematicModel:
-    return KinematicModel(urdf_path("gripper6"), "jaws", Pose.from_xyz_rpy(ARM_BASE["xyz"], ARM_BASE["rpy"]))
+    return KinematicModel(
+        urdf_path("surgiplan.plugins.devices.gripper6", "gripper6"),
+        "jaws",
+        Pose.from_xyz_rpy(ARM_BASE["xyz"], ARM_BASE["rpy"]),
+    )
 
 
 @pytest.mark.parametrize(
@@ -80,7 +88,7 @@ def test_arm_forward_kinematics_matches_the_urdf_composed_by_hand(rng):
     poses = model.tip_poses(q)
     for qi, pose in zip(q, poses, strict=True):
         position, rotation = urdf_forward_kinematics(
-            urdf_path("gripper6"), "jaws", qi, ARM_BASE["xyz"], ARM_BASE["rpy"]
+            urdf_path("surgiplan.plugins.devices.gripper6", "gripper6"), "jaws", qi, ARM_BASE["xyz"], ARM_BASE["rpy"]
         )
         np.testing.assert_allclose(pose[:3], position, atol=1e-12)
         np.testing.assert_allclose(Rotation.from_quat(pose[3:]).as_matrix(), rotation, atol=1e-12)
@@ -180,12 +188,13 @@ def test_urdf_files_ship_as_package_data_and_load_through_importlib_resources():
 
     root = Path(__file__).resolve().parent.parent
     config = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
-    assert "surgiplan.plugins.devices.urdf" in config["packages"]
-    patterns = config["package-data"]["surgiplan.plugins.devices.urdf"]
-    shipped = sorted(p.name for p in (root / "plugins" / "devices" / "urdf").iterdir())
-    assert shipped == ["cast_gimbal.urdf", "gripper6.urdf"]
-    assert all(any(fnmatch.fnmatch(name, p) for p in patterns) for name in shipped)
     for name in ("cast_gimbal", "gripper6"):
-        path = urdf_path(name)
+        package = f"surgiplan.plugins.devices.{name}"
+        assert package in config["packages"]
+        patterns = config["package-data"][package]
+        shipped = sorted(p.name for p in (root / "plugins" / "devices" / name / "urdf").iterdir())
+        assert shipped == [f"{name}.urdf"]
+        assert all(any(fnmatch.fnmatch(f"urdf/{file}", p) for p in patterns) for file in shipped)
+        path = urdf_path(package, name)
         assert path.is_file() and path.parent.name == "urdf"
         assert pin.buildModelFromUrdf(str(path)).nq in (4, 6)

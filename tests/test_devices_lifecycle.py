@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from devices_support import FULCRUM, GAP_TIPS, context, gimbal_path, gimbal_space
 from surgiplan.devices import LifecycleError, LifecycleState, Trajectory
-from surgiplan.plugins.devices import CastGimbalDevice, Gripper6Device
-from surgiplan.plugins.devices.bus import BusError
-from surgiplan.plugins.devices.cia402 import OPERATION_ENABLED, READY, SWITCH_ON_DISABLED
+from surgiplan.plugins.devices.canopen.bus import BusError
+from surgiplan.plugins.devices.canopen.cia402 import OPERATION_ENABLED, READY, SWITCH_ON_DISABLED
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
+from surgiplan.plugins.devices.gripper6 import Gripper6Device
 
 START = [0.0, 0.6, 0.12, 0.0]
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
 from surgiplan.devices import Trajectory
-from surgiplan.plugins.devices import CastGimbalDevice
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
 
 #: lenient supervision for a shared, loaded machine, where a process may be descheduled for tens of
 #: milliseconds: 100 Hz, a third of the speed limits, 0.3 s without TPDO, 1 s heartbeats, and a
@@ -64,7 +64,7 @@ def test_drives_in_another_process_over_the_loopback_bus_with_the_real_hardware_
     space = gimbal_space(block_world)
     path = gimbal_path(space, GAP_TIPS)
     port = _free_port()
-    command = [sys.executable, "-m", "surgiplan.plugins.devices.sim_drives", "--device", "cast_gimbal"]
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", "cast_gimbal"]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "0.5", "--initial", *map(str, path[0])]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from surgiplan.plugins.devices.timing import time_parameterize
+from surgiplan.plugins.devices.canopen.timing import time_parameterize
 
 
 def trapezoid_duration(distance: float, vmax: float, amax: float) -> float:

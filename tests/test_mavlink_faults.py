@@ -20,8 +20,8 @@ from conftest import CONFIGS
 from helpers import coal_scene_segment_distance
 from surgiplan import load_pipeline, load_scene, run_pipeline
 from surgiplan.errors import SurgiplanError
-from surgiplan.plugins.devices.mavlink_link import mavlink
-from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle
+from surgiplan.plugins.devices.mavlink.link import mavlink
+from surgiplan.plugins.devices.mavlink.sim.vehicle import SimulatedVehicle
 from test_mavlink_vehicle import HALL, RADIUS, ground_truth, session_file
 
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from surgiplan.plugins.devices.mavlink_conventions import (
+from surgiplan.plugins.devices.mavlink.conventions import (
     EARTH_RADIUS,
     PX4_MODES,
     LocalFrame,
@@ -18,9 +18,9 @@ from surgiplan.plugins.devices.mavlink_conventions import (
     px4_mode_from_command,
     px4_mode_name,
 )
-from surgiplan.plugins.devices.mavlink_profile import TimedPath
-from surgiplan.plugins.devices.mavlink_sim_model import PointMassMultirotor
-from surgiplan.plugins.devices.mavlink_sim_settings import Airframe, Wind
+from surgiplan.plugins.devices.mavlink.profile import TimedPath
+from surgiplan.plugins.devices.mavlink.sim.model import PointMassMultirotor
+from surgiplan.plugins.devices.mavlink.sim.settings import Airframe, Wind
 
 
 def dense_polyline(points: np.ndarray, spacing: float) -> np.ndarray:

@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 import pytest
-from surgiplan.plugins.devices.mavlink_gcs import CommandTransaction
-from surgiplan.plugins.devices.mavlink_link import enum_value, mavlink, signing_key
-from surgiplan.plugins.devices.mavlink_mission import (
+from surgiplan.plugins.devices.mavlink.gcs import CommandTransaction
+from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_key
+from surgiplan.plugins.devices.mavlink.mission import (
     MissionItem,
     MissionReceiver,
     MissionUpload,

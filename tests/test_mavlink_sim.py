@@ -10,18 +10,18 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from surgiplan.plugins.devices.mavlink_conventions import EARTH_RADIUS, LocalFrame, MapProjection
-from surgiplan.plugins.devices.mavlink_flight import Flight, Route
-from surgiplan.plugins.devices.mavlink_gcs import GroundStation
-from surgiplan.plugins.devices.mavlink_link import Endpoint, VehicleError, mavlink, signing_key
-from surgiplan.plugins.devices.mavlink_mission import MissionItem
-from surgiplan.plugins.devices.mavlink_profile import TimedPath
-from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle, main
-from surgiplan.plugins.devices.mavlink_sim_model import PointMassMultirotor
-from surgiplan.plugins.devices.mavlink_sim_offboard import OffboardSetpoints, Setpoint
-from surgiplan.plugins.devices.mavlink_sim_settings import SimSettings
-from surgiplan.plugins.devices.mavlink_stream import SetpointStream
-from surgiplan.plugins.devices.mavlink_vehicle import MavlinkVehicleSettings
+from surgiplan.plugins.devices.mavlink.conventions import EARTH_RADIUS, LocalFrame, MapProjection
+from surgiplan.plugins.devices.mavlink.device import MavlinkVehicleSettings
+from surgiplan.plugins.devices.mavlink.flight import Flight, Route
+from surgiplan.plugins.devices.mavlink.gcs import GroundStation
+from surgiplan.plugins.devices.mavlink.link import Endpoint, VehicleError, mavlink, signing_key
+from surgiplan.plugins.devices.mavlink.mission import MissionItem
+from surgiplan.plugins.devices.mavlink.profile import TimedPath
+from surgiplan.plugins.devices.mavlink.sim.model import PointMassMultirotor
+from surgiplan.plugins.devices.mavlink.sim.offboard import OffboardSetpoints, Setpoint
+from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
+from surgiplan.plugins.devices.mavlink.sim.vehicle import SimulatedVehicle, main
+from surgiplan.plugins.devices.mavlink.stream import SetpointStream
 from surgiplan.progress import NullProgress
 
 
@@ -104,7 +104,7 @@ def test_global_mission_items_land_on_the_local_points_they_were_made_from():
 
 def test_signing_key_reaches_the_simulated_vehicle_from_the_device_settings():
     settings = MavlinkVehicleSettings.model_validate({"signing": {"key": "shared secret"}})
-    from surgiplan.plugins.devices.mavlink_vehicle import MavlinkVehicle
+    from surgiplan.plugins.devices.mavlink.device import MavlinkVehicle
 
     sim = MavlinkVehicle(settings)._sim_settings()
     assert sim.signing_key == "shared secret"

@@ -21,11 +21,11 @@ from helpers import coal_scene_segment_distance, coal_segment_distance
 from scipy.spatial import cKDTree
 from surgiplan import load_pipeline, load_scene, run_pipeline
 from surgiplan.errors import ConfigError, SurgiplanError
-from surgiplan.plugins.devices.mavlink_conventions import LocalFrame
-from surgiplan.plugins.devices.mavlink_gcs import GroundStation
-from surgiplan.plugins.devices.mavlink_link import Endpoint, VehicleError, mavlink
-from surgiplan.plugins.devices.mavlink_sim import SimulatedVehicle
-from surgiplan.plugins.devices.mavlink_sim_settings import SimSettings
+from surgiplan.plugins.devices.mavlink.conventions import LocalFrame
+from surgiplan.plugins.devices.mavlink.gcs import GroundStation
+from surgiplan.plugins.devices.mavlink.link import Endpoint, VehicleError, mavlink
+from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
+from surgiplan.plugins.devices.mavlink.sim.vehicle import SimulatedVehicle
 from surgiplan.registry import default_registry
 
 HALL = CONFIGS / "scenes" / "hall.yaml"
@@ -346,7 +346,7 @@ def test_paths_of_other_spaces_are_refused_with_the_reason():
     from types import SimpleNamespace
 
     from surgiplan.devices import Trajectory
-    from surgiplan.plugins.devices.mavlink_vehicle import MavlinkVehicle
+    from surgiplan.plugins.devices.mavlink.device import MavlinkVehicle
 
     device = MavlinkVehicle(MavlinkVehicle.Settings())
     gimbal = SimpleNamespace(kind="cast_gimbal")

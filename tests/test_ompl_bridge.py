@@ -14,7 +14,7 @@ from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace, R3Space, SE3Se
 pytest.importorskip("ompl")
 pytestmark = pytest.mark.ompl
 
-from surgiplan.plugins.planners.ompl_bridge import OmplPlanner, OmplSettings  # noqa: E402
+from surgiplan.plugins.planners.ompl_bridge.bridge import OmplPlanner, OmplSettings  # noqa: E402
 
 
 def plan(space, start, goal, **settings):

@@ -13,10 +13,11 @@ import pytest
 from helpers import coal_scene_point_distance, coal_scene_segment_distance
 from surgiplan import InlineExecutor, LocalExecutor, PlanningProblem
 from surgiplan.errors import PlanningInputError
-from surgiplan.plugins.planners import optmis_graph, optmis_repository
-from surgiplan.plugins.planners.optmis import OptMIS
-from surgiplan.plugins.planners.optmis_offline import OptMISSettings, run_offline
-from surgiplan.plugins.planners.spline_paths import CHORD, GLOBAL, smooth_paths
+from surgiplan.paths.splines import CHORD, GLOBAL, smooth_paths
+from surgiplan.plugins.planners.optmis import repository as optmis_repository
+from surgiplan.plugins.planners.optmis import search_space as optmis_graph
+from surgiplan.plugins.planners.optmis.offline import OptMISSettings, run_offline
+from surgiplan.plugins.planners.optmis.planner import OptMIS
 from surgiplan.scene import Scene
 from surgiplan.spaces import R3Space
 from test_optmis_support import MM, SETTINGS, TIP_RADIUS, box, offline, polyline_length, problem, small_world, space
@@ -24,7 +25,7 @@ from test_optmis_support import MM, SETTINGS, TIP_RADIUS, box, offline, polyline
 
 def optmis_planner():
     """The optmis planner and its artifact for the small world (the cached offline build)."""
-    from surgiplan.plugins.planners.optmis import OptMISArtifact
+    from surgiplan.plugins.planners.optmis.planner import OptMISArtifact
 
     result = offline()
     return OptMIS(OptMISSettings(**SETTINGS)), OptMISArtifact(result.graph, result.repository, space())

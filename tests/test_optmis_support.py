@@ -68,7 +68,7 @@ def problem(workdir=None, executor=None, scene=None) -> PlanningProblem:
 @functools.cache
 def offline():
     """The search space and repository of the small world (built once)."""
-    from surgiplan.plugins.planners.optmis_offline import OptMISSettings, run_offline
+    from surgiplan.plugins.planners.optmis.offline import OptMISSettings, run_offline
 
     return run_offline(problem(), OptMISSettings(**SETTINGS))
 
@@ -76,8 +76,8 @@ def offline():
 @functools.cache
 def pathmap_artifact():
     """The segmented_astar artifact of the small world (pathmap and online graph)."""
-    from surgiplan.plugins.planners.pathmap import build_pathmap
-    from surgiplan.plugins.planners.segmented_astar import SegmentedAStar
+    from surgiplan.plugins.planners.segmented_astar.pathmap import build_pathmap
+    from surgiplan.plugins.planners.segmented_astar.search import SegmentedAStar
 
     result = offline()
     pathmap = build_pathmap(result.repository, space(), n_s=3)

@@ -8,15 +8,15 @@ import os
 import numpy as np
 import pytest
 from helpers import coal_scene_segment_distance
-from surgiplan.plugins.planners.optmis_repository import Repository
-from surgiplan.plugins.planners.pathmap import (
+from surgiplan.plugins.planners.optmis.repository import Repository
+from surgiplan.plugins.planners.segmented_astar.graph import pathmap_edges
+from surgiplan.plugins.planners.segmented_astar.pathmap import (
     _candidate_pairs,
     build_pathmap,
     reconstruction_error,
     segment_instances,
 )
-from surgiplan.plugins.planners.pathmap_report import table1, write_report
-from surgiplan.plugins.planners.segmented_graph import pathmap_edges
+from surgiplan.plugins.planners.segmented_astar.report import table1, write_report
 from test_optmis_support import TIP_RADIUS, offline, small_world, space
 
 W_TIP = 2 * TIP_RADIUS
@@ -147,7 +147,7 @@ def test_table1_report_sizes_are_the_bytes_on_disk(tmp_path):
 
 
 def test_artifact_round_trip_keeps_the_pathmap():
-    from surgiplan.plugins.planners.pathmap import SegmentedPathmap
+    from surgiplan.plugins.planners.segmented_astar.pathmap import SegmentedPathmap
     from surgiplan.storage import to_jsonable
 
     repository = offline().repository

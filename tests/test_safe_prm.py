@@ -12,8 +12,8 @@ from helpers import coal_scene_segment_distance, dense_min_clearance
 from surgiplan import PlanningProblem
 from surgiplan.geometry.shapes import Box
 from surgiplan.geometry.transforms import Pose
-from surgiplan.plugins.planners.prm_roadmap import UnionFind
-from surgiplan.plugins.planners.safe_prm import SafePRM, SafePRMSettings
+from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
+from surgiplan.plugins.planners.safe_prm.roadmap import UnionFind
 from surgiplan.scene import Scene
 from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace, R3Space
 

@@ -9,7 +9,7 @@ import pytest
 from helpers import coal_scene_segment_distance
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
-from surgiplan.plugins.planners.segmented_astar import ReplanSettings, SegmentedAStar, SegmentedAStarSettings
+from surgiplan.plugins.planners.segmented_astar.search import ReplanSettings, SegmentedAStar, SegmentedAStarSettings
 from test_optmis_support import (
     MM,
     POINTS_MM,
@@ -229,7 +229,7 @@ def test_offline_and_online_pipelines_from_the_command_line(tmp_path, cli):
     assert (out / "table1" / "table1.csv").is_file() and (out / "table1" / "table1.png").is_file()
     # the segmented_astar stage reused the optmis stage's all-pairs work
     work = list((out / ".work").glob("optmis-*"))
-    from surgiplan.plugins.planners.optmis_repository import source_groups
+    from surgiplan.plugins.planners.optmis.repository import source_groups
 
     assert len(work) == 1 and len(list((work[0] / "paths").glob("*.npz"))) == len(source_groups(9, 4))
     # a second run loads both artifacts instead of building

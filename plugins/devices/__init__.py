@@ -1,33 +1,15 @@
-"""Built-in device plugins: ``cast_gimbal`` and ``gripper6``, CiA 402 drives over CAN.
+"""surgiplan's device plugins, one package per device family.
 
-Modules: :mod:`.kinematics` (Pinocchio models, QP inverse kinematics),
-:mod:`.timing` (time-optimal parameterisation), :mod:`.cia402` (the drive
-profile), :mod:`.bus` (transport, fault injection, bus load),
-:mod:`.network` and :mod:`.clock` (simulated clock), :mod:`.drives`
-(simulated drives; :mod:`.sim_drives` runs them in a process of their own),
-:mod:`.master` (CANopen master), :mod:`.control` (the supervised control
-loop), :mod:`.settings` and :mod:`.device` (settings, lifecycle and
-execution), :mod:`.execution_report` (metrics, figure, log),
-:mod:`.cast_gimbal` and :mod:`.gripper6` (the devices).
+* :mod:`.canopen` — the CANopen layer (CiA 301/402): bus transports (the
+  loopback interface for drives in another process), the master, the
+  supervised control loop, simulated drives, timing; the base class of
+  devices whose joints are CiA 402 drives. Registers no plugin.
+* :mod:`.kinematics` — Pinocchio models from URDF and QP inverse kinematics.
+* :mod:`.cast_gimbal` — the CAST laparoscopic gimbal (``cast_gimbal``).
+* :mod:`.gripper6` — a 6-DOF gripper arm (``gripper6``).
+* :mod:`.mavlink` — a MAVLink 2 vehicle (``mavlink_vehicle``, the ground
+  station side); :mod:`.mavlink.sim` the simulated PX4-like vehicle.
+
+Layers (the import contracts in ``pyproject.toml``): cast_gimbal and
+gripper6 build on canopen, which builds on kinematics; mavlink stands alone.
 """
-
-from surgiplan.hookspecs import PluginSpec, hookimpl
-
-from .cast_gimbal import CastGimbalDevice
-from .gripper6 import Gripper6Device
-
-__all__ = ["CastGimbalDevice", "Gripper6Device"]
-
-
-@hookimpl
-def surgiplan_register_devices():
-    return [
-        PluginSpec(
-            "cast_gimbal",
-            CastGimbalDevice,
-            "CAST laparoscopic gimbal (yaw, pitch, insertion, roll): 4 CiA 402 drives over CAN",
-        ),
-        PluginSpec(
-            "gripper6", Gripper6Device, "6R arm with a spherical wrist and a gripper: 6 CiA 402 drives over CAN"
-        ),
-    ]

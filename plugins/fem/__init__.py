@@ -1,6 +1,8 @@
-"""Built-in deformable-model plugins: ``stvk``, nonlinear St. Venant-Kirchhoff tetrahedral FEM.
+"""``stvk``: nonlinear St. Venant-Kirchhoff tetrahedral FEM, the deformable-model plugin.
 
-Patil & Alterovitz (paper 002, §V) compute static equilibria of a tissue
+S. Patil and R. Alterovitz, "Automated tissue retraction for robot-assisted
+surgical procedures" (paper 002; published as "Toward automated tissue
+retraction in robot-assisted surgery", IEEE ICRA 2010), §IV-D and §V, compute static equilibria of a tissue
 flap with a nonlinear StVK finite element model; the ``retraction`` planner
 calls this model for every sampled gripper pose. Modules:
 
@@ -12,8 +14,9 @@ calls this model for every sampled gripper pose. Modules:
 * :mod:`.assembly` — the sparse tangent by precomputed index arrays, SuperLU;
 * :mod:`.newton` — Newton's method with predictor, line search, stopping rules;
 * :mod:`.intersection` — self-intersection of the deformed surface;
-* :mod:`.model` — :class:`StVKModel`, the public API;
-* :mod:`.stage` — the ``simulate`` stage: one equilibrium or quasi-static steps, ``.vtu``/``.pvd``;
+* :mod:`.model` — :class:`StVKModel`, the public API (what planners use; it imports no stage code);
+* :mod:`.stage` — the ``simulate`` stage (one equilibrium or quasi-static steps, ``.vtu``/``.pvd``)
+  and :class:`StVK`, the registered plugin: the model plus its stage;
 * :mod:`.tasks` — equilibria in worker processes (``run_tasks``);
 * :mod:`.output` — ``.vtu`` files.
 """
@@ -25,8 +28,9 @@ from surgiplan.hookspecs import PluginSpec, hookimpl
 from .mesh import TetMesh, box_mesh, read_tet_mesh
 from .model import AxisConstraints, StVKModel
 from .settings import StVKSettings
+from .stage import StVK
 
-__all__ = ["AxisConstraints", "StVKModel", "StVKSettings", "TetMesh", "box_mesh", "read_tet_mesh"]
+__all__ = ["AxisConstraints", "StVK", "StVKModel", "StVKSettings", "TetMesh", "box_mesh", "read_tet_mesh"]
 
 
 @hookimpl
@@ -34,7 +38,7 @@ def surgiplan_register_deformable_models():
     return [
         PluginSpec(
             "stvk",
-            StVKModel,
+            StVK,
             "nonlinear St. Venant-Kirchhoff tetrahedral FEM: static equilibria of grasped tissue (paper 002 §V)",
         )
     ]

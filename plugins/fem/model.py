@@ -76,10 +76,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from surgiplan.deformable import Constraints, DeformableModel, EquilibriumState
 from surgiplan.errors import ConfigError
 from surgiplan.geometry.transforms import Pose
-from surgiplan.results import StageContext, StageResult
 
 from .assembly import TangentPattern
 from .intersection import self_intersections
@@ -88,7 +88,6 @@ from .material import ImageMap, MaterialField
 from .mesh import TetMesh, box_mesh, read_tet_mesh, tetrahedralize_surface
 from .newton import CachedFactor, EquilibriumSolver, NewtonResult, SolverOptions
 from .settings import RegionModel, StVKSettings
-from .stage import run_simulate_stage, stage_constraints
 from .stvk import StVKElements
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -317,10 +316,24 @@ class StVKModel(DeformableModel):
     def stage_constraints(self, fraction: float = 1.0) -> AxisConstraints:
         """Everything the settings prescribe: anchors, the grasp's transform, dead loads.
 
-        ``fraction`` (0 to 1) of the grasp's motion and of the dead loads, as
-        the ``steps`` of a simulate stage apply them.
+        ``fraction`` (0 to 1) of the grasp's motion (rotation by slerp about the
+        pivot, translation linearly) and of the dead loads, as the ``steps`` of a
+        simulate stage apply them.
         """
-        return stage_constraints(self, fraction)
+        settings = self.settings
+        grasp = settings.grasp
+        if grasp is None:
+            constraints = self.grasp_constraints(np.empty(0, dtype=np.int64))
+        else:
+            nodes = self.grasped_nodes()
+            pose = grasp.transform.to_pose()
+            rotation = Rotation.from_rotvec(fraction * Rotation.from_matrix(pose.rotation).as_rotvec()).as_matrix()
+            pivot = np.asarray(grasp.pivot) if grasp.pivot is not None else self.mesh.nodes[nodes].mean(axis=0)
+            translation = pivot + fraction * np.asarray(pose.translation) - rotation @ pivot
+            constraints = self.grasp_constraints(nodes, (rotation, translation))
+        if constraints.external_forces is not None:
+            constraints.external_forces = fraction * constraints.external_forces
+        return constraints
 
     def _prescribed(self, constraints: Constraints) -> tuple[np.ndarray, np.ndarray]:
         n = self.mesh.n_nodes
@@ -499,8 +512,3 @@ class StVKModel(DeformableModel):
             },
             reaction_forces=reactions[nodes] if grad is not None else None,
         )
-
-    # ------------------------------------------------------------------ the simulate stage
-    def run_stage(self, context: StageContext) -> StageResult:
-        """The equilibrium (or, with ``steps``, the sequence) the settings describe; see :mod:`.stage`."""
-        return run_simulate_stage(self, context)

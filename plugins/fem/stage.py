@@ -25,39 +25,17 @@ gripper apply), ``held`` (1 on prescribed nodes); cell data:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from surgiplan.deformable import EquilibriumState
 from surgiplan.errors import ConfigError
 from surgiplan.results import StageContext, StageResult
 from surgiplan.storage import write_text_atomic
 
 from .figure import stage_figure
+from .model import StVKModel
 from .output import write_vtu
-
-if TYPE_CHECKING:
-    from .model import AxisConstraints, StVKModel
-
-
-def stage_constraints(model: StVKModel, fraction: float = 1.0) -> AxisConstraints:
-    """Anchors, the grasp moved by ``fraction`` of its transform and ``fraction`` of the dead loads."""
-    settings = model.settings
-    grasp = settings.grasp
-    if grasp is None:
-        constraints = model.grasp_constraints(np.empty(0, dtype=np.int64))
-    else:
-        nodes = model.grasped_nodes()
-        pose = grasp.transform.to_pose()
-        rotation = Rotation.from_rotvec(fraction * Rotation.from_matrix(pose.rotation).as_rotvec()).as_matrix()
-        pivot = np.asarray(grasp.pivot) if grasp.pivot is not None else model.mesh.nodes[nodes].mean(axis=0)
-        translation = pivot + fraction * np.asarray(pose.translation) - rotation @ pivot
-        constraints = model.grasp_constraints(nodes, (rotation, translation))
-    if constraints.external_forces is not None:
-        constraints.external_forces = fraction * constraints.external_forces
-    return constraints
 
 
 def _write_state(model: StVKModel, path: Path, state: EquilibriumState) -> None:
@@ -102,7 +80,7 @@ def run_simulate_stage(model: StVKModel, context: StageContext) -> StageResult:
         f"{name}: static equilibrium" + (f", {steps} steps" if steps > 1 else ""), total=len(fractions)
     ) as task:
         for k, fraction in enumerate(fractions):
-            state = model.solve(stage_constraints(model, float(fraction)), initial=state)
+            state = model.solve(model.stage_constraints(float(fraction)), initial=state)
             history.append(state)
             if steps > 1:
                 relative = f"{name}/step_{k:03d}.vtu"
@@ -184,3 +162,14 @@ def _metrics(model: StVKModel, state: EquilibriumState) -> dict:
         "factorizations": state.data["factorizations"],
         "solve_s": state.data["solve_s"],
     }
+
+
+class StVK(StVKModel):
+    """The ``stvk`` plugin: :class:`~.model.StVKModel` (what planners solve with) plus the ``simulate`` stage.
+
+    The stage lives here, above the model, so that the model never imports the pipeline's stage code.
+    """
+
+    def run_stage(self, context: StageContext) -> StageResult:
+        """The equilibrium (or, with ``steps``, the sequence) the settings describe."""
+        return run_simulate_stage(self, context)

@@ -1,6 +1,8 @@
 """The ``retraction`` planner: optimal tissue-retraction plans and grasp selection on FEM states (paper 002).
 
-Patil & Alterovitz plan how a gripper lifts a tissue flap until an area of
+S. Patil and R. Alterovitz, "Automated tissue retraction for robot-assisted
+surgical procedures" (paper 002; published as "Toward automated tissue
+retraction in robot-assisted surgery", IEEE ICRA 2010), §IV, plan how a gripper lifts a tissue flap until an area of
 interest beneath it is visible, on a roadmap of static FEM equilibria,
 minimising the maximum deformation energy, the maximum stress or the
 control effort, and choose the best initial grasp. Modules:
@@ -18,6 +20,10 @@ control effort, and choose the best initial grasp. Modules:
 * :mod:`.trajectory` — cubic splines in position and rotation;
 * :mod:`.outputs` — the states file and the figures;
 * :mod:`.planner` — :class:`RetractionPlanner`.
+
+The tissue is any deformable-model plugin, found by its registered name
+(``deformable: {plugin: stvk, ...}``) and used only through
+:class:`surgiplan.DeformableModel`: this package imports no FEM code.
 """
 
 from __future__ import annotations

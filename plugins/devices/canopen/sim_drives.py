@@ -1,0 +1,119 @@
+"""Simulated CiA 402 drives in a process of their own, on any python-can bus.
+
+``surgiplan-sim-drives`` (or ``python -m surgiplan.plugins.devices.canopen.sim_drives``)
+runs the drives of a device (``cast_gimbal``: 4 axes, ``gripper6``: 6) in real
+time on the bus you name, as real drives would be: outside the process of the
+master, reached only through CAN frames. A pipeline then talks to them with
+exactly the settings it would use for hardware. The default interface is
+surgiplan's ``loopback`` (a python-can interface: a hub on 127.0.0.1 that
+this process hosts; no CAN hardware or kernel module needed, and nothing
+leaves the machine)::
+
+    surgiplan-sim-drives --device cast_gimbal --channel 43113 --initial 0 0.6 0.12 0
+
+    # in the pipeline's execute stage
+    settings: {bus: {interface: loopback, channel: 43113}}
+
+or on a virtual SocketCAN interface (``ip link add dev vcan0 type vcan``) with
+``--interface socketcan --channel vcan0``. The drives use the device's
+defaults (encoder resolution, current and speed limits) unless told
+otherwise; ``--initial`` is where the axes stand at power-up (SI units per
+joint). It prints ``ready`` once the nodes are up and runs until interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+
+from surgiplan.errors import SurgiplanError
+from surgiplan.registry import default_registry
+
+from .bus import ArmedFaults, BusSettings, open_bus
+from .clock import RealTimeClock
+from .device import Cia402Device
+from .drives import DriveSimulator, MotorModel
+
+
+def cia402_devices() -> dict[str, type[Cia402Device]]:
+    """The registered device plugins whose joints are CiA 402 drives (found by registered name, so this
+    layer never imports a device package; a third party's CiA 402 device is simulated the same way)."""
+    registry = default_registry()
+    found = {}
+    for name in registry.names("device"):
+        cls = registry.get("device", name).cls
+        if isinstance(cls, type) and issubclass(cls, Cia402Device):
+            found[name] = cls
+    return found
+
+
+def _option(text: str) -> tuple[str, object]:
+    key, _, value = text.partition("=")
+    if not key or not value:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got '{text}'")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def build_simulator(args: argparse.Namespace) -> DriveSimulator:
+    """The drives of ``args.device`` on the bus the arguments name (raises SurgiplanError)."""
+    devices = cia402_devices()
+    if args.device not in devices:
+        raise SurgiplanError(
+            f"no CiA 402 device plugin named '{args.device}' (installed: {', '.join(sorted(devices))})"
+        )
+    cls = devices[args.device]
+    settings = {"bus": {"interface": args.interface, "channel": args.channel, "options": dict(args.option)}}
+    if args.node_ids:
+        settings["node_ids"] = args.node_ids
+    settings["simulation"] = {}
+    if args.initial:
+        settings["simulation"]["initial"] = args.initial
+    if args.sync_timeout:
+        settings["simulation"]["sync_timeout"] = args.sync_timeout
+    device = cls(cls.Settings.model_validate(settings))
+    device.model = device.build_model()
+    _, hardware = device._axes()
+    simulation = device.settings.simulation
+    model = MotorModel(simulation.position_gain, simulation.velocity_gain, sync_timeout=simulation.sync_timeout)
+    bus, _ = open_bus(BusSettings.model_validate(settings["bus"]))
+    clock = RealTimeClock()
+    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="surgiplan-sim-drives", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--device", default="cast_gimbal", help="a CiA 402 device plugin (cast_gimbal, gripper6, ...)")
+    parser.add_argument(
+        "--interface", default="loopback", help="python-can interface (default loopback: 127.0.0.1 only)"
+    )
+    parser.add_argument("--channel", required=True, help="loopback: a port on 127.0.0.1; socketcan: vcan0, ...")
+    parser.add_argument("--option", type=_option, action="append", default=[], help="bus option KEY=VALUE")
+    parser.add_argument("--node-ids", type=int, nargs="+")
+    parser.add_argument("--initial", type=float, nargs="+", help="joint positions at power-up (SI)")
+    parser.add_argument("--sync-timeout", type=float, help="s without SYNC before an enabled drive quick-stops")
+    args = parser.parse_args(argv)
+    try:
+        simulator = build_simulator(args)
+    except SurgiplanError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    simulator.start()
+    print("ready", flush=True)
+    try:
+        stop.wait()
+    finally:
+        simulator.close()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

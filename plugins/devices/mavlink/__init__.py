@@ -1,0 +1,36 @@
+"""``mavlink_vehicle``: fly safe paths on a MAVLink 2 vehicle (PX4's conventions); simulated by default.
+
+Paper 000 (Jain, Hong & Rozenblit, SpringSim-MSM 2019) ends (§5) by
+proposing its safe planner for an autonomous quadrotor that must keep a
+distance from obstacles except in critical regions. The ground-station side:
+
+* :mod:`.link` — connections, MAVLink 2, signing, enum names;
+* :mod:`.conventions` — PX4's modes and frames, the local/global projection;
+* :mod:`.mission` — the mission protocol as state machines without I/O;
+* :mod:`.gcs` — the ground station: heartbeats, commands, uploads;
+* :mod:`.profile`, :mod:`.stream` — the timed offboard path and its stream;
+* :mod:`.flight` — the route, the flight and its watch (failsafes);
+* :mod:`.report` — what was flown, re-measured against the scene;
+* :mod:`.device` — the :class:`MavlinkVehicle` plugin.
+
+:mod:`.sim` is the simulated PX4-like vehicle (``surgiplan-sim-vehicle``).
+"""
+
+from __future__ import annotations
+
+from surgiplan.hookspecs import PluginSpec, hookimpl
+
+from .device import MavlinkVehicle, MavlinkVehicleSettings
+
+__all__ = ["MavlinkVehicle", "MavlinkVehicleSettings"]
+
+
+@hookimpl
+def surgiplan_register_devices():
+    return [
+        PluginSpec(
+            "mavlink_vehicle",
+            MavlinkVehicle,
+            "a MAVLink 2 vehicle (PX4) flying R3 paths by mission or offboard setpoints; simulated by default",
+        )
+    ]

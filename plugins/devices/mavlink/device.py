@@ -1,0 +1,404 @@
+"""``mavlink_vehicle``: fly a planned path on a MAVLink 2 vehicle (a simulated one by default).
+
+Paper 000 (Jain, Hong & Rozenblit 2019) ends (§5) by proposing its safe
+planner for "an autonomous quadrotor when it is required to maintain a
+certain distance from the obstacle, but due to the presence of some
+unavoidable passages, like Critical Regions, it might fail". This device
+makes that real: an ``execute`` stage flies the path of a ``safe_prm`` (or
+any R3) plan stage on a vehicle reached through pymavlink, and reports what
+was flown, re-measured against the scene.
+
+Lifecycle (:class:`surgiplan.Device`, ros2_control's):
+
+* ``configure``: the simulated vehicle is started (``surgiplan-sim-vehicle``
+  on a free 127.0.0.1 UDP port) unless ``connection`` names a real one; the
+  link is opened (MAVLink 2, signed when a key is given); the first
+  HEARTBEAT adopts the vehicle (no heartbeat: a clear error); telemetry
+  rates are requested; for global mission frames the EKF origin and home are
+  read (GPS_GLOBAL_ORIGIN, HOME_POSITION);
+* ``activate``: the vehicle must report a local position;
+* ``execute``: :mod:`.mavlink_flight` (route, mission upload or offboard
+  stream, arming and modes with their acknowledgements, the watch with the
+  failsafe), then :mod:`.mavlink_report` (tracking error, flown clearance,
+  ``flight-<stage>.csv`` and ``<stage>.png``);
+* ``cleanup``/``shutdown``: the link is closed, the simulated vehicle
+  stopped.
+
+Settings (lengths in the pipeline's ``length_unit``; speeds m/s, times s)::
+
+    connection: udpin:0.0.0.0:14550     # default: none, i.e. start the simulated vehicle
+    mode: mission                        # or offboard (SET_POSITION_TARGET_LOCAL_NED stream)
+    frame: {local_origin: [2, 6, 0], heading: 90 deg}   # the vehicle's NED origin in the scene
+    cruise_speed: 1.0
+    failsafe: land                       # on heartbeat loss: land, return or hold
+    signing: {key: 64 hex digits or a passphrase}
+    sim: {speed: 4, packet_loss: 0.2}    # the simulated vehicle, faults included
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
+from surgiplan.devices import Device, ExecutionReport, Trajectory
+from surgiplan.errors import ConfigError
+from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
+from surgiplan.progress import NullProgress
+from surgiplan.units import Angle, Length, PositiveLength, Vec3
+
+from .conventions import LocalFrame, MapProjection
+from .flight import Flight, Refusal, build_route
+from .gcs import GroundStation
+from .link import Endpoint, VehicleError, check_connection_string, enum_name, mavlink, signing_key
+from .report import describe, flight_figure, flight_metrics, write_flight_csv
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class FrameSettings(_Strict):
+    """Where the vehicle's local NED frame is in the scene."""
+
+    #: the local origin (where the vehicle's EKF puts 0, 0, 0) in scene coordinates
+    local_origin: Vec3 = (0.0, 0.0, 0.0)
+    #: direction of the scene's +x axis, clockwise from north (90 deg: x east, y north, z up)
+    heading: Angle = math.pi / 2
+
+
+class HeartbeatSettings(_Strict):
+    #: our HEARTBEAT period (s); the vehicle's is expected at the same rate
+    period: PositiveFloat = 1.0
+    #: the vehicle is lost after this many missed heartbeats
+    missed: int = Field(default=5, ge=2)
+
+
+class Timeouts(_Strict):
+    """Protocol timeouts (wall-clock s) and retries; the flight's allowance is vehicle time."""
+
+    connect: PositiveFloat = 15.0
+    command: PositiveFloat = 1.5
+    command_retries: int = Field(default=5, ge=0)
+    mission: PositiveFloat = 1.5
+    mission_retries: int = Field(default=5, ge=0)
+    #: whole transfers tried when a mission upload is cancelled or times out
+    upload_attempts: int = Field(default=3, ge=1)
+    #: waiting for a mode or arming to show in the vehicle's HEARTBEAT
+    mode: PositiveFloat = 5.0
+    #: the flight (vehicle s); default: 3x the route at cruise speed plus 60 s
+    flight: PositiveFloat | None = None
+    #: watching a commanded failsafe (s)
+    failsafe: PositiveFloat = 60.0
+
+
+class SigningSettings(_Strict):
+    """MAVLink 2 signing: the shared secret as 64 hex digits, or a passphrase (hashed with SHA-256)."""
+
+    key: str
+    link_id: int = Field(default=0, ge=0, le=255)
+
+    @field_validator("key")
+    @classmethod
+    def _valid(cls, value: str) -> str:
+        signing_key(value)
+        return value
+
+
+class MavlinkVehicleSettings(_Strict):
+    #: pymavlink connection string; none: start the simulated vehicle on 127.0.0.1 (UDP)
+    connection: str | None = None
+    baud: int = 57600
+    #: the vehicle's system id; none: the first vehicle heard
+    system_id: int | None = Field(default=None, ge=1, le=255)
+    gcs_system_id: int = Field(default=255, ge=1, le=255)
+    gcs_component_id: int = Field(default=190, ge=1, le=255)  # MAV_COMP_ID_MISSIONPLANNER
+    mode: Literal["mission", "offboard"] = "mission"
+    #: local_ned (MISSION_ITEM_INT in metres) or global_relative_alt (what PX4 and ArduPilot fly)
+    mission_frame: Literal["local_ned", "global_relative_alt"] = "local_ned"
+    frame: FrameSettings = Field(default_factory=FrameSettings)
+    cruise_speed: PositiveFloat = 1.0  # m/s
+    acceleration: PositiveFloat = 1.0  # m/s^2, offboard profile
+    vertical_speed: PositiveFloat = 0.5  # m/s, offboard profile
+    #: offboard: how far the setpoint path rounds a corner of the planned path (its arcs' midpoints)
+    corner_deviation: PositiveLength = 0.05
+    #: mission waypoints' acceptance radius; also the arrival tolerance at the goal
+    acceptance_radius: PositiveLength = 0.1
+    #: Douglas-Peucker tolerance for turning the path into waypoints (0 keeps every waypoint)
+    waypoint_tolerance: Length = 0.02
+    takeoff: bool = True
+    land: bool = True
+    #: fly straight from where the vehicle is to the path's start (checked clear)
+    approach: bool = True
+    #: the unplanned legs (take-off, approach, landing) must keep this much clearance
+    approach_clearance: Length = 0.1
+    #: LOCAL_POSITION_NED rate requested from the vehicle (Hz)
+    telemetry_rate: PositiveFloat = 20.0
+    failsafe: Literal["land", "return", "hold"] = "land"
+    heartbeat: HeartbeatSettings = Field(default_factory=HeartbeatSettings)
+    timeouts: Timeouts = Field(default_factory=Timeouts)
+    signing: SigningSettings | None = None
+    #: the simulated vehicle (only without a connection); its faults rehearse the real ones
+    sim: SimSettings | None = None
+    #: run the simulated vehicle as a subprocess (the real program) or in a thread
+    sim_process: Literal["subprocess", "thread"] = "subprocess"
+    figure: bool = True
+
+    @field_validator("connection")
+    @classmethod
+    def _connection(cls, value):
+        return None if value is None else check_connection_string(value)
+
+    @model_validator(mode="after")
+    def _sim_or_connection(self):
+        if self.connection is not None and self.sim is not None:
+            raise ValueError(
+                "'sim' configures the simulated vehicle, which is started only without a 'connection'; "
+                "remove one of them"
+            )
+        return self
+
+
+class MavlinkVehicle(Device):
+    """A MAVLink 2 vehicle (PX4 conventions) flying R3 paths; simulated unless a connection is given."""
+
+    Settings = MavlinkVehicleSettings
+
+    def __init__(self, settings: MavlinkVehicleSettings) -> None:
+        super().__init__(settings)
+        self.frame = LocalFrame(tuple(settings.frame.local_origin), settings.frame.heading)
+        self.endpoint: Endpoint | None = None
+        self.gcs: GroundStation | None = None
+        self.process: subprocess.Popen | None = None
+        self.simulator = None  # the in-thread simulated vehicle
+        self.geo: tuple[MapProjection, float] | None = None
+        self.connection = settings.connection
+        self._stderr = None
+
+    # ------------------------------------------------------------------ the simulated vehicle
+    def _sim_settings(self) -> SimSettings:
+        s = self.settings
+        sim = s.sim or SimSettings()
+        if s.signing is not None and sim.signing_key is None:
+            sim = sim.model_copy(update={"signing_key": s.signing.key})
+        return sim
+
+    def _start_simulator(self) -> str:
+        sim = self._sim_settings()
+        if self.settings.sim_process == "thread":
+            from surgiplan.plugins.devices.mavlink.sim.vehicle import SimulatedVehicle
+
+            self.simulator = SimulatedVehicle(sim, "udpin:127.0.0.1:0").start()
+            return f"udpout:127.0.0.1:{self.simulator.port}"
+        self._stderr = tempfile.TemporaryFile(mode="w+")
+        command = [
+            sys.executable,
+            "-m",
+            "surgiplan.plugins.devices.mavlink.sim.vehicle",
+            "udpin:127.0.0.1:0",
+            "--settings",
+            json.dumps(sim.model_dump(mode="json")),
+            "--exit-with-parent",
+        ]
+        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=self._stderr, text=True)
+        line = self._first_line(self.settings.timeouts.connect)
+        if line is None or " on udpin:" not in line:
+            self._stop_simulator()
+            self._stderr.seek(0)
+            detail = self._stderr.read().strip().splitlines()[-3:] if self._stderr else []
+            raise VehicleError(
+                f"the simulated vehicle did not start ({' / '.join(detail) or 'no output'})", step="connect"
+            )
+        return "udpout:" + line.rsplit(" on udpin:", 1)[1].strip()
+
+    def _first_line(self, timeout: float) -> str | None:
+        import selectors
+
+        with selectors.DefaultSelector() as selector:
+            selector.register(self.process.stdout, selectors.EVENT_READ)
+            deadline = time.monotonic() + timeout
+            while time.monotonic() < deadline:
+                if selector.select(timeout=0.1):
+                    return self.process.stdout.readline()
+                if self.process.poll() is not None:
+                    return None
+        return None
+
+    def _stop_simulator(self) -> None:
+        if self.simulator is not None:
+            self.simulator.stop()
+            self.simulator = None
+        if self.process is not None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait(timeout=5)
+            for stream in (self.process.stdout,):
+                if stream is not None:
+                    stream.close()
+            self.process = None
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def on_configure(self, context) -> None:
+        s = self.settings
+        try:
+            connection = s.connection if s.connection is not None else self._start_simulator()
+            self.connection = connection
+            key = signing_key(s.signing.key) if s.signing is not None else None
+            self.endpoint = Endpoint(
+                connection,
+                system_id=s.gcs_system_id,
+                component_id=s.gcs_component_id,
+                baud=s.baud,
+                key=key,
+                link_id=s.signing.link_id if s.signing else 0,
+            )
+            t = s.timeouts
+            self.gcs = GroundStation(
+                self.endpoint,
+                heartbeat_period=s.heartbeat.period,
+                missed_heartbeats=s.heartbeat.missed,
+                command_timeout=t.command,
+                command_retries=t.command_retries,
+                mission_timeout=t.mission,
+                mission_retries=t.mission_retries,
+                upload_attempts=t.upload_attempts,
+            )
+            vehicle = self.gcs.connect(t.connect, s.system_id)
+            if vehicle.autopilot != mavlink.MAV_AUTOPILOT_PX4:
+                raise VehicleError(
+                    f"the vehicle's autopilot is {_autopilot(vehicle.autopilot)}; this device speaks PX4's "
+                    "conventions (custom modes, mission item 0 is a mission item): use PX4 or the simulated vehicle",
+                    step="connect",
+                )
+            self.gcs.step = "telemetry setup"
+            self.gcs.set_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, s.telemetry_rate)
+            if s.mission_frame == "global_relative_alt":
+                self.gcs.step = "reading the EKF origin"
+                origin = self.gcs.request_message("GPS_GLOBAL_ORIGIN", mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, t.mode)
+                home = self.gcs.request_message("HOME_POSITION", mavlink.MAVLINK_MSG_ID_HOME_POSITION, t.mode)
+                self.geo = (MapProjection(origin.latitude * 1e-7, origin.longitude * 1e-7), float(home.z))
+        except BaseException:
+            self._release()
+            raise
+
+    def on_activate(self) -> None:
+        gcs = self.gcs
+        gcs.step = "activate"
+        gcs.wait_for(
+            lambda: gcs.vehicle.position is not None,
+            self.settings.timeouts.mode,
+            "the vehicle reported no LOCAL_POSITION_NED (no local position estimate?)",
+        )
+
+    def on_cleanup(self) -> None:
+        self._release()
+
+    def on_shutdown(self) -> None:
+        self._release()
+
+    def _release(self) -> None:
+        if self.endpoint is not None:
+            self.endpoint.close()
+            self.endpoint = None
+        self._stop_simulator()
+
+    # ------------------------------------------------------------------ execution
+    def run(self, trajectory: Trajectory) -> ExecutionReport:
+        s = self.settings
+        gcs = self.gcs
+        if trajectory.space.kind != "r3":
+            raise ConfigError(
+                f"mavlink_vehicle flies paths of the r3 space (the vehicle a sphere of tip_radius); plan stage "
+                f"'{trajectory.source}' planned in '{trajectory.space.kind}'"
+            )
+        context = self.context
+        source = context.previous.get(trajectory.source) if context is not None else None
+        threshold = source.clearance_threshold if source is not None else None
+        critical = [
+            (float(r["start_m"]), float(r["end_m"]))
+            for r in (source.annotations.get("critical_regions", []) if source is not None else [])
+            if "start_m" in r and "end_m" in r
+        ]
+        vehicle = gcs.vehicle
+        position = self.frame.from_ned(np.asarray(vehicle.position.position))
+        on_ground = vehicle.on_ground or (
+            not vehicle.armed and vehicle.landed_state == mavlink.MAV_LANDED_STATE_UNDEFINED
+        )
+        try:
+            # the ground: where the vehicle stands, or (airborne) the local origin's height, its EKF's ground
+            ground = float(position[2]) if on_ground else float(self.frame.origin[2])
+            route = build_route(trajectory, position, on_ground, ground, s, threshold)
+        except Refusal as exc:
+            return ExecutionReport("stopped", {"refused": True}, message=f"refused before any motion: {exc}")
+        flight = Flight(gcs, s, self.frame, route, context.progress if context else NullProgress(), self.geo)
+        log = flight.fly_offboard() if s.mode == "offboard" else flight.fly_mission()
+        gcs.recording = False
+        return self._report(trajectory, route, flight, log, threshold, critical)
+
+    def _report(self, trajectory, route, flight, log, threshold, critical) -> ExecutionReport:
+        s = self.settings
+        samples = self.gcs.samples
+        t = np.array([x.time for x in samples])
+        ned = np.array([x.position for x in samples]).reshape(-1, 3)
+        flown = self.frame.from_ned(ned)
+        velocity = self.frame.vector_from_ned(np.array([x.velocity for x in samples]).reshape(-1, 3))
+        planned = trajectory.space.tip(np.atleast_2d(trajectory.path))
+        setpoints = None
+        if log.profile is not None and len(t):
+            setpoints = self.frame.from_ned(log.profile.sample(t - log.profile_start)[0])
+        metrics, arrays = flight_metrics(
+            t, flown, velocity, trajectory.space, planned, log.path_window, threshold, critical, setpoints
+        )
+        metrics = {
+            "mode": s.mode,
+            "connection": self.connection,
+            "simulated": s.connection is None,
+            **route.metrics,
+            **log.metrics,
+            **metrics,
+            **self.endpoint.stats.to_json(),
+            "heartbeats_received": self.gcs.vehicle.heartbeats,
+            "setpoints_sent": self.endpoint.stats.sent["SET_POSITION_TARGET_LOCAL_NED"],
+            "signed": self.endpoint.signed,
+        }
+        if len(flown):
+            metrics["final_position_error_m"] = float(np.linalg.norm(flown[-1] - route.points[-1]))
+        files: list[str] = []
+        context = self.context
+        if context is not None and len(t):
+            name = context.name
+            write_flight_csv(context.output_dir / f"flight-{name}.csv", t, flown, velocity, arrays)
+            files.append(f"flight-{name}.csv")
+            if s.figure:
+                title = f"{name} (mavlink_vehicle, {s.mode}): {log.status}; {describe(metrics)}"
+                flight_figure(
+                    context.output_dir / f"{name}.png",
+                    trajectory.space.scene,
+                    planned,
+                    route.points,
+                    t,
+                    flown,
+                    arrays,
+                    metrics,
+                    threshold,
+                    critical,
+                    title,
+                )
+                files.append(f"{name}.png")
+        return ExecutionReport(log.status, metrics, flown if len(flown) else None, log.faults, log.message, files)
+
+
+def _autopilot(value: int) -> str:
+    return enum_name("MAV_AUTOPILOT", value)

@@ -1,0 +1,459 @@
+"""The ground-station side of a MAVLink link: heartbeats and liveness, commands, mission upload.
+
+mavlink.io services used:
+
+* *Heartbeat*: both ends send HEARTBEAT at 1 Hz; a system is lost when
+  ``missed`` heartbeats in a row (5 by default) do not arrive.
+* *Command protocol*: COMMAND_LONG, re-sent with ``confirmation`` increased
+  when no COMMAND_ACK arrives within the timeout (default 1.5 s, 5 retries);
+  MAV_RESULT_IN_PROGRESS extends the wait.
+* *Mission protocol*: :class:`~.mavlink_mission.MissionUpload`; a transfer
+  that fails for a lost link is started again from MISSION_COUNT up to
+  ``upload_attempts`` times, a refusal (MISSION_ACK with an error) never is.
+* *Offboard control* and telemetry rates (MAV_CMD_SET_MESSAGE_INTERVAL,
+  MAV_CMD_REQUEST_MESSAGE) are thin helpers over the command protocol.
+
+Everything runs in the caller's thread: :meth:`GroundStation.pump` waits for
+traffic, updates :class:`VehicleState`, sends our heartbeat when due, and
+raises :class:`LinkLost` when the vehicle's heartbeats stop. Errors are
+:class:`~.mavlink_link.VehicleError` naming the step (``arming: ...``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .conventions import px4_mode_command, px4_mode_name
+from .link import Endpoint, VehicleError, enum_description, enum_name, is_mavlink2, mavlink
+from .mission import MissionItem, MissionUpload, UploadStatistics
+
+log = logging.getLogger("surgiplan.devices.mavlink")
+
+RESULT_ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
+RESULT_IN_PROGRESS = mavlink.MAV_RESULT_IN_PROGRESS
+
+
+class LinkLost(VehicleError):
+    """No heartbeat from the vehicle for longer than the liveness timeout."""
+
+
+def command_name(command: int) -> str:
+    return enum_name("MAV_CMD", command)
+
+
+def result_name(result: int) -> str:
+    text = enum_name("MAV_RESULT", result)
+    description = enum_description("MAV_RESULT", result)
+    return f"{text} ({description})" if description else text
+
+
+class CommandTransaction:
+    """One command of the command protocol, ground-station side, without I/O."""
+
+    def __init__(
+        self,
+        command: int,
+        params: Sequence[float],
+        target: tuple[int, int],
+        *,
+        timeout: float = 1.5,
+        retries: int = 5,
+        in_progress_timeout: float = 10.0,
+    ) -> None:
+        self.command = int(command)
+        self.params = [float(p) for p in params] + [0.0] * (7 - len(params))
+        self.target = target
+        self.timeout = timeout
+        self.retries = retries
+        self.in_progress_timeout = in_progress_timeout
+        self.confirmation = 0
+        self.result: int | None = None
+        self.progress: int | None = None
+        self.deadline = math.inf
+        self.timed_out = False
+
+    @property
+    def finished(self) -> bool:
+        return self.result is not None or self.timed_out
+
+    def _message(self):
+        return mavlink.MAVLink_command_long_message(*self.target, self.command, self.confirmation, *self.params)
+
+    def start(self, now: float) -> list:
+        self.deadline = now + self.timeout
+        return [self._message()]
+
+    def on_message(self, message, now: float) -> list:
+        if message.get_type() != "COMMAND_ACK" or int(message.command) != self.command or self.finished:
+            return []
+        if int(message.result) == RESULT_IN_PROGRESS:
+            self.progress = int(getattr(message, "progress", 255))
+            self.deadline = now + self.in_progress_timeout
+            return []
+        self.result = int(message.result)
+        self.deadline = math.inf
+        return []
+
+    def on_timer(self, now: float) -> list:
+        if self.finished or now < self.deadline:
+            return []
+        if self.confirmation >= self.retries:
+            self.timed_out = True
+            self.deadline = math.inf
+            return []
+        self.confirmation += 1
+        self.deadline = now + self.timeout
+        return [self._message()]
+
+
+@dataclass
+class PositionSample:
+    """One LOCAL_POSITION_NED: vehicle time (s), position (m) and velocity (m/s) in NED."""
+
+    time: float
+    position: tuple[float, float, float]
+    velocity: tuple[float, float, float]
+
+
+@dataclass
+class VehicleState:
+    """What the ground station knows about the vehicle, from its messages."""
+
+    system_id: int = 0
+    component_id: int = 0
+    autopilot: int = 0
+    vehicle_type: int = 0
+    armed: bool = False
+    mode: str = ""
+    custom_mode: int = 0
+    landed_state: int = mavlink.MAV_LANDED_STATE_UNDEFINED
+    #: wall time (s, time.monotonic) of the last heartbeat
+    last_heartbeat: float = -math.inf
+    heartbeats: int = 0
+    position: PositionSample | None = None
+    mission_current: int = -1
+    mission_state: int = 0
+    #: (seq, vehicle time s) of every MISSION_ITEM_REACHED, in arrival order
+    reached: list[tuple[int, float]] = field(default_factory=list)
+    #: (seq, vehicle time s) whenever MISSION_CURRENT showed a new current item
+    current_changes: list[tuple[int, float]] = field(default_factory=list)
+    statustext: list[str] = field(default_factory=list)
+
+    @property
+    def on_ground(self) -> bool:
+        return self.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
+
+    @property
+    def vehicle_time(self) -> float:
+        return self.position.time if self.position is not None else 0.0
+
+    def passed(self, seq: int) -> float:
+        """Vehicle time (s) the mission got past item ``seq``: its MISSION_ITEM_REACHED, or (that message
+        lost on a poor link) the first MISSION_CURRENT showing a later item; inf when neither came."""
+        times = [t for s, t in self.reached if s == seq] + [t for s, t in self.current_changes if s > seq]
+        return min(times, default=math.inf)
+
+
+class GroundStation:
+    """surgiplan as a MAVLink ground station for one vehicle."""
+
+    def __init__(
+        self,
+        endpoint: Endpoint,
+        *,
+        heartbeat_period: float = 1.0,
+        missed_heartbeats: int = 5,
+        command_timeout: float = 1.5,
+        command_retries: int = 5,
+        mission_timeout: float = 1.5,
+        mission_retries: int = 5,
+        upload_attempts: int = 3,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.link = endpoint
+        self.heartbeat_period = heartbeat_period
+        self.missed_heartbeats = missed_heartbeats
+        self.command_timeout = command_timeout
+        self.command_retries = command_retries
+        self.mission_timeout = mission_timeout
+        self.mission_retries = mission_retries
+        self.upload_attempts = upload_attempts
+        self.clock = clock
+        self.vehicle = VehicleState()
+        self.samples: list[PositionSample] = []
+        self.recording = False
+        self.check_liveness = True
+        self.step = "connect"
+        #: called after every pump with the vehicle's messages and the wall time (offboard streaming)
+        self.tickers: list[Callable[[list, float], None]] = []
+        self._next_heartbeat = -math.inf
+        self._transactions: list = []
+
+    @property
+    def target(self) -> tuple[int, int]:
+        return self.vehicle.system_id, self.vehicle.component_id
+
+    @property
+    def liveness_timeout(self) -> float:
+        return self.missed_heartbeats * self.heartbeat_period
+
+    # ------------------------------------------------------------------ the loop
+    def send(self, messages) -> None:
+        for message in messages:
+            self.link.send(message)
+
+    def _heartbeat(self, now: float) -> None:
+        if now >= self._next_heartbeat:
+            self.link.send(
+                mavlink.MAVLink_heartbeat_message(
+                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+                )
+            )
+            self._next_heartbeat = now + self.heartbeat_period
+
+    def pump(self, timeout: float = 0.0) -> list:
+        """Wait up to ``timeout`` s for traffic; process it; return the vehicle's messages.
+
+        Raises :class:`LinkLost` when the vehicle's heartbeat has been missing for too long.
+        """
+        now = self.clock()
+        self._heartbeat(now)
+        deadlines = [t.deadline for t in self._transactions] + [self._next_heartbeat, now + timeout]
+        self.link.wait(max(0.0, min(deadlines) - now))
+        now = self.clock()
+        mine = []
+        for message in self.link.receive():
+            if self.vehicle.system_id and message.get_srcSystem() != self.vehicle.system_id:
+                continue
+            self._update(message, now)
+            for transaction in self._transactions:
+                self.send(transaction.on_message(message, now))
+            mine.append(message)
+        for transaction in self._transactions:
+            self.send(transaction.on_timer(now))
+        for ticker in list(self.tickers):
+            ticker(mine, now)
+        self._heartbeat(now)
+        if self.check_liveness and self.vehicle.system_id:
+            silent = now - self.vehicle.last_heartbeat
+            if silent > self.liveness_timeout:
+                raise LinkLost(
+                    f"the vehicle stopped answering: no HEARTBEAT for {silent:.1f} s "
+                    f"({self.missed_heartbeats} missed at {1 / self.heartbeat_period:g} Hz)",
+                    step=self.step,
+                )
+        return mine
+
+    def _update(self, message, now: float) -> None:
+        v = self.vehicle
+        kind = message.get_type()
+        if kind == "HEARTBEAT":
+            v.last_heartbeat = now
+            v.heartbeats += 1
+            v.armed = bool(message.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            v.custom_mode = int(message.custom_mode)
+            v.mode = px4_mode_name(message.custom_mode) if v.autopilot == mavlink.MAV_AUTOPILOT_PX4 else ""
+        elif kind == "LOCAL_POSITION_NED":
+            sample = PositionSample(
+                message.time_boot_ms / 1000.0, (message.x, message.y, message.z), (message.vx, message.vy, message.vz)
+            )
+            v.position = sample
+            if self.recording:
+                self.samples.append(sample)
+        elif kind == "EXTENDED_SYS_STATE":
+            v.landed_state = int(message.landed_state)
+        elif kind == "MISSION_CURRENT":
+            if int(message.seq) != v.mission_current:
+                v.current_changes.append((int(message.seq), v.vehicle_time))
+            v.mission_current = int(message.seq)
+            v.mission_state = int(getattr(message, "mission_state", 0))
+        elif kind == "MISSION_ITEM_REACHED":
+            v.reached.append((int(message.seq), v.vehicle_time))
+        elif kind == "STATUSTEXT":
+            text = message.text if isinstance(message.text, str) else message.text.decode("utf-8", "replace")
+            v.statustext.append(text)
+            log.info("vehicle: %s", text)
+
+    def wait_for(self, condition: Callable[[], bool], timeout: float, what: str) -> None:
+        """Pump until ``condition()`` holds; :class:`VehicleError` naming ``what`` after ``timeout`` s."""
+        deadline = self.clock() + timeout
+        while not condition():
+            remaining = deadline - self.clock()
+            if remaining <= 0:
+                raise VehicleError(f"{what} within {timeout:g} s", step=self.step)
+            self.pump(min(remaining, 0.1))
+
+    # ------------------------------------------------------------------ connecting
+    def connect(self, timeout: float, system_id: int | None = None) -> VehicleState:
+        """Wait for the vehicle's first HEARTBEAT (MAVLink 2 only) and adopt it as the target."""
+        self.step = "connect"
+        deadline = self.clock() + timeout
+        heard: set[str] = set()
+        while self.clock() < deadline:
+            for message in self.pump(min(0.1, max(0.0, deadline - self.clock()))):
+                if message.get_type() != "HEARTBEAT":
+                    heard.add(message.get_type())
+                    continue
+                if message.type == mavlink.MAV_TYPE_GCS or message.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+                    heard.add("a ground station's HEARTBEAT")
+                    continue
+                if system_id is not None and message.get_srcSystem() != system_id:
+                    heard.add(f"HEARTBEAT of system {message.get_srcSystem()}")
+                    continue
+                if not is_mavlink2(message):
+                    raise VehicleError(
+                        f"the vehicle (system {message.get_srcSystem()}) speaks MAVLink 1; MAVLink 2 is required "
+                        "(mission types, signing): enable it on the vehicle's link (PX4: MAV_PROTO_VER 2)",
+                        step="connect",
+                    )
+                if message.get_header().incompat_flags & mavlink.MAVLINK_IFLAG_SIGNED and not self.link.signed:
+                    # it would reject every unsigned command we send: say so now, not after the timeouts
+                    raise VehicleError(
+                        f"the vehicle (system {message.get_srcSystem()}) signs its messages (MAVLink 2 signing) "
+                        "and will ignore unsigned commands: give the shared key in signing.key",
+                        step="connect",
+                    )
+                v = self.vehicle
+                v.system_id, v.component_id = message.get_srcSystem(), message.get_srcComponent()
+                v.autopilot, v.vehicle_type = int(message.autopilot), int(message.type)
+                self._update(message, self.clock())
+                return v
+        detail = f"heard only {', '.join(sorted(heard))}" if heard else "no MAVLink traffic at all"
+        rejected = self.link.signature_rejections + self.link.stats.rejected
+        if rejected:
+            detail += f"; {rejected} frames were rejected (unsigned or wrongly signed: check the signing key)"
+        raise VehicleError(
+            f"no HEARTBEAT from a vehicle on '{self.link.connection}' within {timeout:g} s ({detail})", step="connect"
+        )
+
+    # ------------------------------------------------------------------ commands
+    def command(
+        self,
+        command: int,
+        params: Sequence[float] = (),
+        *,
+        accept_unsupported: bool = False,
+        effect: Callable[[], bool] | None = None,
+    ) -> int:
+        """Send a command and wait for its final COMMAND_ACK; raises unless it is accepted.
+
+        ``effect``: when the vehicle's telemetry already shows what the command does (armed, the
+        new mode), a lost acknowledgement is not worth a retransmission: a late duplicate could do
+        it a second time after the vehicle has moved on (arm it again after it landed).
+        """
+        transaction = CommandTransaction(
+            command, params, self.target, timeout=self.command_timeout, retries=self.command_retries
+        )
+        self._transactions.append(transaction)
+        try:
+            self.send(transaction.start(self.clock()))
+            while not transaction.finished:
+                self.pump(0.1)
+                if effect is not None and not transaction.finished and effect():
+                    transaction.result = RESULT_ACCEPTED  # seen done; its ACK was lost
+        finally:
+            self._transactions.remove(transaction)
+        if transaction.timed_out:
+            raise VehicleError(
+                f"no COMMAND_ACK for {command_name(command)} after {transaction.confirmation + 1} attempts "
+                f"({self.command_timeout:g} s apart)",
+                step=self.step,
+            )
+        if transaction.result != RESULT_ACCEPTED:
+            if accept_unsupported and transaction.result == mavlink.MAV_RESULT_UNSUPPORTED:
+                return transaction.result
+            reasons = f"; vehicle says: {self.vehicle.statustext[-1]}" if self.vehicle.statustext else ""
+            raise VehicleError(
+                f"the vehicle answered {command_name(command)} with {result_name(transaction.result)}{reasons}",
+                step=self.step,
+            )
+        return transaction.result
+
+    def set_message_interval(self, message_id: int, rate: float) -> bool:
+        """Ask for a message at ``rate`` Hz; False when the vehicle does not support it."""
+        result = self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, [message_id, 1e6 / rate], accept_unsupported=True)
+        return result == RESULT_ACCEPTED
+
+    def request_message(self, message_type: str, message_id: int, timeout: float):
+        """MAV_CMD_REQUEST_MESSAGE, then wait for the message itself."""
+        got = []
+
+        def collect(messages, now) -> None:  # it may come in the same datagram burst as the ACK
+            got.extend(m for m in messages if m.get_type() == message_type)
+
+        self.tickers.append(collect)
+        try:
+            self.command(mavlink.MAV_CMD_REQUEST_MESSAGE, [message_id])
+            deadline = self.clock() + timeout
+            while not got:
+                if self.clock() > deadline:
+                    raise VehicleError(f"the vehicle did not send {message_type} within {timeout:g} s", step=self.step)
+                self.pump(0.1)
+        finally:
+            self.tickers.remove(collect)
+        return got[0]
+
+    def set_mode(self, mode: str, timeout: float = 5.0) -> None:
+        """Switch flight mode (PX4 custom modes), wait for the ACK and for the HEARTBEAT to show it."""
+        shown = self.vehicle.mode == mode
+
+        def changed() -> bool:
+            return self.vehicle.mode == mode and not shown
+
+        self.command(mavlink.MAV_CMD_DO_SET_MODE, px4_mode_command(mode), effect=changed)
+        self.wait_for(lambda: self.vehicle.mode == mode, timeout, f"the vehicle's HEARTBEAT did not show mode {mode}")
+
+    def arm(self, timeout: float = 5.0) -> None:
+        was_armed = self.vehicle.armed
+        self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, [1], effect=lambda: self.vehicle.armed and not was_armed)
+        self.wait_for(lambda: self.vehicle.armed, timeout, "the vehicle's HEARTBEAT did not show it armed")
+
+    # ------------------------------------------------------------------ missions
+    def upload(self, items: Sequence[MissionItem], progress=None) -> tuple[UploadStatistics, int]:
+        """Upload a mission; returns the statistics of the successful transfer and the number of transfers."""
+        last_error = ""
+        for attempt in range(1, self.upload_attempts + 1):
+            upload = MissionUpload(items, *self.target, timeout=self.mission_timeout, retries=self.mission_retries)
+            self._transactions.append(upload)
+            done = 0
+            try:
+                self.send(upload.start(self.clock()))
+                while not upload.finished:
+                    self.pump(0.1)
+                    if progress is not None and len(upload.requested) > done:
+                        progress.advance(len(upload.requested) - done)
+                        done = len(upload.requested)
+            finally:
+                self._transactions.remove(upload)
+            if upload.state == "done":
+                return upload.stats, attempt
+            if upload.result is not None and upload.result != mavlink.MAV_MISSION_OPERATION_CANCELLED:
+                raise VehicleError(upload.error, step=self.step)
+            last_error = upload.error or "the vehicle cancelled the transfer (MAV_MISSION_OPERATION_CANCELLED)"
+            if progress is not None:
+                progress.update(0)
+            log.warning("mission upload attempt %d failed: %s", attempt, last_error)
+        raise VehicleError(f"{last_error} ({self.upload_attempts} transfers tried)", step=self.step)
+
+    # ------------------------------------------------------------------ offboard
+    def position_target(self, vehicle_time: float, position, velocity, acceleration):
+        """A SET_POSITION_TARGET_LOCAL_NED (position, velocity and acceleration; yaw ignored) for ``vehicle_time``."""
+        ignore = mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE | mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+        p, v, a = (np.asarray(x, float) for x in (position, velocity, acceleration))
+        return mavlink.MAVLink_set_position_target_local_ned_message(
+            round(vehicle_time * 1000) & 0xFFFFFFFF,
+            *self.target,
+            mavlink.MAV_FRAME_LOCAL_NED,
+            ignore,
+            *p,
+            *v,
+            *a,
+            0.0,
+            0.0,
+        )

@@ -1,0 +1,333 @@
+"""The simulated vehicle's autopilot: its flight modes, mission execution and failsafes.
+
+A mix-in of :class:`~.mavlink_sim.SimulatedVehicle` (it uses the vehicle's
+state, airframe and telemetry), kept apart because it is the part that
+*decides* where to fly, as PX4's navigator and commander do:
+
+* the reference for the position controller in each mode: offboard (the
+  setpoint in force, see :mod:`.mavlink_sim_offboard`, extrapolated from its
+  time stamp with its velocity and acceleration), mission and return legs (:class:`Follow` along a
+  :class:`~.mavlink_profile.TimedPath`), landing (descend at the landing
+  speed), hold (the stopping point);
+* mission execution: DO_CHANGE_SPEED at once; a run of NAV_WAYPOINTs flown as
+  one leg, corners rounded within half the acceptance radius, each
+  MISSION_ITEM_REACHED when the reference has passed it and the vehicle is
+  within its acceptance radius (or past it across the path); NAV_TAKEOFF,
+  NAV_LAND, NAV_RETURN_TO_LAUNCH, NAV_LOITER_TIME and NAV_LOITER_UNLIM;
+  local-NED and global (relative or AMSL altitude) frames;
+* automatic disarming after landing (1 s) and before take-off (10 s of wall
+  clock: it waits for people), the injected heartbeat loss, and the loss of
+  offboard setpoints (then hold).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from surgiplan.plugins.devices.mavlink.link import mavlink
+from surgiplan.plugins.devices.mavlink.mission import MissionItem
+from surgiplan.plugins.devices.mavlink.profile import TimedPath
+
+NAV = {
+    mavlink.MAV_CMD_NAV_WAYPOINT,
+    mavlink.MAV_CMD_NAV_TAKEOFF,
+    mavlink.MAV_CMD_NAV_LAND,
+    mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+    mavlink.MAV_CMD_NAV_LOITER_TIME,
+    mavlink.MAV_CMD_NAV_LOITER_UNLIM,
+}
+SUPPORTED_ITEMS = NAV | {mavlink.MAV_CMD_DO_CHANGE_SPEED}
+POSITION_FRAMES = {
+    mavlink.MAV_FRAME_LOCAL_NED,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    mavlink.MAV_FRAME_GLOBAL_INT,
+}
+#: how far the moving reference may lead the vehicle before it slows down, and stops (m)
+LEAD = (0.5, 1.5)
+#: seconds a vehicle may hover at a leg's last waypoint, outside its acceptance radius, before it counts
+SETTLE = 3.0
+
+
+class Follow:
+    """Follow a timed polyline; the reference waits for a vehicle that lags (wind, limits)."""
+
+    def __init__(self, profile: TimedPath) -> None:
+        self.profile = profile
+        self.tau = 0.0
+        #: how long (s) the reference has stood at the end
+        self.waited = 0.0
+
+    def reference(self, p: np.ndarray, dt: float):
+        ref, vel, acc = self.profile.at(self.tau)
+        lag = float(np.linalg.norm(ref - p))
+        rate = min(max((LEAD[1] - lag) / (LEAD[1] - LEAD[0]), 0.0), 1.0)
+        if self.at_end:
+            self.waited += dt
+        self.tau = min(self.tau + rate * dt, self.profile.duration)
+        return ref, vel * rate, acc * rate * rate
+
+    @property
+    def at_end(self) -> bool:
+        return self.tau >= self.profile.duration
+
+
+class Autopilot:
+    """Modes, missions and failsafes of the simulated vehicle (a mix-in: see the module's docstring)."""
+
+    # ------------------------------------------------------------------ physics and autopilot
+    def _physics(self, dt: float) -> None:
+        reference = self._reference(dt)
+        self.model.step(dt, reference, self.armed)
+        # the clock counts steps: no rounding drift, so that times on a grid (telemetry, setpoints) stay on it
+        self.steps += 1
+        self.t = self.steps * dt
+        self._after_step()
+        self._periodic()
+        self._faults()
+
+    def _reference(self, dt: float):
+        p = self.model.p
+        if self.mode == "offboard" and self.offboard.in_force(self.t) is not None:
+            return self.offboard.reference(self.t)
+        if isinstance(self.guidance, Follow):
+            return self.guidance.reference(p, dt)
+        if self.mode == "land" or self._landing:
+            ground = self.model.ground
+            x, y, z = self.hold_point
+            z = min(self.hold_point[2] + self.settings.airframe.landing_speed * dt, ground + 0.2)
+            self.hold_point = np.array([x, y, z])
+            return self.hold_point.copy(), np.array([0.0, 0.0, self.settings.airframe.landing_speed]), np.zeros(3)
+        return self.hold_point.copy(), np.zeros(3), np.zeros(3)
+
+    def _after_step(self) -> None:
+        model = self.model
+        if self.armed and not model.airborne and self._landing:
+            if self._landed_at is None:
+                self._landed_at = self.t
+                self._say("landed")
+            elif self.t - self._landed_at >= 1.0:
+                self._disarm("auto-disarmed after landing")
+        # PX4's COM_DISARM_PRFLT, on the wall clock: it waits for people, not for the physics
+        idle = self.guidance is None or (self.mode == "mission" and self.current >= len(self.mission))
+        if self.armed and not model.airborne and not self._landing and idle and self.mode != "offboard":
+            if time.monotonic() - self._armed_wall > 10.0:
+                self._disarm("auto-disarmed: no takeoff within 10 s")
+        if self.mode == "mission" and self.armed:
+            self._mission_step()
+        elif self.mode == "return" and isinstance(self.guidance, Follow) and self._arrived(self.guidance):
+            self._begin_landing()
+        elif self.mode == "takeoff" and isinstance(self.guidance, Follow) and self._arrived(self.guidance):
+            self.mode = "hold"
+            self._hold_here()
+
+    def _arrived(self, guidance: Follow, radius: float | None = None) -> bool:
+        radius = radius if radius is not None else self.settings.airframe.acceptance_radius
+        return guidance.at_end and np.linalg.norm(self.model.p - guidance.profile.end) <= radius
+
+    def _hold_here(self) -> None:
+        self.guidance = None
+        self._landing = False
+        self.hold_point = self.model.stopping_point()
+
+    def _begin_landing(self) -> None:
+        self.guidance = None
+        self._landing = True
+        self._landed_at = None
+        self.hold_point = self.model.p.copy()
+
+    def _disarm(self, why: str) -> None:
+        self.armed = False
+        self.armed_at = None
+        self._landing = False
+        self.guidance = None
+        self.hold_point = self.model.p.copy()
+        self._say(why)
+
+    def _faults(self) -> None:
+        loss = self.settings.heartbeat_loss
+        if loss is not None and self.armed_at is not None and not self.heartbeat_lost:
+            if self.t - self.armed_at >= loss.at_s:
+                self.heartbeat_lost = True
+                self.events.append((self.t, "heartbeat lost (injected)"))
+                self.telemetry_lost = loss.all_telemetry
+
+    def _offboard_watchdog(self, now: float) -> None:
+        if self.mode != "offboard" or not self.armed:
+            return
+        if self.offboard.stale(self.t, now):
+            self.mode = "hold"
+            self._hold_here()
+            self._say("offboard setpoints lost: holding", mavlink.MAV_SEVERITY_WARNING)
+
+    # ------------------------------------------------------------------ missions
+    def _item_position(self, item: MissionItem) -> np.ndarray:
+        """An item's position in local NED (NaN coordinates: the vehicle's)."""
+        p = self.model.p
+        if item.frame == mavlink.MAV_FRAME_LOCAL_NED:
+            xyz = np.array([item.x, item.y, item.z], float)
+        else:
+            north, east = self.projection.project(item.x, item.y)
+            if item.frame == mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT:
+                down = self.settings.home[2] - item.z
+            else:
+                down = -(item.z - self.settings.origin[2])
+            xyz = np.array([north, east, down], float)
+        return np.where(np.isnan(xyz), p, xyz)
+
+    def _validate_item(self, item: MissionItem, seq: int) -> int | None:
+        if item.command not in SUPPORTED_ITEMS:
+            return mavlink.MAV_MISSION_UNSUPPORTED
+        if item.command in NAV and item.command != mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            if item.frame not in POSITION_FRAMES:
+                return mavlink.MAV_MISSION_UNSUPPORTED_FRAME
+            if item.command in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_TAKEOFF) and math.isnan(item.z):
+                return mavlink.MAV_MISSION_INVALID_PARAM7
+        return None
+
+    def _mission_accepted(self, items: list[MissionItem]) -> None:
+        self.mission = items
+        self.current = 0
+        self.guidance = None
+        self.events.append((self.t, f"mission accepted ({len(items)} items)"))
+        if self.mode == "mission":
+            self.mode = "hold"
+            self._hold_here()
+        self._mission_current()
+
+    def _start_mission(self) -> None:
+        self._leg = []
+        self._start_item(self.current)
+
+    def _reached(self, seq: int) -> None:
+        self.events.append((self.t, f"reached item {seq}"))
+        self._telemetry(mavlink.MAVLink_mission_item_reached_message(seq))
+
+    def _start_item(self, index: int) -> None:
+        """Begin mission item ``index`` (DO items run at once; a run of waypoints is one leg)."""
+        airframe = self.settings.airframe
+        while True:
+            self.current = index
+            self._mission_current()
+            if index >= len(self.mission):
+                self.events.append((self.t, "mission complete"))
+                if self.model.airborne:
+                    self.mode = "hold"
+                    self._hold_here()
+                return
+            item = self.mission[index]
+            if item.command != mavlink.MAV_CMD_DO_CHANGE_SPEED:
+                break
+            if item.param2 > 0:
+                self.cruise_speed = min(item.param2, airframe.max_speed)
+            index += 1
+        start = self.guidance.profile.end if isinstance(self.guidance, Follow) else self.hold_point
+        start = np.asarray(start, float)
+        self._hold_until = None
+        self._leg = [index]
+        if item.command == mavlink.MAV_CMD_NAV_WAYPOINT:
+            leg = [index]
+            while (
+                leg[-1] + 1 < len(self.mission)
+                and self.mission[leg[-1]].param1 <= 0
+                and self.mission[leg[-1] + 1].command == mavlink.MAV_CMD_NAV_WAYPOINT
+            ):
+                leg.append(leg[-1] + 1)
+            self._leg = leg
+            self._leg_reached = 0
+            points = [start] + [self._item_position(self.mission[i]) for i in leg]
+            radius = self.mission[leg[0]].param2 or airframe.acceptance_radius
+            self._follow(points, corner=0.5 * radius)
+        elif item.command == mavlink.MAV_CMD_NAV_TAKEOFF:
+            target = self._item_position(item)
+            target[:2] = self.model.p[:2]
+            self._follow([self.model.p.copy(), target], corner=0.0)
+        elif item.command == mavlink.MAV_CMD_NAV_LAND:
+            target = self._item_position(item)
+            target[2] = start[2]
+            if np.linalg.norm(target[:2] - self.model.p[:2]) > airframe.acceptance_radius:
+                self._follow([start, target], corner=0.0)
+            else:
+                self._begin_landing()
+        elif item.command == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self._follow([start, np.array([*self.settings.home[:2], start[2]])], corner=0.0)
+        else:  # loiter: hold at the item's position (param1 seconds, or for ever)
+            self._follow([start, self._item_position(item)], corner=0.0)
+            if item.command == mavlink.MAV_CMD_NAV_LOITER_TIME:
+                self._hold_until = math.inf  # set when the position is reached
+
+    def _follow(self, points, corner: float) -> None:
+        airframe = self.settings.airframe
+        profile = TimedPath.along(
+            np.asarray(points, float),
+            self.cruise_speed,
+            0.5 * airframe.max_acceleration,
+            corner,
+            vertical_speed=min(airframe.max_climb, airframe.max_descent),
+        )
+        self._landing = False
+        self.guidance = Follow(profile)
+
+    def _mission_step(self) -> None:
+        if self.current >= len(self.mission):
+            return
+        item = self.mission[self.current]
+        guidance = self.guidance
+        if item.command == mavlink.MAV_CMD_NAV_WAYPOINT and isinstance(guidance, Follow):
+            # waypoint k of the leg is reached when the reference has passed it and the vehicle is within
+            # its acceptance radius (or past the plane through it, across the path)
+            profile = guidance.profile
+            while self._leg_reached < len(self._leg):
+                seq = self._leg[self._leg_reached]
+                k = self._leg_reached + 1  # the leg's waypoints follow its start point in the profile
+                waypoint = profile.waypoints[k]
+                incoming = waypoint - profile.waypoints[k - 1]
+                radius = self.mission[seq].param2 or self.settings.airframe.acceptance_radius
+                final = k == len(profile.waypoints) - 1
+                passed = not final and float((self.model.p - waypoint) @ incoming) > 0
+                distance = float(np.linalg.norm(self.model.p - waypoint))
+                # gusts can keep a hovering vehicle just outside a tight radius: after SETTLE seconds at
+                # the end, within 3 radii counts as there, and after 4 SETTLE as close as it gets
+                settled = (
+                    final and guidance.waited >= SETTLE and (distance <= 3 * radius or guidance.waited >= 4 * SETTLE)
+                )
+                if guidance.tau < profile.waypoint_time[k] or not (distance <= radius or passed or settled):
+                    break
+                self._reached(seq)
+                self._leg_reached += 1
+                if self._leg_reached < len(self._leg):
+                    self.current = self._leg[self._leg_reached]
+                    self._mission_current()
+            if self._leg_reached >= len(self._leg):
+                last = self.mission[self._leg[-1]]
+                if last.param1 > 0:
+                    self._hold_until = self.t + last.param1
+                    self.guidance = None
+                    self.hold_point = profile.end.copy()
+                else:
+                    self._start_item(self._leg[-1] + 1)
+            return
+        if self._hold_until is not None and guidance is None:
+            if self.t >= self._hold_until:
+                self._hold_until = None
+                self._start_item((self._leg[-1] if self._leg else self.current) + 1)
+            return
+        if item.command == mavlink.MAV_CMD_NAV_TAKEOFF and isinstance(guidance, Follow) and self._arrived(guidance):
+            self._reached(self.current)
+            self._start_item(self.current + 1)
+        elif item.command in (mavlink.MAV_CMD_NAV_LAND, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH):
+            if isinstance(guidance, Follow) and self._arrived(guidance):
+                self._begin_landing()
+            elif self._landing and not self.model.airborne and self._landed_at is not None:
+                self._reached(self.current)
+                self.current += 1
+                self._mission_current()
+        elif item.command in (mavlink.MAV_CMD_NAV_LOITER_TIME, mavlink.MAV_CMD_NAV_LOITER_UNLIM):
+            if isinstance(guidance, Follow) and self._arrived(guidance):
+                self._reached(self.current)
+                self.guidance = None
+                self.hold_point = guidance.profile.end.copy()
+                if item.command == mavlink.MAV_CMD_NAV_LOITER_TIME:
+                    self._hold_until = self.t + item.param1
+                    self._leg = [self.current]

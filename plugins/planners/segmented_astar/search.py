@@ -1,0 +1,404 @@
+"""segmented_astar: online A* on the segmented pathmap of an optMIS repository (paper 001 §3.2, §5).
+
+Build (offline): the optMIS all-pairs repository (shared with an ``optmis``
+stage of the same settings, resumable), then the segmented pathmap
+(:mod:`.pathmap`); the artifact holds only the pathmap, the storage the
+paper is about. With ``report:``, paper 001 Table 1 for n_s = 2..5 is
+written as ``table1.csv`` and ``table1.png`` (:mod:`.report`).
+
+Query (online): A* with the Euclidean heuristic on the graph built from the
+pathmap (:mod:`.graph`). Beyond the paper (which admits that its
+planner fails for points not in the graph, §7):
+
+* a start or goal that is not a point of the pathmap is linked to it by
+  certified straight motions to the nearest point of each of the
+  ``link_candidates`` nearest stored paths (optionally within
+  ``link_radius``); when none is clear, by a short local optMIS plan in a box
+  of half-size ``local_radius`` around it; when that fails too, the answer
+  is ``no_path`` with the reason;
+* *replanning* (paper 001 Fig. 6): :meth:`SegmentedAStar.replan` gives a
+  new path from the current position to a new goal; ``replan: {goal: C,
+  at: 0.6, figure: fig6.png}`` in a pipeline plans A -> B, moves 60 % of the
+  way along it and replans to C, returning the travelled part and the new
+  path, and draws the instance like Fig. 6 (:mod:`.figures`).
+
+Every returned motion is certified for the tip sphere: pathmap motions were
+certified when the pathmap was built, links and local plans when made.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, field_validator
+from surgiplan.errors import OutputError
+from surgiplan.paths import certify_edges
+from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
+from surgiplan.plugins.planners.optmis.offline import OptMISSettings, require_r3, run_offline
+from surgiplan.plugins.planners.optmis.paths import PathOptions, paths_from_source
+from surgiplan.plugins.planners.optmis.search_space import build_search_graph
+from surgiplan.units import Length, PositiveLength, Vec3
+
+from .graph import Attachment, OnlineGraph, online_graph
+from .pathmap import ALIGNMENTS, SegmentedPathmap, build_pathmap
+from .report import table1, write_report
+
+log = logging.getLogger(__name__)
+
+
+class ReportSettings(BaseModel):
+    """Paper 001 Table 1: where to write it and for which segment sizes."""
+
+    model_config = ConfigDict(extra="forbid")
+    #: directory (relative to the current directory, like artifact files)
+    dir: str
+    segment_points: list[PositiveInt] = Field(default_factory=lambda: [2, 3, 4, 5])
+
+
+class ReplanSettings(BaseModel):
+    """Paper 001 Fig. 6: after a fraction ``at`` of the first path, a new goal."""
+
+    model_config = ConfigDict(extra="forbid")
+    #: the new goal C: a scene point's name or coordinates
+    goal: str | Vec3
+    at: float = Field(default=1.0, gt=0, le=1)
+    #: write the instance drawn like paper 001 Fig. 6 to this PNG file (relative to the current directory)
+    figure: str | None = None
+
+
+class SegmentedAStarSettings(OptMISSettings):
+    """The optMIS settings of the repository, plus the pathmap's and the online planner's."""
+
+    #: n_s, points per segment (paper 001 §4.2 chooses 3)
+    segment_points: PositiveInt = 3
+    #: common-segment tolerance; default w_tip, the tip sphere's diameter
+    tolerance: Length | None = None
+    #: 'path': segments counted from each path's start (paper); 'corners': restarted at every turn
+    alignment: Literal["path", "corners"] = "corners"
+    #: a segment also matches one traversed the other way
+    reverse: bool = True
+    # query settings (exclude=True: they do not change the stored pathmap, so not its content key)
+    #: how far a start or goal may be linked to the pathmap by a straight motion (to the nearest point
+    #: of each of the ``link_candidates`` nearest chains of the online graph); none: no limit
+    link_radius: PositiveLength | None = Field(default=None, exclude=True)
+    #: half-size of the box in which a local plan links a start or goal the straight links cannot
+    local_radius: PositiveLength = Field(default=0.015, exclude=True)
+    report: ReportSettings | None = Field(default=None, exclude=True)
+    replan: ReplanSettings | None = Field(default=None, exclude=True)
+
+    @field_validator("alignment")
+    @classmethod
+    def _alignment(cls, value):
+        if value not in ALIGNMENTS:
+            raise ValueError(f"choose one of: {', '.join(ALIGNMENTS)}")
+        return value
+
+
+@dataclass
+class PathmapArtifact:
+    pathmap: SegmentedPathmap
+    graph: OnlineGraph
+    space: Any
+    poi_vertex: np.ndarray  # graph vertex of each point of interest (-1: in no stored path)
+    table1: list[dict]
+
+
+class SegmentedAStar(Planner):
+    """A* on the segmented pathmap; arbitrary starts and goals; replanning."""
+
+    Settings = SegmentedAStarSettings
+    artifact_version = 1
+
+    # ------------------------------------------------------------------ offline
+    def _check_outputs(self) -> None:
+        """Fail before any work when the report or figure cannot be written (not after an hour of it)."""
+        from surgiplan.runner import prepare_output_dir
+
+        targets = []
+        if self.settings.report is not None:
+            targets.append((Path(self.settings.report.dir), "settings.report.dir"))
+        if self.settings.replan is not None and self.settings.replan.figure:
+            targets.append((Path(self.settings.replan.figure).parent, "settings.replan.figure"))
+        for directory, location in targets:
+            try:
+                prepare_output_dir(directory)
+            except OutputError as exc:
+                raise OutputError(exc.message.replace("output directory", "directory"), location=location) from None
+
+    def build(self, problem: PlanningProblem) -> PathmapArtifact:
+        settings = self.settings
+        self._check_outputs()
+        offline = run_offline(problem, settings)
+        started = time.perf_counter()
+        with problem.progress.task("segmented pathmap", total=1) as task:
+            pathmap = build_pathmap(
+                offline.repository,
+                problem.space,
+                n_s=settings.segment_points,
+                tolerance=settings.tolerance,
+                alignment=settings.alignment,
+                reverse=settings.reverse,
+                margin=settings.margin,
+                seed=settings.seed,
+            )
+            task.advance(1)
+        pathmap.stats["pathmap_s"] = time.perf_counter() - started
+        pathmap.stats["repository"] = {
+            k: v for k, v in offline.repository.summary().items() if not isinstance(v, dict | list)
+        }
+        rows: list[dict] = []
+        if settings.report is not None:
+            with problem.progress.task("paper 001 Table 1", total=1) as task:
+                directory = Path(settings.report.dir)
+                rows = table1(
+                    offline.repository,
+                    problem.space,
+                    sizes=tuple(settings.report.segment_points),
+                    alignment=settings.alignment,
+                    reverse=settings.reverse,
+                    tolerance=settings.tolerance,
+                    margin=settings.margin,
+                    directory=directory,
+                )
+                write_report(directory, rows, self._report_title(problem, offline.repository))
+                task.advance(1)
+        return self._artifact(pathmap, problem.space, rows)
+
+    @staticmethod
+    def _report_title(problem, repository) -> str:
+        return (
+            f"{problem.scene.name}: {repository.n_paths} paths between {len(repository.names)} points of interest, "
+            f"w_tip = {2e3 * problem.space.tip_radius:.3g} mm"
+        )
+
+    @staticmethod
+    def _artifact(pathmap: SegmentedPathmap, space, rows: list[dict]) -> PathmapArtifact:
+        graph = online_graph(pathmap)
+        graph.clearance = space.clearance(graph.points)  # for links certified by covering balls
+        distance, index = graph.tree.query(pathmap.pois)
+        # a point of interest that no path reaches is not in the pathmap (-1)
+        index = np.where(distance <= 1e-12, index, -1)
+        return PathmapArtifact(pathmap, graph, space, np.asarray(index, np.int64), rows)
+
+    def save_artifact(self, artifact: PathmapArtifact) -> dict[str, Any]:
+        return {**artifact.pathmap.to_artifact(), "table1": artifact.table1}
+
+    def load_artifact(self, data, problem: PlanningProblem) -> PathmapArtifact:
+        require_r3(problem.space)
+        self._check_outputs()
+        rows = list(data.get("table1", []))
+        artifact = self._artifact(SegmentedPathmap.from_artifact(data), problem.space, rows)
+        if self.settings.report is not None:
+            directory = Path(self.settings.report.dir)
+            if not rows:
+                log.warning("the stored pathmap was built without report:, so it has no Table 1; delete the "
+                            "artifact file to rebuild it with the report")
+            elif not (directory / "table1.csv").is_file():
+                write_report(directory, rows)
+        return artifact
+
+    # ------------------------------------------------------------------ online
+    def _attach(self, artifact: PathmapArtifact, q: np.ndarray, counters: dict) -> tuple[list[Attachment], str]:
+        """Ways from q into the graph: a pathmap point, certified straight links, or a local plan."""
+        graph, space, settings = artifact.graph, artifact.space, self.settings
+        distance, v = graph.tree.query(q)
+        on_map = distance <= 1e-12
+        if on_map and graph.is_junction[v]:
+            # a point of interest or a branch point: the pathmap alone, as in the paper
+            return graph.attachments_at_vertex(int(v), q[None], 0.0), "vertex"
+        out = graph.attachments_at_vertex(int(v), q[None], 0.0) if on_map else []
+        index = self.link_candidates(artifact, q)
+        index = index[np.any(graph.points[index] != q, axis=1)]  # not to itself
+        if index.size:
+            targets = graph.points[index]
+            # two covering balls (the clearance at both ends) certify most links without a swept check
+            slack = float(space.clearance(q[None])[0]) - settings.margin
+            ok, _ = certify_edges(space, np.repeat(q[None], len(index), 0), targets, np.full(len(index), slack),
+                                  graph.clearance[index] - settings.margin, settings.margin)
+            counters["link_checks"] += len(index)
+            for vertex, point in zip(index[ok], targets[ok], strict=True):
+                link = np.stack([q, point])
+                out += graph.attachments_at_vertex(int(vertex), link, float(np.linalg.norm(point - q)))
+            if out:
+                return out, "vertex" if on_map and not np.any(ok) else "straight"
+        if out:
+            return out, "vertex"
+        counters["local_plans"] += 1
+        return self._local_plan(artifact, q), "local"
+
+    def link_candidates(self, artifact: PathmapArtifact, q: np.ndarray) -> np.ndarray:
+        """Graph vertices a straight link from q may go to, nearest first.
+
+        The nearest point of each of the ``link_candidates`` nearest chains
+        within ``link_radius``: links into different stored paths, rather than
+        many into the one path that q happens to lie beside.
+        """
+        graph, settings = artifact.graph, self.settings
+        k = min(8 * settings.link_candidates, len(graph.points))
+        limit = settings.link_radius if settings.link_radius is not None else np.inf
+        distance, index = graph.tree.query(q, k=k, distance_upper_bound=limit)
+        index = np.atleast_1d(index)[np.isfinite(np.atleast_1d(distance))]
+        owner = np.where(graph.is_junction[index], -1 - index, graph.chain_of[index])
+        _, first = np.unique(owner, return_index=True)
+        return index[np.sort(first)][: settings.link_candidates]
+
+    def _local_plan(self, artifact: PathmapArtifact, q: np.ndarray) -> list[Attachment]:
+        """Certified paths from q to pathmap points in a box around it (a small optMIS search space)."""
+        from surgiplan.spaces.r3 import R3Space
+
+        graph, space, settings = artifact.graph, artifact.space, self.settings
+        scene = space.scene
+        half = settings.local_radius
+        lo = np.maximum(q - half, scene.bounds_min)
+        hi = np.minimum(q + half, scene.bounds_max)
+        inside = np.flatnonzero(np.all((graph.points >= lo) & (graph.points <= hi), axis=1))
+        if not inside.size:
+            return []
+        # the nearest pathmap points in the box are enough to join the graph
+        inside = inside[np.argsort(np.linalg.norm(graph.points[inside] - q, axis=1))[:64]]
+        local = R3Space(scene.with_bounds(lo, hi), space.tip_radius)
+        pois = np.concatenate([q[None], graph.points[inside]])
+        spacing = min(settings.grid_spacing, half / 2)
+        try:
+            search = build_search_graph(local, pois, grid_spacing=spacing, surface_spacing=settings.surface_spacing,
+                                        surface_gap=settings.surface_gap, neighbours=settings.neighbours,
+                                        margin=settings.margin, seed=settings.seed)
+        except Exception as exc:  # a degenerate local box (too few vertices): no local plan
+            log.debug("no local search space around %s: %s", q, exc)
+            return []
+        options = PathOptions(taut=True, smoothing=False, resolution=settings.smoothing.resolution,
+                              knot_spacing=settings.smoothing.knot_spacing, margin=settings.margin)
+        targets = np.arange(1, len(pois))
+        out = paths_from_source(local, search.graph, search.vertices, search.clearance, int(search.poi_vertex[0]),
+                                search.poi_vertex[targets], options)
+        attachments = []
+        reached = targets[out["reachable"]]
+        for k, target in enumerate(reached):
+            points = out["points"][out["path_start"][k] : out["path_start"][k + 1]]
+            attachments += graph.attachments_at_vertex(int(inside[target - 1]), points, float(out["length"][k]))
+        return attachments
+
+    def query(self, artifact: PathmapArtifact, start, goal) -> PlanResult:
+        start, goal = np.asarray(start, float), np.asarray(goal, float)
+        result = self._plan(artifact, start, goal)
+        replan = self.settings.replan
+        if replan is None or not result.solved:
+            return result
+        new_goal = self._resolve(artifact, replan.goal)
+        path = result.path
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+        where = replan.at * arc[-1]
+        k = int(np.clip(np.searchsorted(arc, where, side="right") - 1, 0, max(len(path) - 2, 0)))
+        t = (where - arc[k]) / max(arc[k + 1] - arc[k], 1e-15) if len(path) > 1 else 0.0
+        current = path[k] + np.clip(t, 0.0, 1.0) * (path[min(k + 1, len(path) - 1)] - path[k])
+        travelled = np.concatenate([path[: k + 1], current[None]])
+        second = self.replan(artifact, current, new_goal)
+        metrics = dict(result.metrics)
+        metrics["replan"] = {
+            "first_goal_m": goal.tolist(),
+            "first_length_m": float(arc[-1]),
+            "at": replan.at,
+            "position_m": current.tolist(),
+            "new_goal_m": new_goal.tolist(),
+            "status": second.status.value,
+            "new_length_m": second.metrics.get("path_cost_m"),
+            "query_s": second.metrics.get("online_s"),
+            "expanded_junctions": second.metrics.get("expanded_junctions"),
+        }
+        if not second.solved:
+            return PlanResult.failure(second.status, 3, f"replanning to the new goal failed: {second.message}",
+                                      **metrics)
+        combined = np.concatenate([travelled, second.path[1:]])
+        keep = np.concatenate([[True], np.any(np.diff(combined, axis=0) != 0, axis=1)])
+        if replan.figure:
+            from .figures import replanning_figure
+
+            labels = {"A": start, "B": goal, "C": new_goal, "R": current}
+            replanning_figure(Path(replan.figure), artifact.space.scene, path, travelled, second.path, labels,
+                              title=f"replanning (paper 001 Fig. 6): A to B, new goal C after {replan.at:.0%} "
+                              f"of the way (replanned in {second.metrics['online_s'] * 1e3:.2f} ms)")
+            metrics["replan"]["figure"] = replan.figure
+        return PlanResult(PlanStatus.SOLVED, combined[keep], metrics,
+                          annotations={"replan": {"position_m": current.tolist(), "travelled_m": float(where)}})
+
+    def replan(self, artifact: PathmapArtifact, current, new_goal) -> PlanResult:
+        """A new path from the current position (anywhere, e.g. partway along the last path) to a new goal."""
+        return self._plan(artifact, np.asarray(current, float), np.asarray(new_goal, float))
+
+    def _resolve(self, artifact: PathmapArtifact, goal) -> np.ndarray:
+        if isinstance(goal, str):
+            names = artifact.pathmap.names
+            if goal in artifact.space.scene.points:
+                return np.asarray(artifact.space.scene.points[goal], float)
+            from surgiplan.errors import PlanningInputError, choices_hint
+
+            raise PlanningInputError(f"no point named '{goal}'; {choices_hint(goal, names)}",
+                                     location="settings.replan.goal")
+        return np.asarray(goal, float)
+
+    def _plan(self, artifact: PathmapArtifact, start: np.ndarray, goal: np.ndarray) -> PlanResult:
+        space, graph = artifact.space, artifact.graph
+        # a point of the pathmap is a certified configuration already; anything else is checked
+        on_map = graph.tree.query(np.stack([start, goal]))[0] <= 1e-12
+        if not np.all(on_map):
+            failure = self.check_endpoints(space, start, goal, self.settings.margin)
+            if failure is not None:
+                return failure
+        started = time.perf_counter()
+        counters = {"link_checks": 0, "local_plans": 0}
+        starts, start_kind = self._attach(artifact, start, counters)
+        goals, goal_kind = self._attach(artifact, goal, counters)
+        linked = time.perf_counter()
+        metrics: dict[str, Any] = {
+            "start_link": start_kind,
+            "goal_link": goal_kind,
+            **counters,
+            "w_tip_m": 2 * space.tip_radius,
+            **{f"pathmap_{k}": v for k, v in artifact.pathmap.stats.items() if not isinstance(v, dict | list)},
+            **graph.stats(),
+        }
+        within = f" within {self.settings.link_radius * 1e3:.3g} mm" if self.settings.link_radius else ""
+        for attachments, what, q in ((starts, "start", start), (goals, "goal", goal)):
+            if not attachments:
+                metrics["link_s"] = linked - started
+                return PlanResult.failure(
+                    PlanStatus.NO_PATH,
+                    3,
+                    f"the {what} {space.scene.describe_point(q)} cannot be joined to the pathmap: no certified "
+                    f"straight motion to the nearest point of any of the {self.settings.link_candidates} nearest "
+                    f"stored paths{within}, and no local plan within {self.settings.local_radius * 1e3:.3g} mm "
+                    "of it",
+                    **metrics,
+                )
+        # routes that need no junction: along the one chain both ends joined, or straight from start to goal
+        direct = graph.along_one_chain(starts, goals)
+        if "vertex" not in (start_kind, goal_kind) and space.motion_is_clear(start[None], goal[None],
+                                                                             self.settings.margin)[0]:
+            straight = float(np.linalg.norm(goal - start))
+            if direct is None or straight < direct[0]:
+                direct = (straight, np.stack([start, goal]))
+        outcome = graph.astar(starts, goals, goal, direct)
+        finished = time.perf_counter()
+        metrics.update(
+            {
+                "link_s": linked - started,
+                "astar_s": finished - linked,
+                "online_s": finished - started,
+                "expanded_junctions": outcome.expanded,
+                "path_cost_m": outcome.cost if np.isfinite(outcome.cost) else None,
+            }
+        )
+        if outcome.path is None:
+            return PlanResult.failure(
+                PlanStatus.NO_PATH,
+                3,
+                "start and goal are in parts of the pathmap that no stored path joins "
+                "(e.g. a point of interest that was unreachable offline)",
+                **metrics,
+            )
+        return PlanResult(PlanStatus.SOLVED, outcome.path, metrics, clearance_threshold=self.settings.margin or None)

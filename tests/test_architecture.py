@@ -1,0 +1,166 @@
+"""The tree reads as the architecture: import contracts (import-linter), packaging, a README that stands alone.
+
+``surgiplan`` maps to ``framework/`` and ``surgiplan.plugins`` to ``plugins/``
+(setuptools ``package-dir``). import-linter (grimp) finds a package's modules
+by walking its directory, so the contracts are checked on a *view*: a
+directory ``surgiplan/`` of symbolic links to the entries of ``framework/``
+plus ``plugins -> plugins/``, exactly the installed layout.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
+LINT_IMPORTS = Path(sys.executable).parent / "lint-imports"
+
+
+def make_view(base: Path, extra: dict[str, str] | None = None) -> Path:
+    """``base/surgiplan`` laid out as installed; ``extra``: {relative path: source} added to it (for probes).
+
+    Directories on the way to an extra file are materialised (links to their entries), so probes never
+    touch the repository."""
+    package = base / "surgiplan"
+    package.mkdir(parents=True)
+    for entry in (ROOT / "framework").iterdir():
+        if entry.name != "__pycache__":
+            (package / entry.name).symlink_to(entry)
+    (package / "plugins").symlink_to(ROOT / "plugins")
+    for relative, source in (extra or {}).items():
+        target = package / relative
+        here = package
+        for part in Path(relative).parts[:-1]:
+            here = here / part
+            if here.is_symlink():
+                real = here.resolve()
+                here.unlink()
+                here.mkdir()
+                for entry in real.iterdir():
+                    if entry.name != "__pycache__":
+                        (here / entry.name).symlink_to(entry)
+        target.write_text(source)
+    return base
+
+
+def lint_imports(view: Path) -> subprocess.CompletedProcess:
+    if not LINT_IMPORTS.exists():
+        pytest.fail("import-linter is not installed: pip install -e '.[dev]' (the Makefile's test target does)")
+    env = {"PYTHONPATH": str(view), "PATH": "/usr/bin:/bin", "HOME": str(view)}
+    return subprocess.run(
+        [str(LINT_IMPORTS), "--config", str(ROOT / "pyproject.toml"), "--no-cache"],
+        cwd=view,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_import_contracts_are_kept(tmp_path):
+    result = lint_imports(make_view(tmp_path))
+    contracts = PYPROJECT["tool"]["importlinter"]["contracts"]
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"Contracts: {len(contracts)} kept, 0 broken." in result.stdout
+    assert {c["id"] for c in contracts} == {"core", "plugins", "device-layers", "mavlink-sim", "acyclic"}
+
+
+@pytest.mark.parametrize(
+    "probe, broken",
+    [
+        (
+            {"_probe.py": "import surgiplan.plugins.fem\n"},
+            "the core (surgiplan minus surgiplan.plugins) imports no plugin",
+        ),
+        (
+            {"plugins/planners/safe_prm/_probe.py": "from surgiplan.plugins.planners.optmis import planner\n"},
+            "plugin packages import one another only through the core",
+        ),
+        (
+            {"plugins/devices/canopen/_probe.py": "from surgiplan.plugins.devices.cast_gimbal import device\n"},
+            "CiA 402 devices: device packages above the CANopen layer",
+        ),
+        (
+            {
+                "plugins/fem/_probe_a.py": "from . import _probe_b\n",
+                "plugins/fem/_probe_b.py": "from . import _probe_a\n",
+            },
+            "no import cycles",
+        ),
+    ],
+    ids=["core-imports-plugin", "plugin-imports-plugin", "layer-upwards", "cycle"],
+)
+def test_each_contract_catches_its_violation(tmp_path, probe, broken):
+    """The contracts can fail: a module added to a view of the tree breaks exactly the contract it should."""
+    result = lint_imports(make_view(tmp_path, probe))
+    assert result.returncode != 0
+    text = " ".join(result.stdout.split())
+    assert re.search(re.escape(broken) + r".*? BROKEN", text), result.stdout
+
+
+def test_every_package_is_listed_for_the_wheel():
+    """setuptools ships only the packages pyproject lists: every directory with an ``__init__.py`` is there."""
+    listed = set(PYPROJECT["tool"]["setuptools"]["packages"])
+    found = set()
+    for top, name in (("framework", "surgiplan"), ("plugins", "surgiplan.plugins")):
+        for init in (ROOT / top).rglob("__init__.py"):
+            parts = init.parent.relative_to(ROOT / top).parts
+            found.add(".".join([name, *parts]))
+    assert found == listed
+
+
+def test_every_plugin_package_registers_through_its_own_entry_point_and_says_what_it_implements():
+    entry_points = PYPROJECT["project"]["entry-points"]["surgiplan"]
+    plugin_packages = [m for m in entry_points.values() if m.startswith("surgiplan.plugins.")]
+    assert sorted(plugin_packages) == sorted(
+        f"surgiplan.plugins.{p}"
+        for p in (
+            "planners.safe_prm",
+            "planners.optmis",
+            "planners.segmented_astar",
+            "planners.retraction",
+            "planners.ompl_bridge",
+            "fem",
+            "devices.cast_gimbal",
+            "devices.gripper6",
+            "devices.mavlink",
+        )
+    )
+    import importlib
+
+    papers = {
+        "planners.safe_prm": "Jain",
+        "planners.optmis": "Rao",
+        "planners.segmented_astar": "Rao",
+        "planners.retraction": "Patil",
+        "fem": "Patil",
+    }
+    for name, author in papers.items():
+        module = importlib.import_module(f"surgiplan.plugins.{name}")
+        assert author in module.__doc__, f"surgiplan.plugins.{name}'s docstring does not cite its paper"
+        assert "surgiplan_register_" in " ".join(dir(module))
+
+
+def test_the_readme_stands_alone():
+    """No reference outside the repository, and every file or directory it names exists."""
+    readme = (ROOT / "README.md").read_text()
+    assert "../shared" not in readme and "seeds/" not in readme
+    named = set(re.findall(r"`((?:configs|benchmarks|plugins|framework|tests|docs|examples|tools)/[\w./-]*)`", readme))
+    named |= set(re.findall(r"\]\(((?:configs|benchmarks|plugins|framework|tests|docs|examples)/[\w./-]*)\)", readme))
+    assert named, "the README names no file at all?"
+    missing = sorted(p for p in named if not any(ROOT.glob(p.rstrip("/"))))
+    assert not missing, f"README.md names files that do not exist: {missing}"
+    assert (ROOT / "docs" / "architecture.md").is_file()
+
+
+def test_no_generic_top_level_import_names_are_installed():
+    """One distribution, one import name: neither ``framework`` nor ``plugins`` is importable."""
+    code = "import importlib.util as u; print(u.find_spec('framework'), u.find_spec('plugins'))"
+    out = subprocess.run([sys.executable, "-c", code], cwd="/", capture_output=True, text=True)
+    assert out.stdout.strip() == "None None", out.stdout + out.stderr
