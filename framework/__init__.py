@@ -27,12 +27,14 @@ from .errors import (
 from .executors import DaskExecutor, Executor, InlineExecutor, LocalExecutor, TaskStore, run_tasks
 from .hookspecs import PluginSpec, hookimpl
 from .pipeline import load_pipeline, load_scene
-from .planning import Planner, PlanningProblem, PlanResult, PlanStatus
+from .planning import Planner, PlanningProblem, PlanResult
 from .progress import NullProgress, Progress
+from .resources import ResourceEstimate
 from .results import StageContext, StageResult
 from .runner import run_pipeline
 from .scene import Scene
 from .spaces import CastGimbalSpace, R3Space, SE3Space, Space
+from .status import ExecuteStatus, PlanStatus, RunStatus, SimulateStatus
 from .units import Angle, Coordinate, Length, PositiveLength, Vec3
 
 __all__ = [
@@ -45,6 +47,7 @@ __all__ = [
     "DeformableModel",
     "Device",
     "EquilibriumState",
+    "ExecuteStatus",
     "ExecutionReport",
     "Executor",
     "InlineExecutor",
@@ -62,9 +65,12 @@ __all__ = [
     "PositiveLength",
     "Progress",
     "R3Space",
+    "ResourceEstimate",
+    "RunStatus",
     "SE3Space",
     "Scene",
     "SceneError",
+    "SimulateStatus",
     "Space",
     "StageContext",
     "StageResult",

@@ -141,6 +141,12 @@ def _cmd_plugins(args) -> int:
     return 0
 
 
+def _where_the_record_is(exc: BaseException) -> None:
+    outcome = getattr(exc, "outcome", None)
+    if outcome is not None:
+        print(f"the stages so far are recorded in {outcome.output_dir / 'result.json'}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from .runner import debug_enabled
@@ -154,9 +160,11 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             traceback.print_exc()
         print(f"error: {exc}", file=sys.stderr)
+        _where_the_record_is(exc)
         return exc.exit_code
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print("interrupted: finished offline work is kept in checkpoints; run again to resume", file=sys.stderr)
+        _where_the_record_is(exc)
         return 130
     except Exception as exc:
         if debug:
@@ -166,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
             "run with --debug for the traceback)",
             file=sys.stderr,
         )
+        _where_the_record_is(exc)
         return 1
     finally:
         restore_logging()

@@ -20,6 +20,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from .resources import ResourceEstimate
+
 if TYPE_CHECKING:
     from .results import StageContext, StageResult
 
@@ -71,6 +73,12 @@ class DeformableModel(ABC):
     """Base class of deformable-model plugins."""
 
     Settings: ClassVar[type[BaseModel]]
+
+    @classmethod
+    def estimate_resources(cls, settings: BaseModel) -> list[ResourceEstimate]:
+        """What a stage with these settings will need, before any work (see :mod:`surgiplan.resources`);
+        override it when a setting scales memory. The default estimates nothing."""
+        return []
 
     def __init__(self, settings: BaseModel) -> None:
         self.settings = settings

@@ -25,6 +25,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from .errors import SurgiplanError
+from .resources import ResourceEstimate
 
 if TYPE_CHECKING:
     from .results import StageContext
@@ -57,7 +58,8 @@ class Trajectory:
 
 @dataclass
 class ExecutionReport:
-    """What the device did: ``completed`` or ``stopped`` (with the reason)."""
+    """What the device did: an :class:`~surgiplan.status.ExecuteStatus` (``completed``, ``stopped`` with the
+    reason, or ``refused`` before any motion); any other value makes the stage ``invalid_result``."""
 
     status: str
     metrics: dict[str, Any] = field(default_factory=dict)
@@ -84,6 +86,12 @@ class Device(ABC):
             LifecycleState.FINALIZED,
         ),
     }
+
+    @classmethod
+    def estimate_resources(cls, settings: BaseModel) -> list[ResourceEstimate]:
+        """What a stage with these settings will need, before any work (see :mod:`surgiplan.resources`);
+        override it when a setting scales memory. The default estimates nothing."""
+        return []
 
     def __init__(self, settings: BaseModel) -> None:
         self.settings = settings

@@ -1,6 +1,6 @@
 """Loading and validating pipeline and scene files.
 
-Validation runs in three passes, and each reports every problem it finds
+Validation runs in four passes, and each reports every problem it finds
 with the file, the YAML path and the line:
 
 1. structure: the file against :class:`~surgiplan.config.PipelineModel`
@@ -8,7 +8,10 @@ with the file, the YAML path and the line:
 2. plugins: each stage's plugin is looked up by name in the registry, and its
    ``settings`` (and ``space``) validated with that plugin's own model;
 3. meaning: the scene is built (meshes loaded), and starts and goals are
-   resolved and checked: known point names, inside the bounds, free.
+   resolved and checked: known point names, inside the bounds, free;
+4. resources: each plugin estimates from its settings what its stage will
+   need (:mod:`surgiplan.resources`); more memory than the machine has is an
+   error naming the setting.
 
 :func:`load_pipeline` returns a :class:`Pipeline` ready to run; nothing has
 been written anywhere.
@@ -36,8 +39,9 @@ from .geometry.shapes import Box, Capsule, Cylinder, Mesh, Obstacle, Sphere, rot
 from .geometry.transforms import Pose
 from .hookspecs import KINDS
 from .models import QuaternionPoseModel
-from .planning import Planner
+from .planning import Planner, PlanningProblem
 from .registry import PluginInfo, PluginRegistry, default_registry
+from .resources import too_large
 from .scene import Scene
 from .spaces.base import Space
 from .units import LENGTH_SCALE_KEY, LENGTH_UNITS
@@ -265,7 +269,7 @@ class Pipeline:
 def load_pipeline(
     path: str | Path, *, registry: PluginRegistry | None = None, output_dir: str | Path | None = None
 ) -> Pipeline:
-    """Read, validate and resolve a pipeline file (all three passes)."""
+    """Read, validate and resolve a pipeline file (all four passes)."""
     registry = registry or default_registry()
     path = Path(path)
     data, lines = load_yaml(path)
@@ -335,8 +339,42 @@ def load_pipeline(
     if errors:
         raise ConfigErrors(errors)
 
+    # pass 4: resources, estimated from the settings before any work
+    for spec in stages:
+        errors.extend(_resource_errors(spec, path, lines))
+    if errors:
+        raise ConfigErrors(errors)
+
     out = Path(output_dir) if output_dir is not None else Path(model.output.dir or Path("out") / model.name)
     return Pipeline(path, model.name, model, scene, stages, out, base_dir, registry)
+
+
+def _resource_errors(spec: StageSpec, file: Path, lines: LineMap) -> list[ConfigError]:
+    """Estimates above the machine's memory, each a :class:`ConfigError` at the setting that drives it."""
+    cls = spec.plugin.cls
+    try:
+        if spec.kind == "plan":
+            problem = PlanningProblem(spec.scene, spec.space, start=spec.start, goal=spec.goal)
+            estimates = cls.estimate_resources(spec.settings, problem)
+        else:
+            estimates = cls.estimate_resources(spec.settings)
+        estimates = list(estimates or [])
+    except Exception as exc:
+        where = ("pipeline", spec.index, "plugin")
+        return [
+            ConfigError(
+                f"plugin '{spec.plugin.name}' ({spec.plugin.package} {spec.plugin.version}) failed to estimate "
+                f"its resources: {type(exc).__name__}: {exc}",
+                file=file,
+                location=format_path(where),
+                line=line_of(lines, where),
+            )
+        ]
+    errors = []
+    for estimate, message in too_large(estimates):
+        where = ("pipeline", spec.index, "settings", *([estimate.setting] if estimate.setting else []))
+        errors.append(ConfigError(message, file=file, location=format_path(where), line=line_of(lines, where)))
+    return errors
 
 
 def _resolve_stage(index, stage: StageModel, raw, registry, scene, file, lines, context, names) -> StageSpec:

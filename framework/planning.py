@@ -17,7 +17,6 @@ space, plugin and settings, and rebuilds when they change.
 
 from __future__ import annotations
 
-import enum
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -29,16 +28,10 @@ from pydantic import BaseModel
 
 from .executors import Executor, InlineExecutor
 from .progress import NullProgress, Progress
+from .resources import ResourceEstimate
 from .scene import Scene
 from .spaces.base import Space
-
-
-class PlanStatus(enum.StrEnum):
-    SOLVED = "solved"
-    NO_PATH = "no_path"
-    INVALID_START = "invalid_start"
-    INVALID_GOAL = "invalid_goal"
-    TIMEOUT = "timeout"
+from .status import PlanStatus
 
 
 @dataclass
@@ -81,10 +74,14 @@ class PlanResult:
     annotations: dict[str, Any] = field(default_factory=dict)
     #: files the planner wrote into ``PlanningProblem.output_dir`` (relative to it)
     files: list[str] = field(default_factory=list)
+    #: where the path ends when the planner's settings redirected the query (replanning to a new
+    #: goal); the framework then checks the path ends here instead of at the stage's goal, and
+    #: reports it (``metrics.final_goal``)
+    final_goal: np.ndarray | None = None
 
     @property
     def solved(self) -> bool:
-        return self.status is PlanStatus.SOLVED
+        return self.status == PlanStatus.SOLVED
 
     @classmethod
     def failure(cls, status: PlanStatus, dimension: int, message: str, **metrics) -> PlanResult:
@@ -116,6 +113,16 @@ class Planner(ABC):
     @abstractmethod
     def query(self, artifact: Any, start: np.ndarray, goal: np.ndarray) -> PlanResult:
         """The online phase: a path from ``start`` to ``goal`` (configurations)."""
+
+    @classmethod
+    def estimate_resources(cls, settings: BaseModel, problem: PlanningProblem) -> list[ResourceEstimate]:
+        """What the stage will need, from the settings alone, before any work (:mod:`surgiplan.resources`).
+
+        Called by ``surgiplan validate`` and ``run``; an estimate above the machine's memory refuses the
+        file, naming the estimate's ``setting``. Override it when a setting scales memory (milestones,
+        samples, mesh sizes, pairs); the default estimates nothing.
+        """
+        return []
 
     # ------------------------------------------------------------------ persistence
     @property

@@ -179,14 +179,26 @@ class PluginRegistry:
     def _add(self, kind: str, specs: Iterable[PluginSpec], package: str, version: str, ep_name: str) -> None:
         for spec in specs:
             if not isinstance(spec, PluginSpec):
-                raise TypeError(f"hooks must return PluginSpec records, got {type(spec).__name__}")
+                self._fail(
+                    ep_name,
+                    package,
+                    f"plugin entry point '{ep_name}' from package '{package}': its {kind} hook must return "
+                    f"PluginSpec records, got {type(spec).__name__}",
+                )
+                continue
             if spec.name in self.disabled:
                 self.skipped.append(f"{spec.name} ({package})")
                 continue
             if not spec.unavailable:
-                settings = getattr(spec.cls, "Settings", None)
-                if not (isinstance(settings, type) and issubclass(settings, BaseModel)):
-                    raise TypeError(f"{kind} '{spec.name}': class {spec.cls.__name__} has no pydantic Settings model")
+                problem = plugin_class_problem(kind, spec.cls)
+                if problem:
+                    self._fail(
+                        ep_name,
+                        package,
+                        f"{kind.replace('_', ' ')} '{spec.name}' from package '{package}' (entry point "
+                        f"'{ep_name}') is refused: {problem}",
+                    )
+                    continue
             key = (kind, spec.name)
             if key in self.plugins:
                 other = self.plugins[key]
@@ -226,6 +238,59 @@ class PluginRegistry:
             broken = ", ".join(f"'{f.entry_point}' ({f.package})" for f in self.failures)
             message += f". Note: plugin entry points that failed to load: {broken}"
         raise PluginError(message, location=location)
+
+
+def _interfaces() -> dict[str, type]:
+    from .deformable import DeformableModel
+    from .devices import Device
+    from .planning import Planner
+    from .spaces.base import Space
+
+    return {"planner": Planner, "deformable_model": DeformableModel, "device": Device, "space": Space}
+
+
+def plugin_class_problem(kind: str, cls: Any) -> str:
+    """Why ``cls`` cannot be a plugin of ``kind`` (empty if it can).
+
+    It must subclass the interface of its kind (:class:`~surgiplan.Planner`, ...) and declare a pydantic
+    ``Settings`` model that forbids unknown keys (``extra="forbid"``) at every level, so that a misspelt
+    setting is an error naming it rather than silently ignored.
+    """
+    interface = _interfaces()[kind]
+    if not (isinstance(cls, type) and issubclass(cls, interface)):
+        what = cls.__name__ if isinstance(cls, type) else type(cls).__name__
+        return f"{what} is not a subclass of surgiplan.{interface.__name__}"
+    settings = getattr(cls, "Settings", None)
+    if not (isinstance(settings, type) and issubclass(settings, BaseModel)):
+        return f"{cls.__name__} has no pydantic Settings model"
+    permissive = permissive_models(settings)
+    if permissive:
+        return (
+            f"its settings model {', '.join(permissive)} accepts unknown keys; declare "
+            "model_config = ConfigDict(extra=\"forbid\") so a misspelt setting is an error"
+        )
+    return ""
+
+
+def permissive_models(model: type[BaseModel], label: str | None = None, seen: set | None = None) -> list[str]:
+    """The settings models (by field path) inside ``model`` that do not forbid extra keys."""
+    import typing
+
+    seen = set() if seen is None else seen
+    if model in seen:
+        return []
+    seen.add(model)
+    label = label or model.__name__
+    found = [] if model.model_config.get("extra") == "forbid" else [label]
+    for name, info in model.model_fields.items():
+        stack = [info.annotation]
+        while stack:
+            item = stack.pop()
+            if isinstance(item, type) and issubclass(item, BaseModel):
+                found += permissive_models(item, f"{label}.{name}", seen)
+            else:
+                stack.extend(typing.get_args(item))
+    return found
 
 
 _default: PluginRegistry | None = None

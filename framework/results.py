@@ -17,10 +17,8 @@ import numpy as np
 from .executors import Executor, InlineExecutor
 from .progress import NullProgress, Progress
 from .scene import Scene
+from .status import SUCCESS
 from .storage import to_jsonable
-
-#: statuses that count as success, per stage kind
-SUCCESS = {"plan": {"solved"}, "simulate": {"converged", "completed"}, "execute": {"completed"}}
 
 
 @dataclass
@@ -38,6 +36,8 @@ class StageContext:
     previous: dict[str, StageResult] = field(default_factory=dict)
     #: where long work may checkpoint (resumable)
     workdir: Path | None = None
+    #: the pipeline's length unit (for messages and figures; everything passed around is SI)
+    length_unit: str = "m"
 
 
 @dataclass

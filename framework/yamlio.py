@@ -1,13 +1,27 @@
-"""Safe YAML loading that remembers where every value came from.
+"""Safe YAML loading that remembers where every value came from, and refuses hostile documents.
 
 Only plain data is constructed (``yaml.SafeLoader``: no Python objects).
 Alongside the data, :func:`load_yaml` returns a map from YAML paths
 (``("pipeline", 0, "settings", "milestones")``) to 1-based line numbers, so
 validation errors can point at the line.
+
+A file is data a user may have got from anyone, so:
+
+* **aliases are bounded**: the document is composed once (anchors and
+  aliases stay shared nodes, linear in the text), its size *as expanded* is
+  counted on that graph before anything walks it as a tree, and a document
+  that would expand to more than :data:`MAX_VALUES` values (a "billion
+  laughs" alias bomb) or refers to itself is refused, in milliseconds and
+  without the memory the expansion would take;
+* **duplicate keys are an error** naming both lines (YAML 1.1 parsers keep
+  the last one silently);
+* **numbers are read as YAML 1.2 reads them**: ``1.4e2``, ``1e-3`` and
+  ``.5`` are floats (YAML 1.1 makes the first two strings).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +30,25 @@ import yaml
 from .errors import ConfigError
 
 LineMap = dict[tuple[Any, ...], int]
+
+#: the most values (scalars, sequences and mappings, counted with every alias expanded) a file may hold
+MAX_VALUES = 1_000_000
+
+_FLOAT_1_2 = re.compile(
+    r"""^(?:[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+
+    |[-+]?\.[0-9][0-9_]*(?:[eE][-+]?[0-9]+)?)$""",
+    re.X,
+)
+
+
+class SafeLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2 floats (``1e-3``, ``1.4e2``) resolved as numbers."""
+
+    yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}  # noqa: RUF012
+
+
+for _first in "-+0123456789.":
+    SafeLoader.yaml_implicit_resolvers.setdefault(_first, []).insert(0, ("tag:yaml.org,2002:float", _FLOAT_1_2))
 
 
 def load_yaml(path: str | Path) -> tuple[Any, LineMap]:
@@ -31,8 +64,15 @@ def load_yaml(path: str | Path) -> tuple[Any, LineMap]:
 
 def parse_yaml(text: str, path: str | Path = "<string>") -> tuple[Any, LineMap]:
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.load(text, Loader=yaml.SafeLoader)
+        loader = SafeLoader(text)
+        try:
+            node = loader.get_single_node()
+            if node is not None:
+                _check_size(node, path)
+                _check_duplicate_keys(node, path)
+            data = loader.construct_document(node) if node is not None else None
+        finally:
+            loader.dispose()
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = mark.line + 1 if mark is not None else None
@@ -40,10 +80,83 @@ def parse_yaml(text: str, path: str | Path = "<string>") -> tuple[Any, LineMap]:
         raise ConfigError(f"invalid YAML: {problem}", file=path, line=line) from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"invalid YAML: {exc}", file=path) from None
+    except RecursionError:
+        raise ConfigError("invalid YAML: nested too deeply", file=path) from None
     lines: LineMap = {}
     if node is not None:
         _walk(node, (), lines)
     return data, lines
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    return []
+
+
+def _check_size(root: yaml.Node, path: str | Path) -> None:
+    """Count the values of the document with every alias expanded, on the shared node graph (linear time).
+
+    Refuses a node that contains itself and a document above :data:`MAX_VALUES`.
+    """
+    size: dict[int, int] = {}
+    on_stack: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            on_stack.discard(key)
+            total = 1 + sum(size[id(c)] for c in _children(node))
+            if total > MAX_VALUES:
+                raise ConfigError(
+                    f"the document expands to more than {MAX_VALUES:,} values (counting every alias "
+                    "*name as a copy of its &anchor); refusing it (nested aliases, a 'billion laughs' file?)",
+                    file=path,
+                    line=node.start_mark.line + 1,
+                )
+            size[key] = total
+            continue
+        if key in size:
+            continue
+        if key in on_stack:
+            raise ConfigError("an alias refers to the value that contains it", file=path, line=node.start_mark.line + 1)
+        on_stack.add(key)
+        stack.append((node, True))
+        for child in _children(node):
+            if id(child) in on_stack:
+                raise ConfigError(
+                    "an alias refers to the value that contains it", file=path, line=child.start_mark.line + 1
+                )
+            if id(child) not in size:
+                stack.append((child, False))
+
+
+def _check_duplicate_keys(root: yaml.Node, path: str | Path) -> None:
+    seen_nodes: set[int] = set()
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen_nodes:
+            continue
+        seen_nodes.add(id(node))
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.value == "<<":
+                    continue
+                line = key_node.start_mark.line + 1
+                if key_node.value in first:
+                    raise ConfigError(
+                        f"duplicate key '{key_node.value}' (lines {first[key_node.value]} and {line}); "
+                        "a key may appear once per mapping",
+                        file=path,
+                        line=line,
+                    )
+                first[key_node.value] = line
+        stack.extend(_children(node))
 
 
 def _walk(node: yaml.Node, path: tuple[Any, ...], lines: LineMap) -> None:

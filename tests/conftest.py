@@ -99,6 +99,24 @@ def cli(capsys):
     return lambda *args: run_cli(args, capsys)
 
 
+def assert_error_record(out_dir: Path, *fragments: str, stage: str | None = None) -> dict:
+    """A run a stage's error ended still leaves its record: result.json (status ``error``) with every stage so
+    far, the failing one last with ``error`` and the message (containing ``fragments``), and no in-progress
+    marker. Returns the document."""
+    import json
+
+    document = json.loads((Path(out_dir) / "result.json").read_text())
+    assert document["status"] == "error", document["status"]
+    last = document["stages"][-1]
+    assert last["status"] == "error", last
+    if stage is not None:
+        assert last["name"] == stage, last["name"]
+    for fragment in fragments:
+        assert fragment in last["message"], f"{fragment!r} not in {last['message']!r}"
+    assert not (Path(out_dir) / ".in-progress.json").exists()
+    return document
+
+
 def write(path: Path, text: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)

@@ -8,7 +8,7 @@ import struct
 
 import numpy as np
 import pytest
-from conftest import CONFIGS
+from conftest import CONFIGS, assert_error_record
 from devices_support import FULCRUM, GAP_TIPS, active, context, execute, gimbal_path, gimbal_space
 from surgiplan.devices import LifecycleState, Trajectory
 from surgiplan.plugins.devices.canopen import cia402 as p402
@@ -245,11 +245,12 @@ def test_every_fault_can_be_rehearsed_from_its_pipeline_file(tmp_path, roadmap, 
     pipeline = load_pipeline(CONFIGS / name, output_dir=out)
     pipeline.model.output.figures = pipeline.model.output.gltf = False  # the files' content is what is tested
     pipeline.stages[0].artifact = roadmap
-    if outcome is BusError:  # a user error before any motion: the CLI prints it (exit 2), no result
+    if outcome is BusError:  # a user error before any motion: the CLI prints it (exit 2); the record is kept
         with pytest.raises(BusError) as info:
             run_pipeline(pipeline)
         assert message in str(info.value) and "pipeline[1] (execute stage 'gimbal')" in str(info.value)
-        assert not (out / "result.json").exists()
+        document = assert_error_record(out, message, stage="gimbal")
+        assert document["stages"][0]["status"] == "solved"  # the plan before it survives, intact
         return
     outcome_run = run_pipeline(pipeline)
     execute_stage = json.loads((out / "result.json").read_text())["stages"][1]

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import CONFIGS
+from conftest import CONFIGS, assert_error_record
 from helpers import coal_scene_segment_distance
 from surgiplan import load_pipeline, load_scene, run_pipeline
 from surgiplan.errors import SurgiplanError
@@ -103,7 +103,7 @@ def test_vehicle_that_stops_answering_is_a_clear_error_naming_the_step(tmp_path,
     assert f"{named}: the vehicle stopped answering: no HEARTBEAT for " in message
     assert "(5 missed at 2 Hz)" in message
     assert vehicle.silent and not vehicle.armed
-    assert not (tmp_path / "out" / "result.json").exists()
+    assert_error_record(tmp_path / "out", f"{named}: the vehicle stopped answering")
 
 
 # ----------------------------------------------------------------------------- a refusing vehicle
@@ -123,7 +123,7 @@ def test_rejected_mission_from_the_shipped_file_on_the_command_line(tmp_path, ro
         in err
     )
     assert "Traceback" not in err
-    assert not (tmp_path / "out" / "hall-faults-rejected" / "result.json").exists()
+    assert_error_record(tmp_path / "out" / "hall-faults-rejected", "MAV_MISSION_NO_SPACE (4)")
 
 
 @pytest.mark.parametrize(

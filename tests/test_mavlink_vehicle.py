@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import CONFIGS, write
+from conftest import CONFIGS, assert_error_record, write
 from helpers import coal_scene_segment_distance, coal_segment_distance
 from scipy.spatial import cKDTree
 from surgiplan import load_pipeline, load_scene, run_pipeline
@@ -339,7 +339,7 @@ def test_no_vehicle_is_a_clear_connect_error(tmp_path, roadmap):
         SurgiplanError, match=r"connect: no HEARTBEAT from a vehicle on 'udpout:127.0.0.1:\d+' within 1 s"
     ):
         run_pipeline(load_pipeline(hall_pipeline(tmp_path, roadmap, settings)))
-    assert not (tmp_path / "out" / "result.json").exists()
+    assert_error_record(tmp_path / "out", "connect: no HEARTBEAT from a vehicle")
 
 
 def test_paths_of_other_spaces_are_refused_with_the_reason():

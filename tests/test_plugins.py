@@ -137,12 +137,45 @@ def test_misspelt_hook_name_is_reported(tmp_path, monkeypatch, caplog):
 
 def test_plugin_without_settings_model_is_rejected(tmp_path, monkeypatch, caplog):
     code = GOOD_PLUGIN.replace("{name}", "nosettings").replace("    Settings = Settings\n", "")
-    code = code.replace("class Copycat(Planner):", "class Copycat:")
     fake_distribution(tmp_path, "nosettings-planners", "nosettings_e", code, monkeypatch)
     with caplog.at_level("WARNING"):
         registry = PluginRegistry()
-    assert "no pydantic Settings model" in caplog.text
+    assert "Copycat has no pydantic Settings model" in caplog.text
     assert "nosettings" not in registry.names("planner")
+
+
+def test_a_class_that_is_not_a_planner_is_refused_naming_the_package(tmp_path, monkeypatch, caplog):
+    code = GOOD_PLUGIN.replace("{name}", "notaplanner").replace("class Copycat(Planner):", "class Copycat:")
+    fake_distribution(tmp_path, "notaplanner-planners", "notaplanner_e", code, monkeypatch)
+    with caplog.at_level("WARNING"):
+        registry = PluginRegistry()
+    assert (
+        "planner 'notaplanner' from package 'notaplanner-planners' (entry point 'notaplanner_e') is refused: "
+        "Copycat is not a subclass of surgiplan.Planner" in caplog.text
+    )
+    assert "notaplanner" not in registry.names("planner")
+    with pytest.raises(PluginError, match="notaplanner-planners"):
+        PluginRegistry(strict=True)
+
+
+@pytest.mark.parametrize("where", ["top", "nested"])
+def test_settings_that_accept_unknown_keys_are_refused(tmp_path, monkeypatch, caplog, where):
+    """A Settings model without extra="forbid" (at any level) would let a typo pass silently."""
+    code = GOOD_PLUGIN.replace("{name}", "lenient")
+    if where == "top":
+        code = code.replace('model_config = ConfigDict(extra="forbid")', "pass")
+        expected = "its settings model Settings accepts unknown keys"
+    else:
+        code = code.replace(
+            "class Settings(BaseModel):",
+            "class Inner(BaseModel):\n    x: int = 0\n\n\nclass Settings(BaseModel):\n    inner: Inner = Inner()",
+        )
+        expected = "its settings model Settings.inner accepts unknown keys"
+    fake_distribution(tmp_path, f"lenient-{where}-planners", f"lenient_{where}", code, monkeypatch)
+    with caplog.at_level("WARNING"):
+        registry = PluginRegistry()
+    assert expected in caplog.text and f"'lenient-{where}-planners'" in caplog.text
+    assert "lenient" not in registry.names("planner")
 
 
 def test_missing_optional_dependency_says_how_to_install(monkeypatch):
@@ -171,7 +204,23 @@ def test_every_hook_is_documented_and_tested():
     "hook", ["surgiplan_register_deformable_models", "surgiplan_register_devices", "surgiplan_register_spaces"]
 )
 def test_other_plugin_kinds_register_the_same_way(tmp_path, monkeypatch, hook):
+    base = {
+        "surgiplan_register_deformable_models": (
+            "DeformableModel",
+            "    rest_nodes = elements = None\n"
+            "    def solve(self, constraints, initial=None): raise NotImplementedError\n",
+        ),
+        "surgiplan_register_devices": ("Device", "    def run(self, trajectory): raise NotImplementedError\n"),
+        "surgiplan_register_spaces": ("R3Space", ""),
+    }[hook]
     code = GOOD_PLUGIN.replace("{name}", "kindprobe").replace("surgiplan_register_planners", hook)
+    code = code.replace("from surgiplan import Planner,", f"from surgiplan import {base[0]},")
+    code = code.replace(
+        "class Copycat(Planner):\n    Settings = Settings\n"
+        "    def build(self, problem): return None\n"
+        "    def query(self, artifact, start, goal): raise NotImplementedError\n",
+        f"class Copycat({base[0]}):\n    Settings = Settings\n{base[1]}",
+    )
     module = f"kind_{hook.split('_')[-1]}"
     fake_distribution(tmp_path, f"{module}-pkg".replace("_", "-"), module, code, monkeypatch)
     registry = PluginRegistry()

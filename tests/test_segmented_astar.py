@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from conftest import assert_error_record
 from helpers import coal_scene_segment_distance
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
@@ -246,7 +247,8 @@ def test_point_of_interest_inside_an_obstacle_fails_cleanly_from_the_command_lin
     assert code == 2
     assert "point of interest 'buried' (20, 10, 5) mm is not free for the instrument tip" in err
     assert "Traceback" not in err
-    assert not (out / "result.json").exists() and not (out / "repository.npz").exists()
+    assert_error_record(out, "point of interest 'buried' (20, 10, 5) mm is not free")
+    assert not (out / "repository.npz").exists()
 
 
 def test_report_directory_that_cannot_be_written_fails_before_any_work(tmp_path, cli):
@@ -260,4 +262,5 @@ def test_report_directory_that_cannot_be_written_fails_before_any_work(tmp_path,
     assert code == 2, err
     assert "settings.report.dir: cannot write to directory" in err and "a-file/table1" in err
     assert "Traceback" not in err
-    assert not (out / "result.json").exists() and not list(out.glob(".work/optmis-*"))
+    assert_error_record(out, "cannot write to directory")
+    assert not list(out.glob(".work/optmis-*"))

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,11 +45,18 @@ class TriangleMesh:
         return h.hexdigest()
 
 
+#: coordinates beyond this (m) are not a surgical or robotics scene: a unit mistake or a damaged file
+MAX_COORDINATE = 1e4
+
+
 def load_mesh(path: str | Path, scale: float = 1.0, *, location: str | None = None) -> TriangleMesh:
     """Read a mesh file, scale its coordinates to metres and check it.
 
-    Raises :class:`SceneError` naming the file when it is missing, unreadable
-    or has no triangles. Warns (through logging) when it is not watertight.
+    Raises :class:`SceneError` naming the file when it is missing, unreadable,
+    has no triangles, has non-finite or absurd coordinates (a damaged or
+    random file: the raw data is checked before any repair could hide it),
+    faces that name missing vertices, or only degenerate (zero-area)
+    triangles. Warns (through logging) when it is not watertight.
     """
     import trimesh
 
@@ -56,15 +64,49 @@ def load_mesh(path: str | Path, scale: float = 1.0, *, location: str | None = No
     if not path.is_file():
         raise SceneError(f"mesh file not found: {path}", location=location)
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        with warnings.catch_warnings(), np.errstate(all="ignore"):  # damaged files: judged below, not warned
+            warnings.simplefilter("ignore", RuntimeWarning)
+            raw = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files
         raise SceneError(f"cannot read mesh {path}: {exc}", location=location) from None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+    if not isinstance(raw, trimesh.Trimesh) or len(raw.faces) == 0:
         raise SceneError(f"mesh {path} contains no triangles", location=location)
-    vertices = np.asarray(loaded.vertices, dtype=float) * scale
-    if not np.all(np.isfinite(vertices)):
-        raise SceneError(f"mesh {path} has non-finite vertex coordinates", location=location)
-    return mesh_from_arrays(vertices, np.asarray(loaded.faces), source=str(path), location=location)
+    vertices = np.asarray(raw.vertices, dtype=float)
+    faces = np.asarray(raw.faces)
+    bad = ~np.all(np.isfinite(vertices), axis=1)
+    if np.any(bad):
+        raise SceneError(
+            f"mesh {path} has {int(bad.sum())} of {len(vertices)} vertices with non-finite coordinates "
+            "(NaN or infinity): the file is damaged or not a mesh",
+            location=location,
+        )
+    vertices = vertices * scale
+    largest = float(np.max(np.abs(vertices))) if len(vertices) else 0.0
+    if largest > MAX_COORDINATE:
+        raise SceneError(
+            f"mesh {path} has coordinates up to {largest:.3g} m after scaling: beyond {MAX_COORDINATE:g} m, so "
+            "the file is damaged or its unit is wrong (mesh: {unit: mm} or scale:)",
+            location=location,
+        )
+    if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= len(vertices):
+        raise SceneError(f"mesh {path} has faces that name vertices it does not have", location=location)
+    corners = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    if not np.any(area > 1e-18):
+        raise SceneError(
+            f"mesh {path} has only degenerate triangles ({len(faces)}, all of zero area)", location=location
+        )
+    degenerate = int(np.count_nonzero(~(area > 1e-18)))
+    if degenerate:
+        log.warning(
+            "%smesh %s: %d of %d triangles have zero area and are dropped",
+            f"{location}: " if location else "",
+            path,
+            degenerate,
+            len(faces),
+        )
+        faces = faces[area > 1e-18]
+    return mesh_from_arrays(vertices, faces, source=str(path), location=location)
 
 
 def mesh_from_arrays(vertices, faces, *, source: str = "", location: str | None = None) -> TriangleMesh:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, PositiveInt
-from surgiplan import Length, Planner, PlanningProblem, PlanResult, PlanStatus, PluginSpec, hookimpl
+from surgiplan import Length, Planner, PlanningProblem, PlanResult, PlanStatus, PluginSpec, ResourceEstimate, hookimpl
 
 
 class ViaPointSettings(BaseModel):
@@ -29,6 +29,12 @@ class ViaPointPlanner(Planner):
     """Straight line if clear, else the best detour through one stored via point."""
 
     Settings = ViaPointSettings
+
+    @classmethod
+    def estimate_resources(cls, settings, problem):
+        # build() samples up to 4 x via_points configurations at once, plus a validity mask
+        n, d = settings.via_points, problem.space.dimension
+        return [ResourceEstimate(n * (4 * d * 8 + 8), f"{n:,} via points", "via_points")]
 
     def build(self, problem: PlanningProblem) -> dict:
         space = problem.space

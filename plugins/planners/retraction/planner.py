@@ -125,9 +125,12 @@ class RetractionPlanner(Planner):
         files = []
         if setup.problem.output_dir is not None:
             files = write_outputs(setup, artifact.roadmaps, outcome, metrics)
+        path = outcome.trajectory.q
+        if len(path) == 1:  # the grasp already exposes the area: a motion of length zero, from q0 to q0
+            path = np.repeat(path, 2, axis=0)
         result = PlanResult(
             PlanStatus.SOLVED,
-            outcome.trajectory.q,
+            path,
             metrics,
             outcome.message,
             annotations=outcome.annotations(),

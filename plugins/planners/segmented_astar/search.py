@@ -323,7 +323,7 @@ class SegmentedAStar(Planner):
                               title=f"replanning (paper 001 Fig. 6): A to B, new goal C after {replan.at:.0%} "
                               f"of the way (replanned in {second.metrics['online_s'] * 1e3:.2f} ms)")
             metrics["replan"]["figure"] = replan.figure
-        return PlanResult(PlanStatus.SOLVED, combined[keep], metrics,
+        return PlanResult(PlanStatus.SOLVED, combined[keep], metrics, final_goal=new_goal,
                           annotations={"replan": {"position_m": current.tolist(), "travelled_m": float(where)}})
 
     def replan(self, artifact: PathmapArtifact, current, new_goal) -> PlanResult:

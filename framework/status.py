@@ -1,0 +1,92 @@
+"""Every status a stage or a device can report, in one place.
+
+A stage's ``status`` in ``result.json`` (and in the summary table) is one of
+these values. Plugins return the first three kinds; the framework sets the
+last one when it must speak for a plugin.
+
+=====================  ==============================================================  ==========
+enum                   values                                                          succeeded
+=====================  ==============================================================  ==========
+:class:`PlanStatus`    ``solved``; ``no_path``, ``invalid_start``, ``invalid_goal``,   ``solved``
+                       ``timeout``
+:class:`SimulateStatus` ``converged``, ``completed``; ``failed``                       the first two
+:class:`ExecuteStatus` ``completed``; ``stopped`` (a fault, a failsafe: the reason is   ``completed``
+                       in the message), ``refused`` (before any motion)
+:class:`RunStatus`     ``invalid_result`` (the framework refused a plugin's answer:     never
+                       a colliding or malformed path, an unknown status),
+                       ``error`` (the plugin raised), ``skipped`` (the stage it
+                       depends on gave it nothing to work on), ``not_run`` (an
+                       earlier stage ended the run), ``interrupted``
+=====================  ==============================================================  ==========
+
+A device's :class:`~surgiplan.devices.ExecutionReport` must carry an
+:class:`ExecuteStatus` value; anything else (``"done"``) makes the stage
+``invalid_result`` with a message naming the plugin and the value.
+
+The whole run has a status too (``result.json``'s top-level ``status``):
+:class:`RunOutcomeStatus`.
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class PlanStatus(enum.StrEnum):
+    """What a planner's query returns."""
+
+    SOLVED = "solved"
+    NO_PATH = "no_path"
+    INVALID_START = "invalid_start"
+    INVALID_GOAL = "invalid_goal"
+    TIMEOUT = "timeout"
+
+
+class SimulateStatus(enum.StrEnum):
+    """What a deformable model's ``simulate`` stage returns."""
+
+    CONVERGED = "converged"
+    COMPLETED = "completed"
+    FAILED = "failed"
+
+
+class ExecuteStatus(enum.StrEnum):
+    """What a device's execution returns."""
+
+    COMPLETED = "completed"
+    STOPPED = "stopped"
+    REFUSED = "refused"
+
+
+class RunStatus(enum.StrEnum):
+    """Statuses the framework sets on a stage."""
+
+    INVALID_RESULT = "invalid_result"
+    ERROR = "error"
+    SKIPPED = "skipped"
+    NOT_RUN = "not_run"
+    INTERRUPTED = "interrupted"
+
+
+class RunOutcomeStatus(enum.StrEnum):
+    """The whole run, in ``result.json``: every stage succeeded, or not, or it stopped early."""
+
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"  # every stage ran; at least one did not succeed
+    ERROR = "error"  # a stage raised; later stages did not run
+    INTERRUPTED = "interrupted"
+
+
+#: statuses that count as success, per stage kind
+SUCCESS: dict[str, frozenset[str]] = {
+    "plan": frozenset({PlanStatus.SOLVED}),
+    "simulate": frozenset({SimulateStatus.CONVERGED, SimulateStatus.COMPLETED}),
+    "execute": frozenset({ExecuteStatus.COMPLETED}),
+}
+
+#: the statuses a plugin of each stage kind may return
+PLUGIN_STATUSES: dict[str, frozenset[str]] = {
+    "plan": frozenset(PlanStatus),
+    "simulate": frozenset(SimulateStatus),
+    "execute": frozenset(ExecuteStatus),
+}
