@@ -54,7 +54,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, default=None, help="output directory (default: output.dir of the file)")
     run.add_argument("--quiet", action="store_true", help="no progress bars and no summary table")
 
-    validate = sub.add_parser("validate", help="check a pipeline file without running it")
+    validate = sub.add_parser("validate", help="check a pipeline (or scene) file without running it")
     validate.add_argument("file", type=Path)
 
     plugins = sub.add_parser("plugins", help="list installed plugins")
@@ -92,8 +92,17 @@ def _cmd_run(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from .pipeline import load_pipeline
+    from .pipeline import load_pipeline, load_scene, looks_like_scene
+    from .yamlio import load_yaml
 
+    data, _ = load_yaml(args.file)
+    if looks_like_scene(data):
+        scene = load_scene(args.file)
+        print(
+            f"{args.file}: ok: scene '{scene.name}' (a scene file): {len(scene.obstacles)} obstacles, "
+            f"{len(scene.points)} points"
+        )
+        return 0
     pipeline = load_pipeline(args.file)
     stages = ", ".join(f"{s.kind} {s.name} ({s.plugin.name})" for s in pipeline.stages)
     scene = pipeline.scene

@@ -19,6 +19,7 @@ been written anywhere.
 
 from __future__ import annotations
 
+import re
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -204,28 +205,82 @@ def build_scene(
     model: SceneModel, *, base_dir: Path, unit: str, file: Path | None = None, prefix: str = "scene"
 ) -> Scene:
     """A :class:`Scene` from a validated :class:`SceneModel`; mesh files load here."""
-    obstacles = [
-        build_obstacle(o, base_dir, unit, f"{prefix}.obstacles[{i}]" if prefix else f"obstacles[{i}]", file)
-        for i, o in enumerate(model.obstacles)
-    ]
-    return Scene(
+    scene, errors = _build_scene_collecting(model, list(range(len(model.obstacles))), base_dir, unit, file, prefix)
+    if errors:
+        raise ConfigErrors(errors)
+    return scene
+
+
+def _build_scene_collecting(
+    model: SceneModel, indices: list[int], base_dir: Path, unit: str, file: Path | None, prefix: str
+) -> tuple[Scene, list[ConfigError]]:
+    """The scene of every obstacle that builds, and the errors of those that do not (a mesh that cannot
+    be loaded). ``indices``: each obstacle's index in the file (for the error locations)."""
+    obstacles, errors = [], []
+    for i, o in zip(indices, model.obstacles, strict=True):
+        location = f"{prefix}.obstacles[{i}]" if prefix else f"obstacles[{i}]"
+        try:
+            obstacles.append(build_obstacle(o, base_dir, unit, location, file))
+        except SurgiplanError as exc:
+            if not isinstance(exc, ConfigError):
+                exc = ConfigError(exc.message, file=exc.file or file, location=exc.location, line=exc.line)
+            errors.append(exc)
+    scene = Scene(
         np.asarray(model.bounds.min),
         np.asarray(model.bounds.max),
         obstacles,
         {k: np.asarray(v) for k, v in model.points.items()},
         model.name or "scene",
     )
+    return scene, errors
+
+
+def scene_with_errors(
+    raw: Any, *, file: Path, lines: LineMap, prefix: tuple[Any, ...], unit: str, base_dir: Path
+) -> tuple[Scene | None, list[ConfigError]]:
+    """Validate and build a scene, collecting every error. Obstacles with errors are left out of the
+    scene returned (so the rest of the file can still be checked against it); errors in the bounds or
+    points leave no scene (None)."""
+    label = format_path(prefix)
+    errors: list[ConfigError] = []
+    context = _context(unit, base_dir)
+    raw_obstacles = raw.get("obstacles") if isinstance(raw, dict) and isinstance(raw.get("obstacles"), list) else []
+    indices = list(range(len(raw_obstacles)))
+    try:
+        model = validate_model(SceneModel, raw, file=file, lines=lines, prefix=prefix, context=context)
+    except ConfigErrors as exc:
+        errors.extend(exc.errors)
+        pattern = re.compile(re.escape(f"{label}.obstacles[" if label else "obstacles[") + r"(\d+)\]")
+        bad = set()
+        for error in exc.errors:
+            match = pattern.match(error.location or "")
+            if match is None:
+                return None, errors  # bounds, points, names: no scene to check the rest against
+            bad.add(int(match.group(1)))
+        indices = [i for i in indices if i not in bad]
+        reduced = dict(raw, obstacles=[raw_obstacles[i] for i in indices])
+        try:
+            model = SceneModel.model_validate(reduced, context=context)
+        except ValidationError:
+            return None, errors
+    scene, build_errors = _build_scene_collecting(model, indices, base_dir, unit, file, label)
+    return scene, errors + build_errors
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read and build a scene file (its own ``length_unit``, meshes relative to it)."""
-    path = Path(path)
+    """Read and build a scene file (its own ``length_unit``, meshes relative to it); every error at once."""
+    scene, errors = _load_scene_collecting(Path(path))
+    if errors:
+        raise ConfigErrors(_sorted(errors))
+    return scene
+
+
+def _load_scene_collecting(path: Path) -> tuple[Scene | None, list[ConfigError]]:
     data, lines = load_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError("a scene file must be a mapping with bounds, obstacles and points", file=path)
     unit = _declared_unit(data, "m", path, lines, ())
-    model = validate_model(SceneModel, data, file=path, lines=lines, context=_context(unit, path.parent))
-    return build_scene(model, base_dir=path.parent, unit=unit, file=path, prefix="")
+    return scene_with_errors(data, file=path, lines=lines, prefix=(), unit=unit, base_dir=path.parent)
 
 
 # ----------------------------------------------------------------------------- pipelines
@@ -266,52 +321,87 @@ class Pipeline:
     registry: PluginRegistry = field(repr=False, default_factory=default_registry)
 
 
+def looks_like_scene(data: Any) -> bool:
+    """A mapping with a scene's keys and none of a pipeline's: a scene file."""
+    return isinstance(data, dict) and "pipeline" not in data and bool({"bounds", "obstacles", "points"} & set(data))
+
+
 def load_pipeline(
     path: str | Path, *, registry: PluginRegistry | None = None, output_dir: str | Path | None = None
 ) -> Pipeline:
-    """Read, validate and resolve a pipeline file (all four passes)."""
+    """Read, validate and resolve a pipeline file (all four passes).
+
+    Every problem found is reported at once (:class:`ConfigErrors`, sorted by line): a stage whose
+    structure is wrong is left out of the later passes, the others go on, so a file with three
+    mistakes needs one ``surgiplan validate``, not three.
+    """
     registry = registry or default_registry()
     path = Path(path)
     data, lines = load_yaml(path)
     if not isinstance(data, dict):
         raise ConfigError("a pipeline file must be a mapping with name, scene and pipeline", file=path)
+    if looks_like_scene(data):
+        raise ConfigError(
+            "this is a scene file (bounds, obstacles, points), not a pipeline; `surgiplan validate` checks it as "
+            "a scene, and a pipeline uses it with 'scene: <this file>'",
+            file=path,
+        )
     base_dir = path.resolve().parent
     unit = _declared_unit(data, "m", path, lines, ())
     context = _context(unit, base_dir)
+    errors: list[ConfigError] = []
 
-    # pass 1: structure
-    model: PipelineModel = validate_model(PipelineModel, data, file=path, lines=lines, context=context)
+    # pass 1: structure (every error; the parts that are sound go on to the next passes)
+    model: PipelineModel | None = None
+    bad_stages: set[int] = set()
+    try:
+        model = validate_model(PipelineModel, data, file=path, lines=lines, context=context)
+    except ConfigErrors as exc:
+        errors.extend(exc.errors)
+        for error in exc.errors:
+            where = error.location or ""
+            match = re.match(r"pipeline\[(\d+)\]", where)
+            if match:
+                bad_stages.add(int(match.group(1)))
+    raw_stages = data.get("pipeline") if isinstance(data.get("pipeline"), list) else []
+    stage_models: dict[int, StageModel] = {}
+    for index, raw in enumerate(raw_stages):
+        if model is not None:
+            stage_models[index] = model.pipeline[index]
+        elif index not in bad_stages:
+            try:
+                stage_models[index] = StageModel.model_validate(raw, context=context)
+            except ValidationError:  # already reported as part of the file
+                bad_stages.add(index)
 
     # the scene: inline (this file's unit unless it declares its own) or a scene file
-    if isinstance(model.scene, str):
-        scene_path = (base_dir / model.scene).resolve()
-        if not scene_path.is_file():
-            raise ConfigError(
-                f"scene file not found: {scene_path}", file=path, location="scene", line=line_of(lines, ("scene",))
+    scene: Scene | None = None
+    raw_scene = data.get("scene")
+    try:
+        if isinstance(raw_scene, str):
+            scene_path = (base_dir / raw_scene).resolve()
+            if not scene_path.is_file():
+                raise ConfigError(
+                    f"scene file not found: {scene_path}", file=path, location="scene", line=line_of(lines, ("scene",))
+                )
+            scene, scene_errors = _load_scene_collecting(scene_path)
+            errors.extend(scene_errors)
+        elif isinstance(raw_scene, dict):
+            scene_unit = _declared_unit(raw_scene, unit, path, lines, ("scene",))
+            scene, scene_errors = scene_with_errors(
+                raw_scene, file=path, lines=lines, prefix=("scene",), unit=scene_unit, base_dir=base_dir
             )
-        scene = load_scene(scene_path)
-    else:
-        scene_unit = _declared_unit(data["scene"], unit, path, lines, ("scene",))
-        if scene_unit != unit:
-            scene_model = validate_model(
-                SceneModel,
-                data["scene"],
-                file=path,
-                lines=lines,
-                prefix=("scene",),
-                context=_context(scene_unit, base_dir),
-            )
-        else:
-            scene_model = model.scene
-        scene = build_scene(scene_model, base_dir=base_dir, unit=scene_unit, file=path)
+            known = {(e.location, e.message) for e in errors}  # pass 1 reported the same ones already
+            errors.extend(e for e in scene_errors if (e.location, e.message) not in known)
+    except SurgiplanError as exc:
+        errors.append(exc if exc.file is not None else ConfigError(exc.message, file=path, location=exc.location))
 
-    # pass 2: plugins and their settings
-    errors: list[ConfigError] = []
+    # pass 2: plugins and their settings (and spaces, when the scene is there to build them on)
     stages: list[StageSpec] = []
     names: set[str] = set()
-    for index, (stage, raw) in enumerate(zip(model.pipeline, data["pipeline"], strict=True)):
+    for index, stage in stage_models.items():
         try:
-            spec = _resolve_stage(index, stage, raw, registry, scene, path, lines, context, names)
+            spec = _resolve_stage(index, stage, raw_stages[index], registry, scene, path, lines, context, names)
         except ConfigErrors as exc:
             errors.extend(exc.errors)
             continue
@@ -320,33 +410,46 @@ def load_pipeline(
             continue
         names.add(spec.name)
         stages.append(spec)
-    if errors:
-        raise ConfigErrors(errors)
 
-    # pass 3: meaning
-    for spec, stage in zip(stages, model.pipeline, strict=True):
-        try:
-            if spec.kind == "plan":
-                _resolve_endpoints(spec, stage, path, lines)
-            elif spec.kind == "execute":
-                _resolve_path_source(spec, stages, stage, path, lines)
-        except SurgiplanError as exc:
-            errors.append(
-                ConfigError(exc.message, file=path, location=exc.location, line=exc.line)
-                if not isinstance(exc, PlanningInputError)
-                else exc
-            )
-    if errors:
-        raise ConfigErrors(errors)
+    # pass 3: meaning (needs the scene)
+    complete: list[StageSpec] = []
+    if scene is not None:
+        for spec in stages:
+            stage = stage_models[spec.index]
+            try:
+                if spec.kind == "plan":
+                    _resolve_endpoints(spec, stage, path, lines)
+                elif spec.kind == "execute":
+                    _resolve_path_source(spec, stages, stage, path, lines)
+            except ConfigErrors as exc:
+                errors.extend(exc.errors)
+                continue
+            except SurgiplanError as exc:
+                errors.append(
+                    ConfigError(exc.message, file=path, location=exc.location, line=exc.line)
+                    if not isinstance(exc, PlanningInputError)
+                    else exc
+                )
+                continue
+            complete.append(spec)
 
     # pass 4: resources, estimated from the settings before any work
-    for spec in stages:
+    for spec in complete:
         errors.extend(_resource_errors(spec, path, lines))
     if errors:
-        raise ConfigErrors(errors)
+        raise ConfigErrors(_sorted(errors))
+    assert model is not None and scene is not None
 
     out = Path(output_dir) if output_dir is not None else Path(model.output.dir or Path("out") / model.name)
     return Pipeline(path, model.name, model, scene, stages, out, base_dir, registry)
+
+
+def _sorted(errors: list[ConfigError]) -> list[ConfigError]:
+    """By file, then line (errors without a line keep their place at the end of their file)."""
+    order = {}
+    for e in errors:
+        order.setdefault(str(e.file), len(order))
+    return sorted(errors, key=lambda e: (order[str(e.file)], e.line if e.line is not None else 10**9))
 
 
 def _resource_errors(spec: StageSpec, file: Path, lines: LineMap) -> list[ConfigError]:
@@ -410,7 +513,7 @@ def _resolve_stage(index, stage: StageModel, raw, registry, scene, file, lines, 
     if stage.goal is None and getattr(info.cls, "requires_goal", True):
         raise ConfigError("a plan stage needs goal", file=file, location=location, line=line_of(lines, where))
 
-    if stage.bounds is not None:
+    if stage.bounds is not None and scene is not None:
         spec.scene = scene.with_bounds(stage.bounds.min, stage.bounds.max)
     space_data = dict(raw.get("space") or {"kind": "r3"})
     space_kind = space_data.pop("kind", "r3")
@@ -426,7 +529,8 @@ def _resolve_stage(index, stage: StageModel, raw, registry, scene, file, lines, 
     space_settings = validate_model(
         space_info.settings_model, space_data, file=file, lines=lines, prefix=(*where, "space"), context=context
     )
-    spec.space = space_info.cls.from_settings(space_settings, spec.scene)
+    if spec.scene is not None:  # else the scene has errors of its own, already reported
+        spec.space = space_info.cls.from_settings(space_settings, spec.scene)
     spec.clearance_threshold = stage.clearance_threshold
     if stage.artifact is not None:
         if info.cls.save_artifact is Planner.save_artifact:
@@ -450,66 +554,85 @@ def _unique(base: str, names: set[str]) -> str:
 
 
 def _resolve_endpoints(spec: StageSpec, stage: StageModel, file: Path, lines: LineMap) -> None:
+    errors: list[SurgiplanError] = []
+    for key in ("start", "goal"):
+        try:
+            _resolve_endpoint(spec, stage, key, file, lines)
+        except SurgiplanError as exc:
+            errors.append(exc)
+    if len(errors) == 1:
+        raise errors[0]
+    if errors:
+        raise ConfigErrors(
+            [
+                e
+                if isinstance(e, ConfigError)
+                else ConfigError(e.message, file=e.file, location=e.location, line=e.line)
+                for e in errors
+            ]
+        )
+
+
+def _resolve_endpoint(spec: StageSpec, stage: StageModel, key: str, file: Path, lines: LineMap) -> None:
     space = spec.space
     scene = spec.scene
-    for key in ("start", "goal"):
-        where = ("pipeline", spec.index, key)
-        location = format_path(where)
-        line = line_of(lines, where)
-        value = getattr(stage, key)
-        if value is None:  # a goal the planner does not need (Planner.requires_goal)
-            continue
-        if isinstance(value, str):
-            if value not in scene.points:
-                raise PlanningInputError(
-                    f"no point named '{value}'; {choices_hint(value, scene.points)}",
-                    file=file,
-                    location=location,
-                    line=line,
-                )
-            label = f"point '{value}' {scene.describe_point(scene.points[value])}"
-            value = scene.points[value]
-        elif isinstance(value, GimbalConfigurationModel):
-            label = "configuration"
-            value = np.array([value.yaw, value.pitch, value.insertion, value.roll])
-        elif isinstance(value, QuaternionPoseModel):
-            label = f"pose at {scene.describe_point(value.xyz)}"
-            value = value.model_dump()
-        else:
-            label = scene.describe_point(value)
-            value = np.asarray(value, dtype=float)
-        try:
-            q = space.configuration(value, what=key)
-        except PlanningInputError as exc:
+    where = ("pipeline", spec.index, key)
+    location = format_path(where)
+    line = line_of(lines, where)
+    value = getattr(stage, key)
+    if value is None:  # a goal the planner does not need (Planner.requires_goal)
+        return
+    if isinstance(value, str):
+        if value not in scene.points:
             raise PlanningInputError(
-                exc.message.removeprefix(f"{key}: "), file=file, location=location, line=line
-            ) from None
-        q = np.asarray(q, dtype=float)
-        if not space.in_workspace(q[None, :])[0]:
-            lo, hi = scene.describe_point(scene.bounds_min), scene.describe_point(scene.bounds_max)
-            raise PlanningInputError(
-                f"{key} {label} is outside the scene bounds {lo} to {hi}", file=file, location=location, line=line
-            )
-        if not space.within_limits(q[None, :])[0]:
-            raise PlanningInputError(
-                f"{key} {label} is outside the limits of the {space.kind} space",
+                f"no point named '{value}'; {choices_hint(value, scene.points)}",
                 file=file,
                 location=location,
                 line=line,
             )
-        clearance = float(space.clearance(q[None, :])[0])
-        if not clearance > 0:
-            nearest = int(space.nearest_obstacle(q[None, :])[0])
-            what = f"obstacle '{scene.obstacles[nearest].name}'" if nearest >= 0 else "an obstacle"
-            body = "lies inside" if space.kind == "r3" else "puts the instrument inside"
-            raise PlanningInputError(
-                f"{key} {label} {body} {what} (clearance {clearance * 1000:.3g} mm)",
-                file=file,
-                location=location,
-                line=line,
-            )
-        setattr(spec, key, q)
-        setattr(spec, f"{key}_label", label)
+        label = f"point '{value}' {scene.describe_point(scene.points[value])}"
+        value = scene.points[value]
+    elif isinstance(value, GimbalConfigurationModel):
+        label = "configuration"
+        value = np.array([value.yaw, value.pitch, value.insertion, value.roll])
+    elif isinstance(value, QuaternionPoseModel):
+        label = f"pose at {scene.describe_point(value.xyz)}"
+        value = value.model_dump()
+    else:
+        label = scene.describe_point(value)
+        value = np.asarray(value, dtype=float)
+    try:
+        q = space.configuration(value, what=key)
+    except PlanningInputError as exc:
+        raise PlanningInputError(
+            exc.message.removeprefix(f"{key}: "), file=file, location=location, line=line
+        ) from None
+    q = np.asarray(q, dtype=float)
+    if not space.in_workspace(q[None, :])[0]:
+        lo, hi = scene.describe_point(scene.bounds_min), scene.describe_point(scene.bounds_max)
+        raise PlanningInputError(
+            f"{key} {label} is outside the scene bounds {lo} to {hi}", file=file, location=location, line=line
+        )
+    if not space.within_limits(q[None, :])[0]:
+        raise PlanningInputError(
+            f"{key} {label} is outside the limits of the {space.kind} space",
+            file=file,
+            location=location,
+            line=line,
+        )
+    clearance = float(space.clearance(q[None, :])[0])
+    if not clearance > 0:
+        nearest = int(space.nearest_obstacle(q[None, :])[0])
+        what = f"obstacle '{scene.obstacles[nearest].name}'" if nearest >= 0 else "an obstacle"
+        body = "lies inside" if space.kind == "r3" else "puts the instrument inside"
+        raise PlanningInputError(
+            f"{key} {label} {body} {what} (clearance {clearance * 1000:.3g} mm)",
+            file=file,
+            location=location,
+            line=line,
+        )
+    setattr(spec, key, q)
+    setattr(spec, f"{key}_label", label)
 
 
 def _resolve_path_source(

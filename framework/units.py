@@ -67,7 +67,9 @@ def _parse_with_unit(text: str, table: dict[str, float], what: str) -> float:
 
 def _to_metres(value: Any, info: ValidationInfo) -> Any:
     if isinstance(value, bool):
-        raise PydanticCustomError("length_type", "expected a length (a number), got {value}", {"value": value})
+        raise PydanticCustomError(
+            "length_type", "expected a length (a number), got {value}", {"value": str(value).lower()}
+        )
     if isinstance(value, int | float):
         scale = (info.context or {}).get(LENGTH_SCALE_KEY, 1.0)
         return float(value) * scale
@@ -88,19 +90,28 @@ def _finite(value: float) -> float:
     return value
 
 
-def _non_negative(value: float) -> float:
+def _in_file_unit(value: float, info: ValidationInfo | None) -> str:
+    """``value`` (m) written in the file's length unit: -0.003 in an mm file -> '-3 mm'."""
+    scale = ((info.context if info is not None else None) or {}).get(LENGTH_SCALE_KEY, 1.0)
+    unit = next((name for name, s in LENGTH_UNITS.items() if s == scale), "m")
+    return f"{value / LENGTH_UNITS[unit]:.6g} {unit}"
+
+
+def _non_negative(value: float, info: ValidationInfo) -> float:
     _finite(value)
     if value < 0:
         raise PydanticCustomError(
-            "non_negative_length", "must be a non-negative length, got {value} m", {"value": value}
+            "non_negative_length", "must be a non-negative length, got {value}", {"value": _in_file_unit(value, info)}
         )
     return value
 
 
-def _positive(value: float) -> float:
+def _positive(value: float, info: ValidationInfo) -> float:
     _finite(value)
     if value <= 0:
-        raise PydanticCustomError("positive_length", "must be a positive length, got {value} m", {"value": value})
+        raise PydanticCustomError(
+            "positive_length", "must be a positive length, got {value}", {"value": _in_file_unit(value, info)}
+        )
     return value
 
 

@@ -42,6 +42,44 @@ def test_dask_cluster_equals_local(block_world):
         np.testing.assert_array_equal(a["index"], b["index"])
 
 
+@pytest.mark.dask
+def test_dask_workers_without_the_stages_packages_are_named_at_connect_time():
+    distributed = pytest.importorskip("distributed")
+    import numpy
+    from surgiplan.errors import ExecutorError
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        required = {"surgiplan-missing-plugins": "1.0", "numpy": "0.0.1"}
+        with pytest.raises(ExecutorError) as info:
+            DaskExecutor(cluster.scheduler_address, required=required)
+        message = str(info.value)
+        workers = sorted(cluster.scheduler_info["workers"])
+        assert len(workers) == 2
+        for worker in workers:
+            assert f"worker {worker} does not have surgiplan-missing-plugins installed (this run uses 1.0)" in message
+            assert f"worker {worker} has numpy {numpy.__version__}, this run uses 0.0.1" in message
+        with DaskExecutor(cluster.scheduler_address, required={"numpy": numpy.__version__}) as executor:
+            assert executor.map(abs, [-1, -2]) == [1, 2]  # the same versions: accepted
+
+
+def test_the_dask_version_probe_needs_no_surgiplan_on_the_worker():
+    """The probe travels by value: a worker that cannot import surgiplan still runs it and is named."""
+    import subprocess
+    import sys
+
+    cloudpickle = pytest.importorskip("cloudpickle")
+    from surgiplan.executors import _version_probe
+
+    payload = cloudpickle.dumps(_version_probe())
+    code = (
+        "import sys, pickle; sys.modules['surgiplan'] = None; "
+        "f = pickle.loads(sys.stdin.buffer.read()); print(f(['surgiplan-missing-plugins', 'numpy']))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], input=payload, capture_output=True, timeout=60)
+    assert out.returncode == 0, out.stderr.decode()
+    assert "'surgiplan-missing-plugins': None" in out.stdout.decode()
+
+
 def test_unreachable_dask_scheduler_is_a_clear_error():
     pytest.importorskip("distributed")
     from surgiplan.errors import ExecutorError
