@@ -1,82 +1,53 @@
-"""An example third-party surgiplan plugin: the ``via_point`` planner.
+"""An example third-party surgiplan package: one plugin of each of the four kinds.
 
-It is deliberately small but real: the build phase samples valid "via
-points" and stores them; a query returns the straight motion when it is
-certified clear, otherwise the shortest two-leg path through one via point
-whose both legs are clear, otherwise ``no_path``. It works in any space,
-keeps a clearance ``margin`` and stores its artifact, so it exercises every
-part of the Planner interface. Copy it to start your own planner.
+Copy it to start your own. Every plugin is small but real, and each is
+exercised by surgiplan's test suite (``tests/test_examples.py``):
+
+* :mod:`.via_point` — planner ``via_point``: the straight motion if it is
+  clear, else the best detour through one stored via point (build, query,
+  stored artifact, a memory estimate);
+* :mod:`.planar` — space ``planar``: the instrument tip, a sphere, moving in
+  a horizontal plane at a fixed height (2 coordinates);
+* :mod:`.spring_chain` — deformable model ``spring_chain``: a chain of nodes
+  joined by linear springs under gravity, solved exactly (and a ``simulate``
+  stage comparing its sag with the closed form);
+* :mod:`.point_robot` — device ``point_robot``: a simulated 3-axis gantry that
+  refuses paths closer to an obstacle than its safety margin, then follows
+  them at constant speed with a first-order lag and reports what it did.
+
+The whole registration is this module plus one table in ``pyproject.toml``::
+
+    [project.entry-points.surgiplan]
+    hello = "surgiplan_hello"
 """
 
 from __future__ import annotations
 
-import numpy as np
-from pydantic import BaseModel, ConfigDict, PositiveInt
-from surgiplan import Length, Planner, PlanningProblem, PlanResult, PlanStatus, PluginSpec, ResourceEstimate, hookimpl
+from surgiplan import PluginSpec, hookimpl
 
+from .planar import PlanarSpace
+from .point_robot import PointRobot
+from .spring_chain import SpringChain
+from .via_point import ViaPointPlanner
 
-class ViaPointSettings(BaseModel):
-    # extra="forbid": a misspelt setting is an error naming it, not silently ignored
-    model_config = ConfigDict(extra="forbid")
-
-    via_points: PositiveInt = 200
-    #: clearance the path must keep, in the pipeline file's length unit
-    margin: Length = 0.0
-    seed: int = 0
-
-
-class ViaPointPlanner(Planner):
-    """Straight line if clear, else the best detour through one stored via point."""
-
-    Settings = ViaPointSettings
-
-    @classmethod
-    def estimate_resources(cls, settings, problem):
-        # build() samples up to 4 x via_points configurations at once, plus a validity mask
-        n, d = settings.via_points, problem.space.dimension
-        return [ResourceEstimate(n * (4 * d * 8 + 8), f"{n:,} via points", "via_points")]
-
-    def build(self, problem: PlanningProblem) -> dict:
-        space = problem.space
-        rng = np.random.default_rng(self.settings.seed)
-        found = []
-        with problem.progress.task("sampling via points", total=self.settings.via_points) as task:
-            while sum(len(f) for f in found) < self.settings.via_points:
-                batch = space.sample(rng, 4 * self.settings.via_points)
-                found.append(batch[space.is_valid(batch, self.settings.margin)])
-                task.update(min(sum(len(f) for f in found), self.settings.via_points))
-        via = np.concatenate(found)[: self.settings.via_points]
-        return {"space": space, "via": via}
-
-    def save_artifact(self, artifact):
-        return {"via": artifact["via"]}
-
-    def load_artifact(self, data, problem):
-        return {"space": problem.space, "via": np.asarray(data["via"], dtype=float)}
-
-    def query(self, artifact, start, goal) -> PlanResult:
-        space, via, margin = artifact["space"], artifact["via"], self.settings.margin
-        failure = self.check_endpoints(space, start, goal, margin)
-        if failure is not None:
-            return failure
-        if space.motion_is_clear(start[None], goal[None], margin)[0]:
-            return PlanResult(PlanStatus.SOLVED, np.stack([start, goal]), {"legs": 1}, clearance_threshold=margin)
-        n = len(via)
-        first = space.motion_is_clear(np.repeat(start[None], n, 0), via, margin)
-        second = space.motion_is_clear(via, np.repeat(goal[None], n, 0), margin)
-        both = np.flatnonzero(first & second)
-        if both.size == 0:
-            return PlanResult.failure(
-                PlanStatus.NO_PATH,
-                space.dimension,
-                f"no clear straight path and none of {n} via points connects",
-                legs=0,
-            )
-        cost = space.distance(start, via[both]) + space.distance(via[both], goal)
-        best = via[both[np.argmin(cost)]]
-        return PlanResult(PlanStatus.SOLVED, np.stack([start, best, goal]), {"legs": 2}, clearance_threshold=margin)
+__all__ = ["PlanarSpace", "PointRobot", "SpringChain", "ViaPointPlanner"]
 
 
 @hookimpl
 def surgiplan_register_planners():
     return [PluginSpec("via_point", ViaPointPlanner, "straight line, or a detour through one via point")]
+
+
+@hookimpl
+def surgiplan_register_spaces():
+    return [PluginSpec("planar", PlanarSpace, "the tip, a sphere, in a horizontal plane at a fixed height")]
+
+
+@hookimpl
+def surgiplan_register_deformable_models():
+    return [PluginSpec("spring_chain", SpringChain, "a chain of linear springs under gravity, solved exactly")]
+
+
+@hookimpl
+def surgiplan_register_devices():
+    return [PluginSpec("point_robot", PointRobot, "a simulated 3-axis gantry with a safety margin")]
