@@ -51,6 +51,7 @@ def save_artifact(path: Path, planner: Planner, artifact: Any, key: str, plugin:
     values = to_jsonable({k: v for k, v in data.items() if not isinstance(v, np.ndarray)})
     meta = {"format": FORMAT, "key": key, "plugin": plugin.name, "values": values}
     save_bundle(path, arrays, meta)
+    log.info("stored the %s artifact in %s (%.3g MB)", plugin.name, path, path.stat().st_size / 1e6)
 
 
 def load_artifact(
@@ -58,6 +59,7 @@ def load_artifact(
 ) -> Any | None:
     """The stored artifact if its key matches; ``None`` when it must be rebuilt."""
     if not path.exists():
+        log.info("no stored artifact at %s yet; building", path)
         return None
     try:
         arrays, meta = load_bundle(path)
@@ -71,6 +73,7 @@ def load_artifact(
         log.info("%s was built from another scene, space or settings; rebuilding", path)
         return None
     data: Mapping[str, Any] = {**meta.get("values", {}), **arrays}
+    log.info("reusing the stored %s artifact %s (same scene, space and settings)", plugin.name, path)
     try:
         return planner.load_artifact(data, problem)
     except (KeyError, ValueError, TypeError, IndexError) as exc:

@@ -46,13 +46,22 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"surgiplan {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log what happens (artifact reuse, ...)")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="log what happens: each stage's outcome, artifacts reused or stored, the executor, files written",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a pipeline file and write result.json, figures and scene.glb")
     run.add_argument("file", type=Path)
     run.add_argument("--out", type=Path, default=None, help="output directory (default: output.dir of the file)")
-    run.add_argument("--quiet", action="store_true", help="no progress bars and no summary table")
+    run.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress bars and no summary table: one line saying where the results are",
+    )
 
     validate = sub.add_parser("validate", help="check a pipeline (or scene) file without running it")
     validate.add_argument("file", type=Path)
@@ -78,13 +87,20 @@ def _cmd_run(args) -> int:
         unit = pipeline.model.length_unit
         # piped output (CI logs, files) has no terminal width: do not fold the table into 80 columns
         print_summary(
-            Console() if sys.stdout.isatty() else Console(width=120),
+            Console() if sys.stdout.isatty() else Console(width=140),
             pipeline.name,
             outcome.results,
             unit=unit,
             unit_scale=LENGTH_UNITS[unit],
             output_dir=str(outcome.output_dir),
         )
+    else:
+        succeeded = sum(r.succeeded for r in outcome.results)
+        print(
+            f"{pipeline.name}: {succeeded} of {len(outcome.results)} stages succeeded; "
+            f"results in {outcome.output_dir / 'result.json'}"
+        )
+    logging.getLogger("surgiplan").info("wrote in %s: %s", outcome.output_dir, ", ".join(outcome.files))
     for r in outcome.results:
         if not r.succeeded:
             print(f"{r.stage} stage '{r.name}': {r.status}" + (f": {r.message}" if r.message else ""), file=sys.stderr)

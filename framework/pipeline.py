@@ -231,6 +231,7 @@ def _build_scene_collecting(
         obstacles,
         {k: np.asarray(v) for k, v in model.points.items()},
         model.name or "scene",
+        unit,
     )
     return scene, errors
 
@@ -395,6 +396,9 @@ def load_pipeline(
             errors.extend(e for e in scene_errors if (e.location, e.message) not in known)
     except SurgiplanError as exc:
         errors.append(exc if exc.file is not None else ConfigError(exc.message, file=path, location=exc.location))
+
+    if scene is not None:
+        scene.unit = unit  # messages in the pipeline's unit, whatever the scene file's
 
     # pass 2: plugins and their settings (and spaces, when the scene is there to build them on)
     stages: list[StageSpec] = []
@@ -626,7 +630,7 @@ def _resolve_endpoint(spec: StageSpec, stage: StageModel, key: str, file: Path, 
         what = f"obstacle '{scene.obstacles[nearest].name}'" if nearest >= 0 else "an obstacle"
         body = "lies inside" if space.kind == "r3" else "puts the instrument inside"
         raise PlanningInputError(
-            f"{key} {label} {body} {what} (clearance {clearance * 1000:.3g} mm)",
+            f"{key} {label} {body} {what} (clearance {scene.describe_length(clearance)})",
             file=file,
             location=location,
             line=line,

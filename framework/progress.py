@@ -42,6 +42,23 @@ class NullProgress(Progress):
     """Reports nothing (the default outside the command line)."""
 
 
+class StageProgress(Progress):
+    """A stage's view of the run's progress: every task it opens is named after the stage
+    (``expert: sampling milestones``), so four plan stages do not show four identical bars."""
+
+    def __init__(self, inner: Progress, stage: str) -> None:
+        self.inner = inner
+        self.stage = stage
+
+    def task(self, description: str, total: float | None = None):
+        if not description.startswith(f"{self.stage}:"):
+            description = f"{self.stage}: {description}"
+        return self.inner.task(description, total)
+
+    def close(self) -> None:  # the run closes the real one
+        pass
+
+
 class _RichTask(ProgressTask):
     def __init__(self, progress, task_id) -> None:
         self._progress = progress

@@ -44,7 +44,7 @@ from .outputs.figures import PathView, overview_figure, plan_figure
 from .outputs.gltf import write_scene_glb
 from .pipeline import Pipeline, StageSpec
 from .planning import PlanningProblem, PlanResult
-from .progress import NullProgress, Progress
+from .progress import NullProgress, Progress, StageProgress
 from .results import StageContext, StageResult
 from .status import PLUGIN_STATUSES, RunOutcomeStatus, RunStatus
 from .storage import to_jsonable, write_json_atomic
@@ -264,6 +264,11 @@ def run_plan_stage(spec: StageSpec, context: StageContext) -> tuple[StageResult,
             spec.space.tip(spec.start[None])[0],
             spec.space.tip(spec.goal[None])[0] if spec.goal is not None else None,
             highlights=highlights,
+            detours=[
+                np.asarray(d["tips_m"], dtype=float).reshape(-1, 3)
+                for d in stage.annotations.get("detours", [])
+                if isinstance(d, dict) and "tips_m" in d
+            ],
         )
     stage.metrics = metrics
     return stage, view
@@ -370,6 +375,7 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
     unit_scale = LENGTH_UNITS[unit]
     packages = {s.plugin.package: s.plugin.version for s in pipeline.stages}
     executor = make_executor(pipeline.model.executor, packages)  # a dask cluster is checked before writing
+    log.info("pipeline '%s': %d stages, executor %s", pipeline.name, len(pipeline.stages), executor.describe())
     try:
         out = prepare_output_dir(pipeline.output_dir)
         marker = begin_run(out, pipeline.file)
@@ -390,7 +396,7 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
                 out,
                 pipeline.base_dir,
                 executor,
-                progress,
+                StageProgress(progress, spec.name),
                 {r.name: r for r in results},
                 out / ".work" / spec.name,
                 length_unit=unit,
@@ -424,6 +430,14 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
                 break
             results.append(result)
             _write_marker(marker, pipeline.file, results)
+            log.info(
+                "%s stage '%s' (%s): %s%s",
+                spec.kind,
+                spec.name,
+                spec.plugin.name,
+                result.status,
+                f": {result.message}" if result.message else "",
+            )
     finally:
         executor.close()
         progress.close()

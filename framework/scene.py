@@ -40,6 +40,9 @@ def meets_margin(clearance, margin: float) -> np.ndarray:
     return clearance > 0.0 if margin <= 0.0 else clearance >= margin
 
 
+_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
+
+
 @dataclass
 class Scene:
     """Workspace bounds (m), obstacles and named points (m)."""
@@ -49,6 +52,8 @@ class Scene:
     obstacles: list[Obstacle] = field(default_factory=list)
     points: dict[str, np.ndarray] = field(default_factory=dict)
     name: str = "scene"
+    #: the length unit messages about this scene use (its file's, or the pipeline's); everything else is SI
+    unit: str = "mm"
 
     def __post_init__(self) -> None:
         self.bounds_min = np.asarray(self.bounds_min, dtype=float).reshape(3)
@@ -78,7 +83,7 @@ class Scene:
 
     def with_bounds(self, bounds_min, bounds_max) -> Scene:
         """The same obstacles and points in other workspace bounds."""
-        return Scene(bounds_min, bounds_max, self.obstacles, dict(self.points), self.name)
+        return Scene(bounds_min, bounds_max, self.obstacles, dict(self.points), self.name, self.unit)
 
     def in_bounds(self, points) -> np.ndarray:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -233,8 +238,13 @@ class Scene:
         return hashlib.sha256(json.dumps(self.spec(), sort_keys=True).encode()).hexdigest()
 
     def describe_point(self, point) -> str:
-        """``(x, y, z) mm`` for messages."""
-        return "(" + ", ".join(f"{1000 * c:.4g}" for c in np.asarray(point).reshape(3)) + ") mm"
+        """``(x, y, z) mm`` for messages, in the scene's :attr:`unit`."""
+        k = 1.0 / _UNITS.get(self.unit, 1e-3)
+        return "(" + ", ".join(f"{k * c:.4g}" for c in np.asarray(point).reshape(3)) + f") {self.unit}"
+
+    def describe_length(self, value: float) -> str:
+        """``3.5 mm`` for messages, in the scene's :attr:`unit`."""
+        return f"{value / _UNITS.get(self.unit, 1e-3):.3g} {self.unit}"
 
 
 def resolve_point(scene: Scene, value, points: Mapping[str, np.ndarray] | None = None) -> np.ndarray:

@@ -25,7 +25,7 @@ def run_file(cli, tmp_path, stages, name="example"):
     }
     path = tmp_path / "pipeline.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    code, out, err = cli("run", path, "--quiet")
+    code, _, err = cli("run", path, "--quiet")
     return code, err, json.loads((tmp_path / "out" / "result.json").read_text())
 
 
@@ -78,7 +78,8 @@ def test_a_deformable_model_against_its_closed_form(cli, tmp_path, with_example_
 
 
 def test_a_device_tracks_with_the_lag_its_model_predicts(cli, tmp_path, with_example_plugin):
-    robot = {"stage": "execute", "plugin": "point_robot", "settings": {"speed": 40, "lag": 0.05, "rate": 400, "tool_radius": 0.5}}
+    settings = {"speed": 40, "lag": 0.05, "rate": 400, "tool_radius": 0.5}
+    robot = {"stage": "execute", "plugin": "point_robot", "settings": settings}
     code, err, document = run_file(cli, tmp_path, [PLAN_IN_THE_PLANE, robot])
     assert code == 0, err
     plan, execute = document["stages"]
@@ -95,9 +96,9 @@ def test_a_device_tracks_with_the_lag_its_model_predicts(cli, tmp_path, with_exa
 
 def test_a_device_refuses_a_path_closer_than_its_safety_margin(cli, tmp_path, with_example_plugin):
     robot = {"stage": "execute", "plugin": "point_robot", "settings": {"safety_margin": 5}}
-    code, err, document = run_file(cli, tmp_path, [PLAN_IN_THE_PLANE, robot])
+    code, _, document = run_file(cli, tmp_path, [PLAN_IN_THE_PLANE, robot])
     assert code == 1
-    plan, execute = document["stages"]
+    _, execute = document["stages"]
     assert execute["status"] == "refused" and execute["path"] == []
     assert "refused before any motion" in execute["message"] and "the safety margin is 5 mm" in execute["message"]
     assert execute["metrics"]["planned_min_clearance_m"] < 0.005

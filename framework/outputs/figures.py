@@ -1,9 +1,11 @@
 """Figures in the style of the papers: obstacles, the path, its low-clearance parts.
 
 Paper 000 Fig. 4 shows each proficiency level's path through the block world
-in 3D, with the stretches that pass close to obstacles marked. Every plan
-stage gets such a figure (a 3D view and a top view); a pipeline with several
-plan stages also gets ``overview.png`` with one 3D panel per stage.
+in 3D, the critical regions circled by solid ovals and the passages a detour
+avoided by dashed ones. Every plan stage gets such a figure (a 3D view and a
+top view, where a stretch that passes *over* an obstacle is marked with its
+height); a pipeline with several plan stages also gets ``overview.png`` with
+one 3D panel per stage. Every figure has a legend.
 """
 
 from __future__ import annotations
@@ -19,6 +21,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from ..scene import Scene
@@ -27,6 +32,8 @@ from ..storage import atomic_write
 SAFE_COLOUR = "#1f6fb4"
 LOW_COLOUR = "#d62728"
 OBSTACLE_COLOUR = "#9a9a9a"
+CRITICAL_COLOUR = "#e67e00"
+DETOUR_COLOUR = "#6a3d9a"
 
 
 @dataclass
@@ -42,6 +49,21 @@ class PathView:
     title: str = ""
     #: [(start_m, end_m)] arc-length intervals to highlight (critical regions)
     highlights: Sequence[tuple[float, float]] = ()
+    #: tip positions (k, 3) m of each passage a detour avoided (planner annotation ``detours``)
+    detours: Sequence[np.ndarray] = ()
+
+    def arc(self) -> np.ndarray:
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.tips, axis=0), axis=1))])
+
+    def critical_points(self) -> list[np.ndarray]:
+        """Tip positions of each critical region."""
+        arc = self.arc()
+        out = []
+        for a, b in self.highlights:
+            inside = (arc >= a - 1e-12) & (arc <= b + 1e-12)
+            if np.any(inside):
+                out.append(self.tips[inside])
+        return out
 
     def low_mask(self) -> np.ndarray:
         """Per segment: below the threshold (or in contact when there is none)."""
@@ -58,6 +80,22 @@ def _obstacle_meshes(scene: Scene):
     return [(o.name, o.to_trimesh()) for o in scene.obstacles]
 
 
+def _oval(points: np.ndarray, k: float, pad: float, n: int = 72) -> np.ndarray:
+    """A horizontal ellipse (n, 3) around points (k, 3) m, in figure units: the region's footprint plus pad."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    half = 0.5 * (hi - lo)[:2] + pad
+    angle = np.linspace(0.0, 2 * np.pi, n)
+    ring = np.column_stack(
+        [centre[0] + half[0] * np.cos(angle), centre[1] + half[1] * np.sin(angle), np.full(n, centre[2])]
+    )
+    return ring * k
+
+
+def _pad(scene: Scene) -> float:
+    return 0.04 * float(np.min(scene.extent[:2]))
+
+
 def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, meshes) -> None:
     for _, mesh in meshes:
         triangles = mesh.vertices[mesh.faces] * k
@@ -69,6 +107,12 @@ def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, m
         low = view.low_mask()
         colours = np.where(low[:, None], np.array([[0.84, 0.15, 0.16, 1.0]]), np.array([[0.12, 0.44, 0.71, 1.0]]))
         ax.add_collection3d(Line3DCollection(segments, colors=colours, linewidths=2.2))
+        for points in view.critical_points():
+            ring = _oval(points, k, _pad(scene))
+            ax.plot(*ring.T, color=CRITICAL_COLOUR, linewidth=1.6, linestyle="-")
+        for points in view.detours:
+            ring = _oval(np.asarray(points), k, _pad(scene))
+            ax.plot(*ring.T, color=DETOUR_COLOUR, linewidth=1.4, linestyle="--")
         if view.start is not None:
             ax.scatter(*(view.start * k), color="#2ca02c", s=30, depthshade=False)
         if view.goal is not None:
@@ -78,10 +122,41 @@ def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, m
     ax.set_ylim(lo[1], hi[1])
     ax.set_zlim(lo[2], hi[2])
     ax.set_box_aspect(hi - lo)
+    # a flat box leaves little room for z ticks: few of them, so the labels never overlap
+    flatness = float((hi - lo)[2] / max((hi - lo)[0], (hi - lo)[1]))
+    ax.zaxis.set_major_locator(MaxNLocator(nbins=int(np.clip(round(8 * flatness), 2, 6))))
     ax.set_xlabel(f"x ({unit})")
     ax.set_ylabel(f"y ({unit})")
-    ax.set_zlabel(f"z ({unit})")
+    ax.set_zlabel(f"z ({unit})", labelpad=2)
     ax.view_init(elev=28, azim=-60)
+
+
+def _over_obstacles(scene: Scene, tips: np.ndarray) -> list[tuple[int, int, str, float]]:
+    """Stretches [i0, i1] of the tip path that pass over an obstacle: (i0, i1, obstacle name, mean height m).
+
+    A tip is over an obstacle when a point straight below it (sampled down to the floor) is inside one.
+    """
+    if not scene.obstacles or len(tips) < 2:
+        return []
+    floor = scene.bounds_min[2]
+    heights = np.linspace(0.0, 1.0, 12)[:-1]
+    column = tips[:, None, :].repeat(len(heights), axis=1)
+    column[:, :, 2] = floor + heights[None, :] * (tips[:, 2:3] - floor)
+    distance, index = scene.signed_distance(column.reshape(-1, 3))
+    inside = (distance < 0).reshape(len(tips), -1)
+    owner = np.where(inside, index.reshape(len(tips), -1), -1).max(axis=1)
+    out = []
+    i = 0
+    while i < len(tips):
+        if owner[i] < 0:
+            i += 1
+            continue
+        j = i
+        while j + 1 < len(tips) and owner[j + 1] == owner[i]:
+            j += 1
+        out.append((i, j, scene.obstacles[int(owner[i])].name, float(tips[i : j + 1, 2].mean())))
+        i = j + 1
+    return out
 
 
 def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> None:
@@ -93,51 +168,80 @@ def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> 
     tips = view.tips[:, :2] * k
     segments = np.stack([tips[:-1], tips[1:]], axis=1)
     low = view.low_mask()
-    ax.add_collection(LineCollection(segments[~low], colors=SAFE_COLOUR, linewidths=2.2, label="path"))
+    # round caps: a dense path's many short segments would otherwise show seams at every joint
+    ax.add_collection(LineCollection(segments[~low], colors=SAFE_COLOUR, linewidths=2.2, capstyle="round"))
     if np.any(low):
-        label = "below threshold" if view.threshold else "in contact"
-        ax.add_collection(LineCollection(segments[low], colors=LOW_COLOUR, linewidths=2.8, label=label))
-    if view.highlights:
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(view.tips, axis=0), axis=1))])
-        for i, (a, b) in enumerate(view.highlights):
-            inside = (arc >= a - 1e-12) & (arc <= b + 1e-12)
-            if np.any(inside):
-                pts = tips[inside]
-                ax.plot(
-                    pts[:, 0],
-                    pts[:, 1],
-                    color="orange",
-                    linewidth=9,
-                    alpha=0.35,
-                    solid_capstyle="round",
-                    label="critical region" if i == 0 else None,
-                )
-    if view.start is not None:
-        ax.plot(*(view.start[:2] * k), "o", color="#2ca02c", label="start")
-    if view.goal is not None:
-        ax.plot(*(view.goal[:2] * k), "*", color="black", markersize=11, label="goal")
+        ax.add_collection(LineCollection(segments[low], colors=LOW_COLOUR, linewidths=2.8, capstyle="round"))
+    for points in view.critical_points():
+        ring = _oval(points, k, _pad(scene))
+        ax.plot(ring[:, 0], ring[:, 1], color=CRITICAL_COLOUR, linewidth=1.6)
+    for points in view.detours:
+        ring = _oval(np.asarray(points), k, _pad(scene))
+        ax.plot(ring[:, 0], ring[:, 1], color=DETOUR_COLOUR, linewidth=1.4, linestyle="--")
     for name, mesh in meshes:
         centre = mesh.vertices.mean(axis=0)[:2] * k
         ax.annotate(name, centre, ha="center", va="center", fontsize=7, color="#333333")
+    # the top view hides height: mark where the path passes over an obstacle, and how high
+    for i0, i1, name, z in _over_obstacles(scene, view.tips):
+        stretch = tips[i0 : i1 + 1]
+        ax.plot(stretch[:, 0], stretch[:, 1], color="white", linewidth=1.0, linestyle=(0, (2, 2)))
+        middle = stretch[len(stretch) // 2]
+        ax.annotate(
+            f"over {name}, z {z * k:.3g} {unit}",
+            middle,
+            xytext=(0, 9),
+            textcoords="offset points",
+            ha="center",
+            fontsize=7,
+            color="#222222",
+            bbox={"boxstyle": "round,pad=0.15", "facecolor": "white", "alpha": 0.8, "edgecolor": "none"},
+        )
+    if view.start is not None:
+        ax.plot(*(view.start[:2] * k), "o", color="#2ca02c")
+    if view.goal is not None:
+        ax.plot(*(view.goal[:2] * k), "*", color="black", markersize=11)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
     ax.set_xlabel(f"x ({unit})")
     ax.set_ylabel(f"y ({unit})")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=5, fontsize=7, frameon=False)
+
+
+def _legend(fig, scene: Scene, views: Sequence[PathView], unit: str, k: float) -> None:
+    """One legend for the figure, listing only what is drawn."""
+    handles = [
+        Line2D([], [], color=SAFE_COLOUR, linewidth=2.2, label="path"),
+        Line2D([], [], marker="o", color="#2ca02c", linestyle="none", label="start"),
+        Line2D([], [], marker="*", color="black", markersize=10, linestyle="none", label="goal"),
+        Patch(facecolor=OBSTACLE_COLOUR, alpha=0.6, label="obstacle"),
+    ]
+    thresholds = {v.threshold for v in views if v.threshold}
+    if any(np.any(v.low_mask()) for v in views):
+        label = "below the clearance threshold" if thresholds else "in contact"
+        if len(thresholds) == 1:
+            label = f"clearance below {next(iter(thresholds)) * k:.3g} {unit}"
+        handles.append(Line2D([], [], color=LOW_COLOUR, linewidth=2.8, label=label))
+    if any(v.critical_points() for v in views):
+        handles.append(Line2D([], [], color=CRITICAL_COLOUR, linewidth=1.6, label="critical region (no safe detour)"))
+    if any(len(v.detours) for v in views):
+        handles.append(Line2D([], [], color=DETOUR_COLOUR, linewidth=1.4, linestyle="--", label="avoided by a detour"))
+    if any(_over_obstacles(scene, v.tips) for v in views):
+        handles.append(Line2D([], [], color="#555555", linestyle=(0, (2, 2)), label="passes over an obstacle"))
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=8, frameon=False)
 
 
 def plan_figure(path: Path, scene: Scene, view: PathView, *, unit: str, unit_scale: float) -> None:
     """One plan stage: 3D view and top view, written atomically as PNG."""
     k = _scale(unit_scale)
     meshes = _obstacle_meshes(scene)
-    fig = plt.figure(figsize=(13, 5.2))
+    fig = plt.figure(figsize=(13, 5.8))
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     _draw_3d(ax3, scene, [view], unit, k, meshes)
     ax2 = fig.add_subplot(1, 2, 2)
     _draw_top(ax2, scene, view, unit, k, meshes)
     fig.suptitle(view.title or view.label, fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    _legend(fig, scene, [view], unit, k)
     _save(fig, path)
 
 
@@ -149,7 +253,7 @@ def overview_figure(
     n = len(panels)
     cols = min(n, 2) if n <= 4 else 3
     rows = int(np.ceil(n / cols))
-    fig = plt.figure(figsize=(6.2 * cols, 4.6 * rows))
+    fig = plt.figure(figsize=(6.2 * cols, 4.6 * rows + 0.6))
     for i, (scene, view) in enumerate(panels):
         ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
         _draw_3d(ax, scene, [view], unit, k, _obstacle_meshes(scene))
@@ -157,7 +261,8 @@ def overview_figure(
         ax.set_title(panel, fontsize=9)
     if title:
         fig.suptitle(title, fontsize=12)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.6 / (4.6 * rows + 0.6), 1, 1))
+    _legend(fig, panels[0][0], [v for _, v in panels], unit, k)
     _save(fig, path)
 
 
