@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .executors import Executor, InlineExecutor
+from .live import LiveFeed
 from .progress import NullProgress, Progress
 from .scene import Scene
 from .status import SUCCESS
@@ -38,6 +39,8 @@ class StageContext:
     workdir: Path | None = None
     #: the pipeline's length unit (for messages and figures; everything passed around is SI)
     length_unit: str = "m"
+    #: where a running stage publishes what it does, for a live viewer (:mod:`surgiplan.live`)
+    live: LiveFeed = field(default_factory=LiveFeed)
 
 
 @dataclass
