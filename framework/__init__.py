@@ -25,6 +25,7 @@ from .errors import (
     SurgiplanError,
 )
 from .executors import DaskExecutor, Executor, InlineExecutor, LocalExecutor, TaskStore, run_tasks
+from .guidance import GuideContext, PoseSample, PoseSource, SourceStopped
 from .hookspecs import PluginSpec, hookimpl
 from .pipeline import load_pipeline, load_scene
 from .planning import Planner, PlanningProblem, PlanResult
@@ -34,7 +35,7 @@ from .results import StageContext, StageResult
 from .runner import run_pipeline
 from .scene import Scene
 from .spaces import CastGimbalSpace, R3Space, SE3Space, Space
-from .status import ExecuteStatus, PlanStatus, RunStatus, SimulateStatus
+from .status import ExecuteStatus, GuideStatus, PlanStatus, RunStatus, SimulateStatus
 from .units import Angle, Coordinate, Length, PositiveLength, Vec3
 
 __all__ = [
@@ -50,6 +51,8 @@ __all__ = [
     "ExecuteStatus",
     "ExecutionReport",
     "Executor",
+    "GuideContext",
+    "GuideStatus",
     "InlineExecutor",
     "Length",
     "LifecycleState",
@@ -62,6 +65,8 @@ __all__ = [
     "PlanningProblem",
     "PluginError",
     "PluginSpec",
+    "PoseSample",
+    "PoseSource",
     "PositiveLength",
     "Progress",
     "R3Space",
@@ -71,6 +76,7 @@ __all__ = [
     "Scene",
     "SceneError",
     "SimulateStatus",
+    "SourceStopped",
     "Space",
     "StageContext",
     "StageResult",

@@ -190,10 +190,17 @@ Endpoint = Annotated[
 ]
 
 
+class TraineeModel(_Strict):
+    """Whose attempt a guide stage records, at which task (``trainee: {name, task}``)."""
+
+    name: str = Field(min_length=1)
+    task: str = Field(min_length=1)
+
+
 class StageModel(_Strict):
     """One stage of a pipeline; which keys apply depends on ``stage``."""
 
-    stage: Literal["plan", "simulate", "execute"]
+    stage: Literal["plan", "simulate", "execute", "guide"]
     plugin: str = Field(min_length=1)
     name: str | None = Field(default=None, min_length=1)
     settings: dict[str, Any] = Field(default_factory=dict)
@@ -204,11 +211,17 @@ class StageModel(_Strict):
     artifact: str | None = None
     bounds: BoundsModel | None = None
     clearance_threshold: Length | None = None
-    # execute stages
+    # execute and guide stages
     path_from: str | None = None
+    # guide stages: the analysis (surgiplan.guidance.GuidanceSettings, validated in pass 2) and the record
+    guidance: dict[str, Any] | None = None
+    trainee: TraineeModel | None = None
 
     @model_validator(mode="after")
     def _keys_for_stage(self):
+        guide_only = [k for k in ("guidance", "trainee") if getattr(self, k) is not None]
+        if guide_only and self.stage != "guide":
+            raise ValueError(f"{', '.join(guide_only)} apply to guide stages only, not to {self.stage} stages")
         plan_only = ("space", "start", "goal", "artifact", "bounds", "clearance_threshold")
         if self.stage == "plan":
             # goal: checked in pass 2, where the planner is known (Planner.requires_goal)
@@ -216,7 +229,7 @@ class StageModel(_Strict):
             if missing:
                 raise ValueError(f"a plan stage needs {' and '.join(missing)}")
             if self.path_from is not None:
-                raise ValueError("path_from applies to execute stages only")
+                raise ValueError("path_from applies to execute and guide stages only")
         else:
             extra = [k for k in plan_only if getattr(self, k) is not None]
             if self.stage == "simulate" and self.path_from is not None:
@@ -261,3 +274,6 @@ class PipelineModel(_Strict):
     pipeline: list[StageModel] = Field(min_length=1)
     executor: ExecutorModel = Field(default_factory=ExecutorModel)
     output: OutputModel = Field(default_factory=OutputModel)
+    #: the trainee record (SQLite) guide stages write to and proficiency: {trainee: ...} reads; relative to the
+    #: current directory, like output.dir
+    record: str = "out/trainees.sqlite"

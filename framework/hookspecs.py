@@ -1,4 +1,4 @@
-"""Hook specifications: how a package adds planners, models, devices and spaces.
+"""Hook specifications: how a package adds planners, models, devices, spaces and pose sources.
 
 A plugin is a module (or object) named by an entry point in the
 ``surgiplan`` group. It implements one or more of these hooks, marked with
@@ -78,10 +78,16 @@ def surgiplan_register_spaces() -> list[PluginSpec]:
     """Configuration spaces (subclasses of :class:`surgiplan.Space`), chosen by ``space: {kind: name}``."""
 
 
+@hookspec
+def surgiplan_register_sources() -> list[PluginSpec]:
+    """Pose sources (subclasses of :class:`surgiplan.PoseSource`): the instrument followed by ``stage: guide``."""
+
+
 #: plugin kind -> (hook name, stage kind that uses it)
 KINDS: dict[str, tuple[str, str | None]] = {
     "planner": ("surgiplan_register_planners", "plan"),
     "deformable_model": ("surgiplan_register_deformable_models", "simulate"),
     "device": ("surgiplan_register_devices", "execute"),
     "space": ("surgiplan_register_spaces", None),
+    "source": ("surgiplan_register_sources", "guide"),
 }

@@ -306,8 +306,11 @@ class StageSpec:
     goal_label: str = ""
     artifact: Path | None = None
     clearance_threshold: float | None = None
-    # execute stages
+    # execute and guide stages
     path_from: str | None = None
+    # guide stages
+    guidance: Any = None  # surgiplan.guidance.GuidanceSettings
+    trainee: Any = None  # surgiplan.config.TraineeModel
 
 
 @dataclass
@@ -320,6 +323,8 @@ class Pipeline:
     output_dir: Path
     base_dir: Path
     registry: PluginRegistry = field(repr=False, default_factory=default_registry)
+    #: the trainee record guide stages write to (relative to the current directory)
+    record: Path = Path("out/trainees.sqlite")
 
 
 def looks_like_scene(data: Any) -> bool:
@@ -423,7 +428,7 @@ def load_pipeline(
             try:
                 if spec.kind == "plan":
                     _resolve_endpoints(spec, stage, path, lines)
-                elif spec.kind == "execute":
+                elif spec.kind in ("execute", "guide"):
                     _resolve_path_source(spec, stages, stage, path, lines)
             except ConfigErrors as exc:
                 errors.extend(exc.errors)
@@ -445,7 +450,7 @@ def load_pipeline(
     assert model is not None and scene is not None
 
     out = Path(output_dir) if output_dir is not None else Path(model.output.dir or Path("out") / model.name)
-    return Pipeline(path, model.name, model, scene, stages, out, base_dir, registry)
+    return Pipeline(path, model.name, model, scene, stages, out, base_dir, registry, Path(model.record))
 
 
 def _sorted(errors: list[ConfigError]) -> list[ConfigError]:
@@ -511,6 +516,18 @@ def _resolve_stage(index, stage: StageModel, raw, registry, scene, file, lines, 
             line=line_of(lines, (*where, "name")),
         )
     spec = StageSpec(index, stage.stage, name, info, settings, location, scene)
+    if stage.stage == "guide":
+        from .guidance.analysis import GuidanceSettings
+
+        spec.guidance = validate_model(
+            GuidanceSettings,
+            raw.get("guidance") or {},
+            file=file,
+            lines=lines,
+            prefix=(*where, "guidance"),
+            context=context,
+        )
+        spec.trainee = stage.trainee
     if stage.stage != "plan":
         spec.path_from = stage.path_from
         return spec
@@ -647,7 +664,9 @@ def _resolve_path_source(
     if spec.path_from is None:
         if not earlier:
             raise ConfigError(
-                "an execute stage needs an earlier plan stage whose path it executes",
+                "an execute stage needs an earlier plan stage whose path it executes"
+                if spec.kind == "execute"
+                else "a guide stage needs an earlier plan stage whose path it recommends",
                 file=file,
                 location=format_path(("pipeline", spec.index)),
                 line=line_of(lines, ("pipeline", spec.index)),

@@ -243,10 +243,17 @@ class PluginRegistry:
 def _interfaces() -> dict[str, type]:
     from .deformable import DeformableModel
     from .devices import Device
+    from .guidance.source import PoseSource
     from .planning import Planner
     from .spaces.base import Space
 
-    return {"planner": Planner, "deformable_model": DeformableModel, "device": Device, "space": Space}
+    return {
+        "planner": Planner,
+        "deformable_model": DeformableModel,
+        "device": Device,
+        "space": Space,
+        "source": PoseSource,
+    }
 
 
 def plugin_class_problem(kind: str, cls: Any) -> str:
@@ -267,7 +274,7 @@ def plugin_class_problem(kind: str, cls: Any) -> str:
     if permissive:
         return (
             f"its settings model {', '.join(permissive)} accepts unknown keys; declare "
-            "model_config = ConfigDict(extra=\"forbid\") so a misspelt setting is an error"
+            'model_config = ConfigDict(extra="forbid") so a misspelt setting is an error'
         )
     return ""
 

@@ -40,6 +40,7 @@ from .config import ExecutorModel
 from .devices import ExecutionReport, Trajectory
 from .errors import OutputError, StageError, SurgiplanError
 from .executors import DaskExecutor, Executor, LocalExecutor
+from .guidance.stage import run_guide_stage
 from .outputs.figures import PathView, overview_figure, plan_figure
 from .outputs.gltf import write_scene_glb
 from .pipeline import Pipeline, StageSpec
@@ -414,6 +415,15 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
                             result.files.append(name)
                 elif spec.kind == "simulate":
                     result = run_simulate_stage(spec, context)
+                elif spec.kind == "guide":
+                    result = run_guide_stage(
+                        spec,
+                        context,
+                        plans,
+                        record_path=pipeline.record,
+                        pipeline_name=pipeline.name,
+                        plugin_call=_plugin_call,
+                    )
                 else:
                     result = run_execute_stage(spec, context, plans)
             except KeyboardInterrupt as exc:

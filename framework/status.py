@@ -12,6 +12,7 @@ enum                   values                                                   
 :class:`SimulateStatus` ``converged``, ``completed``; ``failed``                       the first two
 :class:`ExecuteStatus` ``completed``; ``stopped`` (a fault, a failsafe: the reason is   ``completed``
                        in the message), ``refused`` (before any motion)
+:class:`GuideStatus`   ``completed`` (the goal reached); ``incomplete``, ``stopped``   ``completed``
 :class:`RunStatus`     ``invalid_result`` (the framework refused a plugin's answer:     never
                        a colliding or malformed path, an unknown status),
                        ``error`` (the plugin raised), ``skipped`` (the stage it
@@ -58,6 +59,14 @@ class ExecuteStatus(enum.StrEnum):
     REFUSED = "refused"
 
 
+class GuideStatus(enum.StrEnum):
+    """How a guided attempt ended."""
+
+    COMPLETED = "completed"  # the instrument reached the end of the recommended path
+    INCOMPLETE = "incomplete"  # the attempt ended before the goal
+    STOPPED = "stopped"  # the source stopped sending (the reason in the message)
+
+
 class RunStatus(enum.StrEnum):
     """Statuses the framework sets on a stage."""
 
@@ -82,6 +91,7 @@ SUCCESS: dict[str, frozenset[str]] = {
     "plan": frozenset({PlanStatus.SOLVED}),
     "simulate": frozenset({SimulateStatus.CONVERGED, SimulateStatus.COMPLETED}),
     "execute": frozenset({ExecuteStatus.COMPLETED}),
+    "guide": frozenset({GuideStatus.COMPLETED}),
 }
 
 #: the statuses a plugin of each stage kind may return
@@ -89,4 +99,5 @@ PLUGIN_STATUSES: dict[str, frozenset[str]] = {
     "plan": frozenset(PlanStatus),
     "simulate": frozenset(SimulateStatus),
     "execute": frozenset(ExecuteStatus),
+    "guide": frozenset(GuideStatus),
 }

@@ -127,6 +127,7 @@ def test_every_plugin_package_registers_through_its_own_entry_point_and_says_wha
             "planners.retraction",
             "planners.ompl_bridge",
             "fem",
+            "guidance",
             "devices.cast_gimbal",
             "devices.gripper6",
             "devices.mavlink",

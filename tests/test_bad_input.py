@@ -387,7 +387,7 @@ TABLE = [
         "unknown-stage-kind",
         "validate",
         _change(_set(["pipeline", 0, "stage"], "planx")),
-        ["pipeline[0].stage:", "'plan', 'simulate' or 'execute'"],
+        ["pipeline[0].stage:", "'plan', 'simulate', 'execute' or 'guide'"],
     ),
     (
         "unknown-plugin",
@@ -490,7 +490,7 @@ TABLE = [
         "path-from-on-plan",
         "validate",
         _change(_set(["pipeline", 0, "path_from"], "x")),
-        ["path_from applies to execute stages only"],
+        ["path_from applies to execute and guide stages only"],
     ),
     (
         "unknown-executor",

@@ -193,7 +193,7 @@ def test_every_hook_is_documented_and_tested():
     readme = (ROOT / "README.md").read_text()
     tests = "".join(p.read_text() for p in (ROOT / "tests").glob("test_*.py"))
     hooks = [name for name, f in inspect.getmembers(hookspecs, inspect.isfunction) if name.startswith("surgiplan_")]
-    assert len(hooks) == 4
+    assert len(hooks) == 5
     for name in hooks:
         assert (getattr(hookspecs, name).__doc__ or "").strip(), f"{name} has no docstring"
         assert name in readme, f"{name} is not documented in README.md"
@@ -201,7 +201,13 @@ def test_every_hook_is_documented_and_tested():
 
 
 @pytest.mark.parametrize(
-    "hook", ["surgiplan_register_deformable_models", "surgiplan_register_devices", "surgiplan_register_spaces"]
+    "hook",
+    [
+        "surgiplan_register_deformable_models",
+        "surgiplan_register_devices",
+        "surgiplan_register_spaces",
+        "surgiplan_register_sources",
+    ],
 )
 def test_other_plugin_kinds_register_the_same_way(tmp_path, monkeypatch, hook):
     base = {
@@ -212,6 +218,7 @@ def test_other_plugin_kinds_register_the_same_way(tmp_path, monkeypatch, hook):
         ),
         "surgiplan_register_devices": ("Device", "    def run(self, trajectory): raise NotImplementedError\n"),
         "surgiplan_register_spaces": ("R3Space", ""),
+        "surgiplan_register_sources": ("PoseSource", "    def samples(self): return iter(())\n"),
     }[hook]
     code = GOOD_PLUGIN.replace("{name}", "kindprobe").replace("surgiplan_register_planners", hook)
     code = code.replace("from surgiplan import Planner,", f"from surgiplan import {base[0]},")
@@ -228,5 +235,6 @@ def test_other_plugin_kinds_register_the_same_way(tmp_path, monkeypatch, hook):
         "surgiplan_register_deformable_models": "deformable_model",
         "surgiplan_register_devices": "device",
         "surgiplan_register_spaces": "space",
+        "surgiplan_register_sources": "source",
     }[hook]
     assert "kindprobe" in registry.names(kind)

@@ -62,6 +62,13 @@ def details(result: StageResult, k: float, unit: str) -> str:
             parts.append(f"{len(faults)} fault{'s' if len(faults) != 1 else ''} ({what})")
         else:
             parts.append("no faults")
+    elif result.stage == "guide" and "score" in m:
+        parts.append(f"score {m['score']:.0f}")
+        parts.append(f"deviation rms {m['deviation_rms_m'] * k:.3g} {unit}, max {m['deviation_max_m'] * k:.3g} {unit}")
+        events = m.get("events") or {}
+        listed = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in events.items() if n)
+        parts.append(f"events: {listed or 'none'}")
+        parts.append(f"{m.get('duration_s', 0):.3g} s")
     if result.message:
         parts.append(result.message)
     return "; ".join(parts)
@@ -94,10 +101,10 @@ def summary_table(name: str, results: Sequence[StageResult], *, unit: str, unit_
             r.name,
             r.plugin,
             f"[{style}]{r.status}[/{style}]",
-            _length(m.get("length_m"), k),
+            _length(m.get("length_m", m.get("path_length_m")), k),
             _length(clearance, k),
             _length(threshold, k),
-            _length(m.get("length_below_threshold_m"), k),
+            _length(m.get("length_below_threshold_m", m.get("below_threshold_m")), k),
             escape(details(r, k, unit)),
             _seconds(m.get("build_s")),
             _seconds(m.get("query_s", m.get("run_s"))),

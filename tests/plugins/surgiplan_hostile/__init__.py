@@ -24,6 +24,9 @@ from surgiplan import (
     PlanResult,
     PlanStatus,
     PluginSpec,
+    PoseSample,
+    PoseSource,
+    SourceStopped,
     StageResult,
     hookimpl,
     run_tasks,
@@ -133,3 +136,32 @@ def surgiplan_register_devices():
 @hookimpl
 def surgiplan_register_deformable_models():
     return [PluginSpec("hostile_model", HostileModel, "reports an unknown status on purpose (tests)")]
+
+
+class SourceSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    mode: Literal["silent", "stops", "backwards"] = "silent"
+
+
+class HostileSource(PoseSource):
+    """Three samples along the path, then: silence (for 30 s), SourceStopped, or a sample back in time."""
+
+    Settings = SourceSettings
+
+    def open(self, context):
+        self.tips = context.tips
+
+    def samples(self):
+        for i in range(3):
+            yield PoseSample(0.1 * i, tip=self.tips[i])
+        if self.settings.mode == "silent":
+            time.sleep(30)  # the stage's silence_timeout ends the attempt long before
+        elif self.settings.mode == "stops":
+            raise SourceStopped("the tracker lost the instrument")
+        else:
+            yield PoseSample(0.05, tip=self.tips[3])
+
+
+@hookimpl
+def surgiplan_register_sources():
+    return [PluginSpec("hostile_source", HostileSource, "goes silent, stops, or goes back in time (tests)")]

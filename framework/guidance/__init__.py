@@ -1,0 +1,41 @@
+"""Trainee guidance: follow an instrument live against the recommended path, score the attempt, keep a record.
+
+Paper 000's recommended path keeps a clearance matched to the trainee's
+proficiency; a trainer watches the instrument against it. This package is
+that loop:
+
+* :mod:`.source` — :class:`PoseSource`, the plugin interface of pose sources
+  (hook ``surgiplan_register_sources``), and :class:`PoseSample`;
+* :mod:`.analysis` — :class:`Guide`: per sample deviation, progress, clearance,
+  critical regions and events; the attempt's metrics and score;
+* :mod:`.stage` — the ``guide`` stage;
+* :mod:`.report` — the attempt's figure and samples CSV;
+* :mod:`.record` — :class:`TraineeRecord`, the SQLite record of attempts per
+  trainee and task, and proficiency from it;
+* :mod:`.trainee` — a synthetic trainee (seeded, documented parameters).
+"""
+
+from __future__ import annotations
+
+from .analysis import EVENT_KINDS, Event, GuidanceSettings, Guide, Measurement
+from .record import Proficiency, RecordError, TraineeRecord
+from .source import GuideContext, PoseSample, PoseSource, SourceStopped
+from .trainee import LEVELS, TraineeModel, synthetic_attempt
+
+__all__ = [
+    "EVENT_KINDS",
+    "LEVELS",
+    "Event",
+    "GuidanceSettings",
+    "Guide",
+    "GuideContext",
+    "Measurement",
+    "PoseSample",
+    "PoseSource",
+    "Proficiency",
+    "RecordError",
+    "SourceStopped",
+    "TraineeModel",
+    "TraineeRecord",
+    "synthetic_attempt",
+]
