@@ -173,12 +173,15 @@ def bar_chart(path: Path, rows: list[dict], title: str = "") -> None:
     ax.set_xticks(x, [f"n_s = {n}" for n in sizes])
     ax.set_ylabel("storage (KB)")
     ax.set_title("segmented pathmap size (hatched: paper 001 Table 1)")
-    ax.legend(fontsize=7, loc="upper left")
+    # below the axes, not over the n_s = 2 bars; headroom above the tallest bar for its label
+    tallest = max([raw or 0.0, PAPER_RAW_KB] + [r["pathmap_kb"] for r in rows])
+    ax.set_ylim(0, 1.12 * tallest)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
     ax_m.set_xlabel("segment size n_s")
     ax_m.set_ylabel("memory savings factor m = length(P) / |S|")
     ax_m.set_xticks(sizes)
     ax_m.grid(alpha=0.3)
-    ax_m.legend(fontsize=7)
+    ax_m.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
     ax_m.set_title("m (paper eq. 1)")
     if title:
         fig.suptitle(title, fontsize=10)
