@@ -301,3 +301,23 @@ def test_report_directory_that_cannot_be_written_fails_before_any_work(tmp_path,
     assert "settings.report.dir: cannot write to directory" in err and "a-file/table1" in err
     assert "Traceback" not in err
     assert not (out / "result.json").exists() and not list(out.glob(".work/optmis-*"))
+
+
+def test_a_thinned_pathmap_answers_queries_and_thinning_beyond_w_tip_is_refused():
+    from surgiplan.errors import PlanningInputError
+    from surgiplan.plugins.planners.segmented_astar.pathmap import build_pathmap
+    from test_optmis_support import problem
+
+    p = planner(thinning=0.1 * MM)
+    space = pathmap_artifact().space
+    artifact = SegmentedAStar._artifact(build_pathmap(offline().repository, space, n_s=3, thinning=0.1 * MM), space, [])
+    stored = SegmentedAStar.load_artifact(p, p.save_artifact(artifact), problem())
+    assert stored.pathmap.thinning == pytest.approx(0.1 * MM)
+    pois = artifact.pathmap.pois
+    for i, j in reachable_pairs()[::4]:
+        result = p.query(stored, pois[i], pois[j])
+        assert result.solved
+        assert_collision_free(result.path)
+    with pytest.raises(PlanningInputError, match="thinning") as caught:
+        planner(thinning=1 * MM).build(problem())
+    assert caught.value.location == "settings.thinning"

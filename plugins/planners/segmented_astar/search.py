@@ -82,6 +82,10 @@ class SegmentedAStarSettings(OptMISSettings):
     alignment: Literal["path", "corners"] = "corners"
     #: a segment also matches one traversed the other way
     reverse: bool = True
+    #: thin each path by Douglas-Peucker within this tolerance (certified chords) before segmenting it;
+    #: the common-segment tolerance then defaults to w_tip - thinning, so every original point stays
+    #: within w_tip of its rebuilt path (0: every point of the paths is kept, as in the paper)
+    thinning: Length = 0.0
     # query settings (exclude=True: they do not change the stored pathmap, so not its content key)
     #: how far a start or goal may be linked to the pathmap by a straight motion (to the nearest point
     #: of each of the ``link_candidates`` nearest chains of the online graph); none: no limit
@@ -133,6 +137,15 @@ class SegmentedAStar(Planner):
     def build(self, problem: PlanningProblem) -> PathmapArtifact:
         settings = self.settings
         self._check_outputs()
+        w_tip = 2.0 * getattr(problem.space, "tip_radius", 0.0)
+        if settings.tolerance is None and settings.thinning > w_tip:
+            from surgiplan.errors import PlanningInputError
+
+            raise PlanningInputError(
+                f"thinning ({settings.thinning * 1e3:.3g} mm) must not exceed w_tip, the tip's diameter "
+                f"({w_tip * 1e3:.3g} mm): the common-segment tolerance is w_tip - thinning",
+                location="settings.thinning",
+            )
         offline = run_offline(problem, settings)
         started = time.perf_counter()
         with problem.progress.task("segmented pathmap", total=1) as task:
@@ -145,6 +158,7 @@ class SegmentedAStar(Planner):
                 reverse=settings.reverse,
                 margin=settings.margin,
                 seed=settings.seed,
+                thinning=settings.thinning,
             )
             task.advance(1)
         pathmap.stats["pathmap_s"] = time.perf_counter() - started
@@ -164,6 +178,7 @@ class SegmentedAStar(Planner):
                     tolerance=settings.tolerance,
                     margin=settings.margin,
                     directory=directory,
+                    thinning=settings.thinning,
                 )
                 write_report(directory, rows, self._report_title(problem, offline.repository))
                 task.advance(1)
