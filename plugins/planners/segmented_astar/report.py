@@ -184,7 +184,7 @@ def bar_chart(path: Path, rows: list[dict], title: str = "") -> None:
     ax_m.set_ylabel("memory savings factor m = length(P) / |S|")
     ax_m.set_xticks(sizes)
     ax_m.grid(alpha=0.3)
-    ax_m.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, frameon=False)
+    ax_m.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
     ax_m.set_title("m (paper eq. 1)")
     if title:
         fig.suptitle(title, fontsize=10)
