@@ -308,3 +308,31 @@ def test_unknown_point_names_and_other_spaces_are_clear_errors():
         run_offline(PlanningProblem(scene, gimbal), OptMISSettings(**SETTINGS))
     with pytest.raises(ValueError, match="at least two points of interest"):
         OptMISSettings(points=["a"])
+
+
+def test_repository_figure_draws_every_path_and_counts_paths_per_cell(tmp_path):
+    from surgiplan.plugins.planners.optmis.figures import paths_per_cell
+    from surgiplan.plugins.planners.optmis.planner import OptMISPlanSettings
+
+    _, artifact = optmis_planner()
+    repository = artifact.repository
+    figure = tmp_path / "figures" / "repository.png"
+    planner = OptMIS(OptMISPlanSettings(**SETTINGS, figure=str(figure)))
+    result = planner.query(artifact, repository.pois[0], repository.pois[3])
+    assert result.solved and result.metrics["figure"] == str(figure)
+    assert figure.read_bytes()[:4] == b"\x89PNG"
+    # the density counts each path once per 1 mm cell it passes: a straight path along x through 10 cells
+    points = np.array([[0.5, 0.5], [9.5, 0.5], [0.5, 2.5], [0.6, 2.6]])
+    counts = paths_per_cell(points, np.array([0, 2, 4]), np.zeros(2), 1.0, (10, 4))
+    assert counts[:, 0].tolist() == [1] * 10 and counts[0, 2] == 1 and counts.sum() == 11
+
+
+def test_repository_figure_in_a_directory_that_cannot_be_written_fails_before_the_work(tmp_path):
+    from surgiplan.errors import OutputError
+    from surgiplan.plugins.planners.optmis.planner import OptMISPlanSettings
+
+    (tmp_path / "a-file").write_text("not a directory")
+    planner = OptMIS(OptMISPlanSettings(**SETTINGS, figure=str(tmp_path / "a-file" / "repository.png")))
+    with pytest.raises(OutputError, match="cannot write to directory") as caught:
+        planner.build(problem())
+    assert caught.value.location == "settings.figure"

@@ -161,3 +161,38 @@ def test_artifact_round_trip_keeps_the_pathmap():
     broken = {**values, **arrays, "path_segments": arrays["path_segments"] + 10_000}
     with pytest.raises(ValueError, match="segment reference out of range"):
         SegmentedPathmap.from_artifact(broken)
+
+
+@pytest.mark.parametrize("n_s", [3, 5])
+def test_thinned_encoding_keeps_every_path_within_w_tip_and_stores_far_fewer_points(n_s):
+    """Douglas-Peucker (certified chords) then common segments within w_tip - thinning."""
+    from scipy.spatial import cKDTree
+
+    repository = offline().repository
+    thinning = 0.25 * W_TIP
+    plain = build_pathmap(repository, space(), n_s=n_s)
+    pathmap = build_pathmap(repository, space(), n_s=n_s, thinning=thinning)
+    assert pathmap.tolerance == pytest.approx(W_TIP - thinning)
+    assert pathmap.stats["m"] > 2 * plain.stats["m"] and pathmap.stats["m_bytes"] > plain.stats["m_bytes"]
+    assert pathmap.stats["repository_points"] == len(repository.points)
+    error = reconstruction_error(repository, pathmap)
+    assert error.max() <= W_TIP + 1e-12
+    scene = small_world()
+    for k in range(0, repository.n_paths, 3):
+        rebuilt, original = pathmap.path(k), repository.path(k)
+        np.testing.assert_array_equal(rebuilt[[0, -1]], original[[0, -1]])
+        # independently: the rebuilt path sampled every 20 um, nearest sample to each original point, and back
+        steps = np.linalg.norm(np.diff(rebuilt, axis=0), axis=1)
+        dense = np.concatenate(
+            [np.linspace(a, b, max(int(np.ceil(s / 2e-5)), 1), endpoint=False) for a, b, s in
+             zip(rebuilt[:-1], rebuilt[1:], steps, strict=True)] + [rebuilt[-1:]]
+        )
+        assert cKDTree(dense).query(original)[0].max() <= W_TIP + 2e-5
+        assert error[k] >= cKDTree(dense).query(original)[0].max() - 2e-5
+        moving = np.any(rebuilt[1:] != rebuilt[:-1], axis=1)
+        assert coal_scene_segment_distance(scene, rebuilt[:-1][moving], rebuilt[1:][moving], TIP_RADIUS).min() > 0
+
+
+def test_thinning_beyond_w_tip_is_a_clear_error():
+    with pytest.raises(ValueError, match=r"thinning \(0.5 mm\) must not exceed w_tip \(0.4 mm\)"):
+        build_pathmap(offline().repository, space(), thinning=0.5e-3)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import textwrap
 
@@ -299,3 +300,204 @@ def test_pipeline_settings_accept_units_and_files(cli, tmp_path):
     stages = json.loads((tmp_path / "out" / "result.json").read_text())["stages"]
     assert stages[0]["metrics"]["d_thresh_m"] == pytest.approx(0.005)
     assert stages[1]["metrics"]["d_thresh_m"] == pytest.approx(0.003)  # the largest deviation: 3 mm
+
+
+# ----------------------------------------------------------------------------- the compiled search against scipy
+
+
+def _random_roadmap_graph(rng, n=400, radius=0.18):
+    """A random geometric graph in the unit cube: edge cost = Euclidean length (the A* heuristic's metric)."""
+    from scipy.sparse import csr_matrix
+    from scipy.spatial import cKDTree
+
+    points = rng.uniform(0, 1, size=(n, 3))
+    pairs = np.array(sorted(cKDTree(points).query_pairs(radius)), dtype=np.int64).reshape(-1, 2)
+    keep = rng.uniform(size=len(pairs)) < 0.6  # thin it so that some nodes are unreachable
+    pairs = pairs[keep]
+    cost = np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1)
+    i, j = pairs[:, 0], pairs[:, 1]
+    graph = csr_matrix((np.concatenate([cost, cost]), (np.concatenate([i, j]), np.concatenate([j, i]))), (n, n))
+    return points, graph
+
+
+def _path_cost(points, nodes):
+    return float(np.linalg.norm(np.diff(points[nodes], axis=0), axis=1).sum())
+
+
+def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
+    """Milestone to milestone, and between virtual start/goal points linked into the graph (with a direct motion)."""
+    from scipy.sparse import bmat, csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+    from surgiplan.plugins.planners.safe_prm.astar import shortest_path
+
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        points, graph = _random_roadmap_graph(rng)
+        n = len(points)
+        distance, predecessors = dijkstra(graph, directed=False, return_predecessors=True)
+        for source, target in rng.integers(0, n, size=(60, 2)):
+            nodes, cost, settled = shortest_path(graph, points, int(source), int(target))
+            if not np.isfinite(distance[source, target]):
+                assert len(nodes) == 0 and cost == np.inf
+                continue
+            expected = [int(target)]
+            while expected[-1] != source:
+                expected.append(int(predecessors[source, expected[-1]]))
+            assert nodes.tolist() == expected[::-1]
+            assert cost == pytest.approx(distance[source, target], rel=1e-12, abs=1e-15)
+            assert settled <= n
+        # virtual ends: the graph with two more nodes, searched by scipy from the start node
+        for _ in range(30):
+            ends = rng.uniform(0, 1, size=(2, 3))
+            links = [np.flatnonzero(np.linalg.norm(points - p, axis=1) < 0.15) for p in ends]
+            link_cost = [np.linalg.norm(points[t] - p, axis=1) for t, p in zip(links, ends, strict=True)]
+            direct = float(np.linalg.norm(ends[1] - ends[0]))
+            direct = direct if rng.uniform() < 0.3 else np.inf
+            extra = np.zeros((2, n + 2))
+            extra[0, links[0]] = link_cost[0]
+            extra[1, links[1]] = link_cost[1]
+            if np.isfinite(direct):
+                extra[0, n + 1] = direct
+            full = bmat([[graph, None], [None, csr_matrix((2, 2))]]).tolil()
+            full[n:, :] = extra
+            full = full.tocsr()
+            full = full.maximum(full.T)
+            d, pred = dijkstra(full, directed=False, indices=n, return_predecessors=True)
+            nodes, cost, _ = shortest_path(
+                graph,
+                points,
+                -1,
+                -1,
+                source_links=(links[0], link_cost[0], ends[0]),
+                target_links=(links[1], link_cost[1], ends[1]),
+                direct_cost=direct,
+            )
+            if not np.isfinite(d[n + 1]):
+                assert len(nodes) == 0
+                continue
+            expected = [n + 1]
+            while expected[-1] != n:
+                expected.append(int(pred[expected[-1]]))
+            expected = [-1 if v == n else -2 if v == n + 1 else v for v in expected[::-1]]
+            assert nodes.tolist() == expected
+            assert cost == pytest.approx(d[n + 1], rel=1e-12)
+
+
+def _reference_query(roadmap, start, goal):
+    """Algorithms 2-4 written plainly: scipy's Dijkstra on an explicit graph with the start and goal as nodes,
+    links by the space's exact motion check (no covering balls), repair by the definition."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, dijkstra
+
+    space, n, d = roadmap.space, roadmap.n, roadmap.d_thresh
+    ends = np.stack([start, goal])
+    ends_safe = space.clearance(ends) >= d
+    rows, cols, cost, safe = [roadmap.edges[:, 0]], [roadmap.edges[:, 1]], [roadmap.edge_cost], [roadmap.edge_safe]
+    for node, q, q_safe in ((n, start, ends_safe[0]), (n + 1, goal, ends_safe[1])):
+        targets = roadmap.neighbours(q)
+        here = np.repeat(q[None], len(targets), 0)
+        free = space.motion_is_clear(here, roadmap.milestones[targets], 0.0)
+        kept = targets[free]
+        link_safe = q_safe & roadmap.safe[kept] & space.motion_is_clear(here[free], roadmap.milestones[kept], d)
+        rows.append(kept)
+        cols.append(np.full(len(kept), node))
+        cost.append(space.distance(q, roadmap.milestones[kept]))
+        safe.append(link_safe)
+    if space.distance(start, goal) <= roadmap.s and space.motion_is_clear(start[None], goal[None], 0.0)[0]:
+        rows.append(np.array([n]))
+        cols.append(np.array([n + 1]))
+        cost.append(np.array([space.distance(start, goal)]))
+        safe.append(np.array([bool(ends_safe.all() and space.motion_is_clear(start[None], goal[None], d)[0])]))
+    rows, cols, cost, safe = map(np.concatenate, (rows, cols, cost, safe))
+
+    def graph(mask):
+        r, c, w = rows[mask], cols[mask], cost[mask]
+        return coo_matrix((np.r_[w, w], (np.r_[r, c], np.r_[c, r])), (n + 2, n + 2)).tocsr()
+
+    free_graph, safe_graph = graph(np.ones(len(rows), bool)), graph(safe)
+    safe_node = np.concatenate([roadmap.safe, ends_safe])
+    safe_pairs = {(min(a, b), max(a, b)) for a, b in zip(rows[safe], cols[safe], strict=True)}
+    _, label = connected_components(safe_graph, directed=False)
+
+    def shortest(g, a, b):
+        _, pred = dijkstra(g, directed=False, indices=a, return_predecessors=True)
+        out = [b]
+        while out[-1] != a:
+            out.append(int(pred[out[-1]]))
+        return out[::-1]
+
+    def is_safe(a, b):
+        return safe_node[a] and safe_node[b] and (min(a, b), max(a, b)) in safe_pairs
+
+    path = shortest(free_graph, n, n + 1)
+    if all(is_safe(a, b) for a, b in itertools.pairwise(path)):
+        return path
+    out, l = [], 0
+    while l < len(path):
+        m = l
+        if safe_node[path[l]]:
+            m = max(k for k in range(l, len(path)) if safe_node[path[k]] and label[path[k]] == label[path[l]])
+        if m == l:
+            out.append(path[l])
+            l += 1
+            continue
+        stretch = path[l : m + 1]
+        if not all(is_safe(a, b) for a, b in itertools.pairwise(stretch)):
+            stretch = shortest(safe_graph, path[l], path[m])
+        out.extend(stretch[:-1])
+        l = m
+    return out
+
+
+@pytest.mark.parametrize("level", ["expert", "intermediate", "beginner"])
+def test_query_and_repair_match_a_plain_scipy_implementation(block_world, level):
+    """The compiled search, batched links and labelled repair give Algorithms 2-4's exact answer."""
+    from surgiplan.plugins.planners.safe_prm import query as prm_query
+
+    space = R3Space(block_world)
+    rng = np.random.default_rng(3)
+    for seed in (1, 2):
+        roadmap = (
+            SafePRM(SafePRMSettings(proficiency=level, milestones=1200, seed=seed))
+            .build(PlanningProblem(block_world, space))
+            .roadmap
+        )
+        pairs = [(block_world.points["entry"], block_world.points["target"])]
+        while len(pairs) < 8:
+            q = rng.uniform(block_world.bounds_min, block_world.bounds_max, size=(2, 3))
+            if np.all(space.clearance(q) >= roadmap.d_thresh):  # the reference does not project
+                pairs.append((q[0], q[1]))
+        for start, goal in pairs:
+            outcome = prm_query.query(roadmap, start, goal)
+            expected = _reference_query(roadmap, start, goal)
+            nodes = np.concatenate([roadmap.milestones, start[None], goal[None]])[expected]
+            assert outcome.found
+            np.testing.assert_array_equal(outcome.path, nodes)
+
+
+@pytest.mark.parametrize("tip_radius", [0.0, 0.5 * MM])
+def test_roadmap_edges_are_exactly_the_k_s_pairs_the_exact_check_accepts(block_world, tip_radius):
+    """Covering balls (two, then three with the midpoint) only save exact checks: the edge sets are the same."""
+    from scipy.spatial import cKDTree
+
+    space = R3Space(block_world, tip_radius=tip_radius)
+    roadmap = (
+        SafePRM(SafePRMSettings(proficiency="intermediate", milestones=1500, seed=4))
+        .build(PlanningProblem(block_world, space))
+        .roadmap
+    )
+    q = roadmap.milestones
+    distance, index = cKDTree(q).query(q, k=roadmap.k + 1, distance_upper_bound=roadmap.s)
+    candidates = {
+        (min(i, int(j)), max(i, int(j)))
+        for i in range(len(q))
+        for dd, j in zip(distance[i], index[i], strict=True)
+        if np.isfinite(dd) and j != i
+    }
+    pairs = np.array(sorted(candidates))
+    free = space.motion_is_clear(q[pairs[:, 0]], q[pairs[:, 1]], 0.0)
+    safe = free & roadmap.safe[pairs[:, 0]] & roadmap.safe[pairs[:, 1]]
+    safe[safe] = space.motion_is_clear(q[pairs[safe, 0]], q[pairs[safe, 1]], roadmap.d_thresh)
+    np.testing.assert_array_equal(roadmap.edges, pairs[free])
+    np.testing.assert_array_equal(roadmap.edge_safe, safe[free])
+    assert roadmap.covered_edges > 0.8 * len(roadmap.edges)

@@ -99,6 +99,46 @@ def test_astar_from_arbitrary_points_equals_dijkstra_with_the_same_links():
         assert polyline_length(result.path) == pytest.approx(result.metrics["path_cost_m"], rel=1e-9)
 
 
+@pytest.mark.parametrize("margin", [0.0, 0.5 * MM])
+def test_link_certification_decides_exactly_as_the_swept_check(margin):
+    """Covering balls and interior samples only save swept checks: the decisions are the exact check's."""
+    from surgiplan.plugins.planners.segmented_astar.graph import certify_motions
+
+    space = pathmap_artifact().space
+    scene = space.scene
+    rng = np.random.default_rng(5)
+    a = rng.uniform(scene.bounds_min, scene.bounds_max, (3000, 3))
+    b = np.clip(a + rng.normal(0, 12 * MM, a.shape), scene.bounds_min, scene.bounds_max)
+    keep = (space.clearance(a) > margin) & (space.clearance(b) > margin)
+    a, b = a[keep], b[keep]
+    decided = certify_motions(space, a, b, space.clearance(a) - margin, space.clearance(b) - margin, margin)
+    np.testing.assert_array_equal(decided, space.motion_is_clear(a, b, margin))
+    clearance = coal_scene_segment_distance(scene, a, b, TIP_RADIUS)
+    assert np.all(clearance[decided] >= margin - 1e-12) and decided.sum() > 200 and (~decided).sum() > 100
+
+
+def test_points_in_line_of_sight_get_the_straight_motion_without_linking():
+    artifact = pathmap_artifact()
+    p = planner()
+    rng = np.random.default_rng(8)
+    scene, space = small_world(), artifact.space
+    free = rng.uniform(scene.bounds_min, scene.bounds_max, (600, 3))
+    free = free[space.clearance(free) > 0][:200]
+    seen = 0
+    for start, goal in zip(free[::2], free[1::2], strict=True):
+        clear = coal_scene_segment_distance(scene, start[None], goal[None], TIP_RADIUS)[0] > 0
+        result = p.query(artifact, start, goal)
+        if clear:
+            seen += 1
+            assert result.metrics["start_link"] == "direct" and result.metrics["link_checks"] == 0
+            np.testing.assert_array_equal(result.path, np.stack([start, goal]))
+            # the graph's answer with the same links is no shorter (it would be this motion)
+            assert result.metrics["path_cost_m"] <= dijkstra_with_links(artifact, p, start, goal) + 1e-12
+        else:
+            assert result.metrics.get("start_link") != "direct"
+    assert 10 < seen < 90
+
+
 def test_euclidean_heuristic_is_admissible_and_consistent():
     artifact = pathmap_artifact()
     graph = artifact.graph
@@ -264,3 +304,23 @@ def test_report_directory_that_cannot_be_written_fails_before_any_work(tmp_path,
     assert "Traceback" not in err
     assert_error_record(out, "cannot write to directory")
     assert not list(out.glob(".work/optmis-*"))
+
+
+def test_a_thinned_pathmap_answers_queries_and_thinning_beyond_w_tip_is_refused():
+    from surgiplan.errors import PlanningInputError
+    from surgiplan.plugins.planners.segmented_astar.pathmap import build_pathmap
+    from test_optmis_support import problem
+
+    p = planner(thinning=0.1 * MM)
+    space = pathmap_artifact().space
+    artifact = SegmentedAStar._artifact(build_pathmap(offline().repository, space, n_s=3, thinning=0.1 * MM), space, [])
+    stored = SegmentedAStar.load_artifact(p, p.save_artifact(artifact), problem())
+    assert stored.pathmap.thinning == pytest.approx(0.1 * MM)
+    pois = artifact.pathmap.pois
+    for i, j in reachable_pairs()[::4]:
+        result = p.query(stored, pois[i], pois[j])
+        assert result.solved
+        assert_collision_free(result.path)
+    with pytest.raises(PlanningInputError, match="thinning") as caught:
+        planner(thinning=1 * MM).build(problem())
+    assert caught.value.location == "settings.thinning"

@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import Field
 from scipy.sparse import coo_matrix
+from surgiplan.errors import OutputError
 from surgiplan.paths import certify_edges
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 
@@ -86,13 +89,35 @@ def search_between(space, graph: SearchGraph, start: np.ndarray, goal: np.ndarra
     return out
 
 
+class OptMISPlanSettings(OptMISSettings):
+    """The optMIS settings of the repository, plus where to draw it."""
+
+    #: write the whole repository (every path faintly, the query's and a few others highlighted, and a
+    #: top view of how many paths pass each 1 mm cell) to this PNG file, relative to the current
+    #: directory; a query setting: it does not change the stored repository's content key
+    figure: str | None = Field(default=None, exclude=True)
+
+
 class OptMIS(Planner):
     """optMIS: all-pairs optimal paths between points of interest, stored; certified smooth paths."""
 
-    Settings = OptMISSettings
+    Settings = OptMISPlanSettings
     artifact_version = 1
 
+    def _check_outputs(self) -> None:
+        """Fail before the offline work when the figure cannot be written."""
+        from surgiplan.runner import prepare_output_dir
+
+        if getattr(self.settings, "figure", None):  # OptMISSettings alone (no figure) is accepted too
+            try:
+                prepare_output_dir(Path(self.settings.figure).parent)
+            except OutputError as exc:
+                raise OutputError(
+                    exc.message.replace("output directory", "directory"), location="settings.figure"
+                ) from None
+
     def build(self, problem: PlanningProblem) -> OptMISArtifact:
+        self._check_outputs()
         offline = run_offline(problem, self.settings)
         return OptMISArtifact(offline.graph, offline.repository, problem.space)
 
@@ -108,6 +133,7 @@ class OptMIS(Planner):
         }
 
     def load_artifact(self, data, problem: PlanningProblem) -> OptMISArtifact:
+        self._check_outputs()
         graph = SearchGraph(
             np.asarray(data["vertices"], float).reshape(-1, 3),
             np.asarray(data["clearance"], float),
@@ -165,7 +191,34 @@ class OptMIS(Planner):
                 }
             )
         metrics["lookup_s"] = time.perf_counter() - started
-        return PlanResult(PlanStatus.SOLVED, path, metrics, clearance_threshold=self.settings.margin or None)
+        result = PlanResult(PlanStatus.SOLVED, path, metrics, clearance_threshold=self.settings.margin or None)
+        if getattr(self.settings, "figure", None):
+            self._draw(artifact, i, j, result)
+        return result
+
+    def _draw(self, artifact: OptMISArtifact, i: int, j: int, result: PlanResult) -> None:
+        """The repository figure: the query's stored path (if any), the longest path and three spread-out others."""
+        from .figures import repository_figure
+
+        repository = artifact.repository
+        highlight: list[int] = []
+        if i >= 0 and j >= 0 and i != j and repository.index(i, j) >= 0:
+            highlight.append(int(repository.index(i, j)))
+        if repository.n_paths:
+            order = np.argsort(repository.length)
+            highlight += [int(order[-1]), *(int(order[int(q * (len(order) - 1))]) for q in (0.25, 0.5, 0.75))]
+        highlight = list(dict.fromkeys(highlight))
+        figure = Path(self.settings.figure)
+        w_tip = 2e3 * artifact.space.tip_radius
+        repository_figure(
+            figure,
+            artifact.space.scene,
+            repository,
+            highlight,
+            title=f"optMIS repository: {repository.n_paths:,} paths between {len(repository.names)} points of "
+            f"interest, w_tip = {w_tip:.3g} mm",
+        )
+        result.metrics["figure"] = str(figure)
 
 
 def _poi_index(pois: np.ndarray, q: np.ndarray, tolerance: float = 1e-9) -> int:

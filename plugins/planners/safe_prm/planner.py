@@ -298,6 +298,7 @@ class SafePRM(Planner):
 
         path = outcome.path
         metrics["repaired"] = outcome.repaired
+        metrics["search_settled"] = outcome.settled
         metrics["roadmap_waypoints"] = len(path)
         started = time.perf_counter()
         if self.settings.smoothing.enabled:

@@ -41,33 +41,50 @@ class QueryOutcome:
     repaired: int = 0
     message: str = ""
     timings: dict[str, float] = field(default_factory=dict)
+    #: nodes the searches settled (R, then R_safe for each repair)
+    settled: int = 0
 
 
-def _link(
-    q: np.ndarray, node: int, roadmap: RoadmapPair, d_thresh: float, clearance: float, workspace: float, is_safe: bool
-) -> Links:
-    """A start or goal's certified motions to its K-S neighbours (and which keep d_thresh)."""
+def _link_ends(
+    ends: np.ndarray,
+    roadmap: RoadmapPair,
+    d_thresh: float,
+    clearance: np.ndarray,
+    workspace: np.ndarray,
+    is_safe: np.ndarray,
+) -> list[Links]:
+    """The start's and goal's certified motions to their K-S neighbours (and which keep d_thresh).
+
+    Both ends at once: one neighbour query, one batch of free-motion checks and one of safe-motion checks.
+    """
     space = roadmap.space
-    targets = roadmap.neighbours(q)
+    nodes = (roadmap.n, roadmap.n + 1)
+    per_end = [roadmap.neighbours(q) for q in ends]
+    owner = np.concatenate([np.full(len(t), i) for i, t in enumerate(per_end)]).astype(np.int64)
+    targets = np.concatenate(per_end).astype(np.int64)
+    scaled_ends = roadmap.scaled(ends)
     if not targets.size:
-        return Links(node, targets, np.zeros(0), np.zeros(0, dtype=bool))
-    ends = roadmap.milestones[targets]
-    here = np.repeat(q[None], len(targets), 0)
-    own = np.full(len(targets), min(clearance, workspace))
+        return [
+            Links(node, np.zeros(0, np.int64), np.zeros(0), np.zeros(0, dtype=bool), scaled_ends[i])
+            for i, node in enumerate(nodes)
+        ]
+    here = ends[owner]
+    far = roadmap.milestones[targets]
+    own = np.minimum(clearance, workspace)[owner]
     slack = np.minimum(roadmap.clearance[targets], roadmap.workspace[targets])
-    free, _ = certify_edges(space, here, ends, own, slack, 0.0)
-    targets, ends, here, own, slack = targets[free], ends[free], here[free], own[free], slack[free]
-    cost = space.distance(here, ends)
+    free, _ = certify_edges(space, here, far, own, slack, 0.0)
     safe = np.zeros(len(targets), dtype=bool)
-    if is_safe:
-        sel = roadmap.safe[targets]
-        if d_thresh <= 0:
-            safe = sel
-        elif np.any(sel):
-            safe[sel], _ = certify_edges(
-                space, here[sel], ends[sel], own[sel] - d_thresh, slack[sel] - d_thresh, d_thresh
-            )
-    return Links(node, targets, cost, safe)
+    sel = free & is_safe[owner] & roadmap.safe[targets]
+    if d_thresh <= 0:
+        safe = sel
+    elif np.any(sel):
+        safe[sel], _ = certify_edges(space, here[sel], far[sel], own[sel] - d_thresh, slack[sel] - d_thresh, d_thresh)
+    cost = space.distance(here, far)
+    out = []
+    for i, node in enumerate(nodes):
+        mine = free & (owner == i)
+        out.append(Links(node, targets[mine], cost[mine], safe[mine], scaled_ends[i]))
+    return out
 
 
 def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: float) -> tuple[int, float] | None:
@@ -107,8 +124,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
 
-    start_links = _link(start, n, roadmap, d_thresh, clearance[0], workspace[0], bool(ends_safe[0]))
-    goal_links = _link(goal, n + 1, roadmap, d_thresh, clearance[1], workspace[1], bool(ends_safe[1]))
+    start_links, goal_links = _link_ends(ends, roadmap, d_thresh, clearance, workspace, ends_safe)
     direct = None
     if space.distance(start, goal) <= roadmap.s:
         slack = np.minimum(clearance, workspace)
@@ -162,9 +178,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
             "(no collision-free path among the milestones)",
             timings=timings,
         )
-    nodes = np.concatenate([roadmap.milestones, ends])
-    bound = 1.5 * float(space.distance(nodes[source], nodes[target]))
-    core = search(roadmap.free_csr, source, q, target, bound, safe=False)
+    core = search(roadmap.free_csr, source, q, target, safe=False)
     timings["search_s"] = time.perf_counter() - started
     if core is None:
         return QueryOutcome(False, message="no path in R", timings=timings)
@@ -176,11 +190,15 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     if all(k == SAFE for k in kinds):
         result = core  # Algorithm 3: a path already safe is returned as it is
     else:
-        result, kinds, repaired = repair(core, safe_node, q, nodes)
+        result, kinds, repaired = repair(core, safe_node, q, kinds)
     timings["repair_s"] = time.perf_counter() - started
 
+    result = np.asarray(result)
+    on_path = roadmap.milestones[np.minimum(result, n - 1)]
+    on_path[result == n] = start
+    on_path[result == n + 1] = goal
     path = np.concatenate(
-        [np.asarray(head).reshape(-1, space.dimension), nodes[result], np.asarray(tail).reshape(-1, space.dimension)]
+        [np.asarray(head).reshape(-1, space.dimension), on_path, np.asarray(tail).reshape(-1, space.dimension)]
     )
     kinds = ([LINK] if head else []) + kinds + ([LINK] if tail else [])
-    return QueryOutcome(True, path, kinds, repaired, timings=timings)
+    return QueryOutcome(True, path, kinds, repaired, timings=timings, settled=q.settled)

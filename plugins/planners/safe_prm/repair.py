@@ -8,37 +8,37 @@ import numpy as np
 from .search import SAFE, Query, edge_kinds, search
 
 
-def repair(path: list[int], safe_node: np.ndarray, q: Query, nodes: np.ndarray) -> tuple[list[int], list[str], int]:
+def repair(path: list[int], safe_node: np.ndarray, q: Query, kinds: list[str]) -> tuple[list[int], list[str], int]:
     """Algorithm 4 (PathRepair) on node indices; returns the path, its edge kinds, repairs made.
 
     From each safe milestone p_l, the last safe milestone p_m of the path in
     the same R_safe component is found; unless P[l..m] is already safe it is
     replaced by the shortest R_safe path from p_l to p_m. Risk milestones
-    that no repair spans stay: they are the critical regions.
+    that no repair spans stay: they are the critical regions. ``kinds``: the
+    kind of each edge of ``path``.
     """
-    space = q.roadmap.space
     n_path = len(path)
+    # the R_safe component of every safe node of the path, and the last position of each component
+    on_path_safe = safe_node[np.asarray(path)]
+    label = [q.components.find(p) if s else -1 for p, s in zip(path, on_path_safe, strict=True)]
+    last: dict[int, int] = {}
+    for k, c in enumerate(label):
+        if c >= 0:
+            last[c] = k
     out: list[int] = []
     repaired = 0
     l = 0
     while l < n_path:
-        p_l = path[l]
-        m = l
-        if safe_node[p_l]:
-            for k in range(n_path - 1, l, -1):
-                if safe_node[path[k]] and q.components.same(p_l, path[k]):
-                    m = k
-                    break
-        if m == l:
-            out.append(p_l)
+        m = last[label[l]] if label[l] >= 0 else l
+        if m <= l:
+            out.append(path[l])
             l += 1
             continue
         original = path[l : m + 1]
-        if all(kind == SAFE for kind in edge_kinds(original, safe_node, q)):
+        if all(kind == SAFE for kind in kinds[l:m]):
             sub = original
         else:
-            stretch = float(np.sum(space.distance(nodes[original[:-1]], nodes[original[1:]])))
-            sub = search(q.roadmap.safe_csr, p_l, q, path[m], 1.5 * stretch, safe=True)
+            sub = search(q.roadmap.safe_csr, path[l], q, path[m], safe=True)
             if sub is None:  # pragma: no cover - same component guarantees a path
                 sub = original
             else:

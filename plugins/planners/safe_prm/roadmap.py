@@ -30,7 +30,6 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from surgiplan.paths import certify_edges
 from surgiplan.spaces.base import Space
 
 
@@ -112,11 +111,17 @@ class RoadmapPair:
     s: float
     #: edges certified by covering balls alone, for the record
     covered_edges: int = 0
+    #: the KD-tree over the scaled milestones, when the caller has built it already
+    tree: cKDTree | None = field(default=None, repr=False, compare=False)
     free_components: UnionFind = field(init=False, repr=False)
     safe_components: UnionFind = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._tree = cKDTree(self.scaled(self.milestones)) if len(self.milestones) else None
+        #: milestones times the space's coordinate weights: the frame of the metric (and of the search heuristic)
+        self.scaled_milestones = np.ascontiguousarray(self.scaled(self.milestones).reshape(self.n, -1), dtype=float)
+        if self.tree is None and self.n:
+            self.tree = cKDTree(self.scaled_milestones)
+        self._tree = self.tree if self.n else None
         #: how far each milestone's body may move before leaving the workspace (m)
         self.workspace = self.space.workspace_slack(self.milestones) if self.n else np.zeros(0)
         self.free_csr = self._graph(np.ones(len(self.edges), dtype=bool))
@@ -143,14 +148,22 @@ class RoadmapPair:
         return self._safe_keys[at] == keys if len(self._safe_keys) else np.zeros(keys.shape, dtype=bool)
 
     def _graph(self, mask: np.ndarray) -> csr_matrix:
-        """Both directions of the selected edges, so directed searches see an undirected roadmap."""
+        """Both directions of the selected edges, so directed searches see an undirected roadmap.
+
+        Built directly in CSR form (rows by a stable sort, no duplicate summing: the edges are distinct).
+        """
         i, j = self.edges[mask, 0], self.edges[mask, 1]
-        cost = np.maximum(self.edge_cost[mask], 1e-15)  # scipy drops explicit zeros
-        graph = csr_matrix(
-            (np.concatenate([cost, cost]), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(self.n, self.n)
+        cost = np.maximum(self.edge_cost[mask], 1e-15)  # scipy's graph routines drop explicit zeros
+        rows = np.concatenate([i, j])
+        order = _stable_order(rows, self.n)
+        indptr = np.zeros(self.n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(rows, minlength=self.n), out=indptr[1:])
+        cols = np.concatenate([j, i])[order]
+        index_type = np.int32 if self.n < 2**31 - 1 else np.int64
+        return csr_matrix(
+            (np.concatenate([cost, cost])[order], cols.astype(index_type), indptr.astype(index_type)),
+            shape=(self.n, self.n),
         )
-        graph.sort_indices()
-        return graph
 
     @staticmethod
     def _labels(graph: csr_matrix) -> np.ndarray:
@@ -190,6 +203,77 @@ class RoadmapPair:
             "free_components": len(np.unique(self._labels(self.free_csr))) if self.n else 0,
             "safe_components": len(np.unique(self._labels(self.safe_csr)[self.safe])) if self.n else 0,
         }
+
+
+def certify_roadmap_edges(
+    space: Space,
+    a: np.ndarray,
+    b: np.ndarray,
+    clear_a: np.ndarray,
+    clear_b: np.ndarray,
+    inside_a: np.ndarray,
+    inside_b: np.ndarray,
+    d_thresh: float,
+    both_safe: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Which motions a[i] → b[i] are edges of R (clear) and of R_safe (keep d_thresh); certified.
+
+    ``clear_*``: the milestones' clearances, ``inside_*`` their workspace
+    slack. In order of cost: two covering balls at the ends (their slacks
+    add up to the motion's speed bound, as :func:`surgiplan.paths.certify_edges`);
+    for the rest one clearance query at the midpoint, shared by both
+    roadmaps, which either fails the motion outright (the midpoint itself
+    is too close) or covers it with three balls; what is still undecided
+    gets the space's certified motion check. Returns the R decisions, the
+    R_safe decisions (only ``both_safe`` motions can be R_safe edges) and
+    how many R edges the balls alone certified.
+    """
+    reach = space.motion_speed_bound(a, b)
+    free_a, free_b = np.minimum(clear_a, inside_a), np.minimum(clear_b, inside_b)
+    free_ends = (free_a > 0) & (free_b > 0)
+    free_ok = free_ends & (free_a + free_b > reach)
+    covered = int(np.count_nonzero(free_ok))
+    free_open = free_ends & ~free_ok
+    if d_thresh > 0:
+        safe_a, safe_b = np.minimum(clear_a - d_thresh, inside_a), np.minimum(clear_b - d_thresh, inside_b)
+        safe_ends = both_safe & (safe_a >= 0) & (safe_b >= 0)
+        safe_ok = safe_ends & (safe_a + safe_b > reach)
+        safe_open = safe_ends & ~safe_ok
+    else:
+        safe_open = np.zeros(len(a), dtype=bool)
+    need = np.flatnonzero(free_open | safe_open)
+    if need.size:
+        mid = space.interpolate(a[need], b[need], 0.5)
+        clear_m = space.clearance(mid, cutoff=d_thresh + reach[need])
+        inside_m = space.workspace_slack(mid)
+        first = space.motion_speed_bound(a[need], mid)
+        second = space.motion_speed_bound(mid, b[need])
+        # R: margin 0, strict (touching is a collision)
+        sel = free_open[need]
+        at, m = need[sel], np.minimum(clear_m, inside_m)[sel]
+        three = (m > 0) & (free_a[at] + m > first[sel]) & (m + free_b[at] > second[sel])
+        free_ok[at[three]] = True
+        covered += int(np.count_nonzero(three))
+        exact = at[(m > 0) & ~three]
+        if exact.size:
+            free_ok[exact] = space.motion_is_clear(a[exact], b[exact], 0.0)
+        if d_thresh > 0:
+            sel = safe_open[need] & free_ok[need]
+            at, m = need[sel], np.minimum(clear_m - d_thresh, inside_m)[sel]
+            three = (m >= 0) & (safe_a[at] + m > first[sel]) & (m + safe_b[at] > second[sel])
+            safe_ok[at[three]] = True
+            exact = at[(m >= 0) & ~three]
+            if exact.size:
+                safe_ok[exact] = space.motion_is_clear(a[exact], b[exact], d_thresh)
+    edge_safe = (safe_ok & free_ok) if d_thresh > 0 else free_ok.copy()
+    return free_ok, edge_safe, covered
+
+
+def _stable_order(values: np.ndarray, bound: int) -> np.ndarray:
+    """np.argsort(values, kind="stable") for integers in [0, bound); a radix sort when they fit 16 bits."""
+    if bound <= 1 << 16:
+        return np.argsort(values.astype(np.uint16), kind="stable")
+    return np.argsort(values, kind="stable")
 
 
 def sample_milestones(
@@ -238,26 +322,21 @@ def build_roadmaps(
         tree = cKDTree(q * space.coordinate_weights)
         kk = min(k + 1, len(q))
         distance, index = tree.query(q * space.coordinate_weights, k=kk, distance_upper_bound=s)
-        rows = np.repeat(np.arange(len(q)), kk)
-        cols = index.ravel()
+        rows = np.repeat(np.arange(len(q), dtype=np.int64), kk)
+        cols = index.ravel().astype(np.int64)
         keep = np.isfinite(distance.ravel()) & (cols != rows)
-        pairs = np.stack([rows[keep], cols[keep]], axis=1)
-        pairs.sort(axis=1)
-        pairs = np.unique(pairs, axis=0) if len(pairs) else pairs.reshape(0, 2)
+        # each undirected pair once, sorted (lo, hi): unique keys lo * n + hi (a 1-D sort, not a row sort)
+        lo, hi = np.minimum(rows[keep], cols[keep]), np.maximum(rows[keep], cols[keep])
+        keys = np.sort(lo * len(q) + hi)
+        keys = keys[np.concatenate([[True], np.diff(keys) != 0])] if len(keys) else keys
+        pairs = np.stack([keys // len(q), keys % len(q)], axis=1) if len(q) else np.zeros((0, 2), np.int64)
+        i, j = pairs[:, 0], pairs[:, 1]
+        both_safe = safe[i] & safe[j]
+        free_ok, edge_safe, covered_free = certify_roadmap_edges(
+            space, q[i], q[j], clearance[i], clearance[j], inside[i], inside[j], d_thresh, both_safe
+        )
+        pairs, edge_safe = pairs[free_ok], edge_safe[free_ok]
         a, b = q[pairs[:, 0]], q[pairs[:, 1]]
-        free_slack = np.minimum(clearance, inside)
-        free_ok, covered_free = certify_edges(space, a, b, free_slack[pairs[:, 0]], free_slack[pairs[:, 1]], 0.0)
-        pairs, a, b = pairs[free_ok], a[free_ok], b[free_ok]
-        both_safe = safe[pairs[:, 0]] & safe[pairs[:, 1]]
-        edge_safe = np.zeros(len(pairs), dtype=bool)
-        if d_thresh > 0:
-            slack = np.minimum(clearance - d_thresh, inside)
-            ok, _ = certify_edges(
-                space, a[both_safe], b[both_safe], slack[pairs[both_safe, 0]], slack[pairs[both_safe, 1]], d_thresh
-            )
-            edge_safe[both_safe] = ok
-        else:
-            edge_safe[:] = True
         cost = space.distance(a, b)
         task.advance(1)
     return RoadmapPair(
@@ -272,4 +351,5 @@ def build_roadmaps(
         int(k),
         float(s),
         covered_edges=covered_free,
+        tree=tree,
     )

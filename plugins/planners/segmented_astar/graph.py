@@ -22,7 +22,6 @@ so A* returns a shortest path of the graph (Hart, Nilsson & Raphael 1968).
 
 from __future__ import annotations
 
-import heapq
 import math
 from dataclasses import dataclass
 
@@ -31,24 +30,36 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .astar import astar_junctions
 from .pathmap import SegmentedPathmap
 
 
 @dataclass
 class Attachment:
-    """How an endpoint joins the graph: ``cost`` (m) to reach ``junction``, by ``points`` (endpoint first).
+    """How an endpoint joins the graph: ``cost`` (m) to reach ``junction``.
 
     ``link``/``link_cost``: the part from the endpoint to the graph vertex it
-    joins, which is ``position`` along ``chain`` (-1: the vertex is a junction).
+    joins (endpoint first), which is ``position`` along ``chain`` (-1: the
+    vertex is a junction); from there the route runs along the chain towards
+    its last vertex (``toward_end``) or its first. :meth:`points` spells the
+    whole route out (only for the attachments a path uses).
     """
 
     junction: int
     cost: float
-    points: np.ndarray
     chain: int = -1
     position: int = 0
     link: np.ndarray | None = None
     link_cost: float = 0.0
+    toward_end: bool = True
+
+    def points(self, graph: OnlineGraph) -> np.ndarray:
+        """The route from the endpoint to ``junction`` (endpoint first)."""
+        if self.chain < 0:
+            return self.link
+        chain, p = graph.chains[self.chain], self.position
+        along = chain[p:] if self.toward_end else chain[p::-1]
+        return np.concatenate([self.link, graph.points[along[1:]]])
 
 
 @dataclass
@@ -177,7 +188,14 @@ class OnlineGraph:
             if a != b:
                 adjacency[b].append((a, cost, c))
         self.adjacency = adjacency
-        self.junction_points = self.points[junctions]
+        self.junction_points = np.ascontiguousarray(self.points[junctions], dtype=float)
+        # the same junction graph in CSR form for the compiled A* (entry -> chain)
+        counts = np.array([len(a) for a in adjacency], dtype=np.int64)
+        self.junction_indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        flat = [entry for a in adjacency for entry in a]
+        self.junction_neighbour = np.array([e[0] for e in flat], dtype=np.int64)
+        self.junction_cost = np.array([e[1] for e in flat], dtype=float)
+        self.junction_chain = np.array([e[2] for e in flat], dtype=np.int64)
 
     @property
     def n_junctions(self) -> int:
@@ -195,106 +213,106 @@ class OnlineGraph:
     def attachments_at_vertex(self, v: int, link: np.ndarray, link_cost: float) -> list[Attachment]:
         """Ways to a junction from graph vertex ``v`` reached by ``link`` (endpoint first, ending at v)."""
         if self.is_junction[v]:
-            return [Attachment(int(v), link_cost, link, link=link, link_cost=link_cost)]
+            return [Attachment(int(v), link_cost, link=link, link_cost=link_cost)]
         c = int(self.chain_of[v])
         chain, cum, p = self.chains[c], self.chain_cum[c], int(self.position[v])
-        towards_start = self.points[chain[p::-1]]
-        towards_end = self.points[chain[p:]]
-        common = {"chain": c, "position": p, "link": link, "link_cost": link_cost}
         return [
-            Attachment(int(chain[0]), link_cost + cum[p], np.concatenate([link, towards_start[1:]]), **common),
-            Attachment(int(chain[-1]), link_cost + cum[-1] - cum[p], np.concatenate([link, towards_end[1:]]),
-                       **common),
+            Attachment(int(chain[0]), link_cost + cum[p], c, p, link, link_cost, toward_end=False),
+            Attachment(int(chain[-1]), link_cost + cum[-1] - cum[p], c, p, link, link_cost, toward_end=True),
         ]
 
     def along_one_chain(self, starts: list[Attachment], goals: list[Attachment]) -> tuple[float, np.ndarray] | None:
         """The best route between a start and a goal attached to the same chain, along it (or None)."""
-        best = None
-        for a in starts:
-            for b in goals:
-                if a.chain < 0 or a.chain != b.chain:
-                    continue
-                cum = self.chain_cum[a.chain]
-                cost = a.link_cost + abs(cum[a.position] - cum[b.position]) + b.link_cost
-                if best is None or cost < best[0]:
-                    step = 1 if b.position >= a.position else -1
-                    between = self.points[self.chains[a.chain][a.position : b.position + step : step]]
-                    best = (cost, np.concatenate([a.link, between[1:], b.link[::-1][1:]]))
-        return best
+        start_chain = np.array([a.chain for a in starts], dtype=np.int64)
+        goal_chain = np.array([b.chain for b in goals], dtype=np.int64)
+        same = (start_chain[:, None] == goal_chain[None, :]) & (start_chain[:, None] >= 0)
+        if not same.any():
+            return None
+        best, pick = None, None
+        for i, j in zip(*np.nonzero(same), strict=True):  # starts first, as the nested loops would
+            a, b = starts[i], goals[j]
+            cum = self.chain_cum[a.chain]
+            cost = a.link_cost + abs(cum[a.position] - cum[b.position]) + b.link_cost
+            if best is None or cost < best:
+                best, pick = cost, (a, b)
+        a, b = pick
+        step = 1 if b.position >= a.position else -1
+        between = self.points[self.chains[a.chain][a.position : b.position + step : step]]
+        return best, np.concatenate([a.link, between[1:], b.link[::-1][1:]])
 
     # ------------------------------------------------------------------ search
     def astar(self, starts: list[Attachment], goals: list[Attachment], goal_point: np.ndarray,
               direct: tuple[float, np.ndarray] | None = None) -> SearchOutcome:
-        """Shortest path from any start attachment to any goal attachment.
+        """Shortest path from any start attachment to any goal attachment (compiled A*, :mod:`.astar`).
 
         ``direct``: an optional (cost, points) candidate joining start and goal
         without the graph. Returns the path (start first), its cost (m), the
         number of expanded junctions and the junctions visited (vertex indices).
         """
         local = self.junction_local
-        # the heuristic of every junction at once: |x(v) - x_goal| (paper 001 §5)
-        h = np.linalg.norm(self.junction_points - goal_point, axis=1).tolist()
-        n = len(h)
-        inf = math.inf
-        best = [inf] * n
-        came: list[tuple[int, int]] = [(-1, -1)] * n  # (previous junction or -1 - start attachment, chain)
-        closed = [False] * n
-        goal_cost: dict[int, list[tuple[float, int]]] = {}
-        for k, attachment in enumerate(goals):
-            goal_cost.setdefault(int(local[attachment.junction]), []).append((attachment.cost, k))
-        heap: list[tuple[float, float, int]] = []
-        for k, attachment in enumerate(starts):
-            v = int(local[attachment.junction])
-            if attachment.cost < best[v]:
-                best[v] = attachment.cost
-                came[v] = (-1 - k, -1)
-                heapq.heappush(heap, (attachment.cost + h[v], attachment.cost, v))
-        found_cost = direct[0] if direct is not None else inf
-        found: tuple[int, int] | None = None  # (junction, goal attachment)
-        expanded = 0
-        adjacency = self.adjacency
-        push, pop = heapq.heappush, heapq.heappop
-        while heap:
-            f, g, v = pop(heap)
-            if f >= found_cost:
-                break
-            if closed[v] or g > best[v]:
-                continue
-            closed[v] = True
-            expanded += 1
-            if v in goal_cost:
-                for cost, k in goal_cost[v]:
-                    if g + cost < found_cost:
-                        found_cost = g + cost
-                        found = (v, k)
-            for w, cost, c in adjacency[v]:
-                ng = g + cost
-                if ng < best[w]:
-                    best[w] = ng
-                    came[w] = (v, c)
-                    push(heap, (ng + h[w], ng, w))
-        if found is None:
-            if direct is not None:
-                return SearchOutcome(direct[1], direct[0], expanded, [])
-            return SearchOutcome(None, math.inf, expanded, [])
-        # expand, collecting goal-to-start: the goal attachment, chains back to a start attachment
-        v, k = found
-        pieces = [goals[k].points]
-        junctions = [int(self.junction_vertex[v])]
-        while True:
-            previous, c = came[v]
-            if previous < 0:
-                pieces.append(starts[-1 - previous].points[::-1])
-                break
-            chain = self.chains[c]
-            u_vertex, v_vertex = self.junction_vertex[previous], self.junction_vertex[v]
-            sequence = chain if (chain[0] == u_vertex and chain[-1] == v_vertex) else chain[::-1]
-            pieces.append(self.points[sequence[::-1]])
-            v = previous
-            junctions.append(int(self.junction_vertex[v]))
-        path = np.concatenate(pieces)[::-1]
+        entries, first, last, cost, expanded = astar_junctions(
+            self.junction_indptr,
+            self.junction_neighbour,
+            self.junction_cost,
+            self.junction_points,
+            np.array([local[a.junction] for a in starts], dtype=np.int64),
+            np.array([a.cost for a in starts], dtype=float),
+            np.array([local[b.junction] for b in goals], dtype=np.int64),
+            np.array([b.cost for b in goals], dtype=float),
+            np.asarray(goal_point, dtype=float),
+            direct[0] if direct is not None else np.inf,
+        )
+        if last == -2:
+            return SearchOutcome(None, math.inf, int(expanded), [])
+        if last == -1:
+            return SearchOutcome(direct[1], float(cost), int(expanded), [])
+        start = starts[first]
+        pieces = [start.points(self)]
+        junctions = [int(start.junction)]
+        u = start.junction
+        for e in entries:
+            chain = self.chains[int(self.junction_chain[e])]
+            sequence = chain if chain[0] == u else chain[::-1]
+            pieces.append(self.points[sequence[1:]])
+            u = int(sequence[-1])
+            junctions.append(u)
+        pieces.append(goals[last].points(self)[::-1][1:])
+        path = np.concatenate(pieces)
         keep = np.concatenate([[True], np.any(np.diff(path, axis=0) != 0, axis=1)])
-        return SearchOutcome(path[keep], found_cost, expanded, junctions[::-1])
+        return SearchOutcome(path[keep], float(cost), int(expanded), junctions)
+
+
+def certify_motions(space, a: np.ndarray, b: np.ndarray, slack_a: np.ndarray, slack_b: np.ndarray,
+                    margin: float, samples: int = 8) -> np.ndarray:
+    """Which straight motions a[i] → b[i] keep ``margin``: certified, with as few swept checks as possible.
+
+    ``slack_*``: the clearance beyond the margin at the ends. Two covering
+    balls at the ends (as :func:`surgiplan.paths.certify_edges`); then, in
+    one clearance query, ``samples - 1`` points inside each remaining motion:
+    a point that breaks the margin fails the motion, balls around all the
+    points that cover it certify it; only what is still undecided gets the
+    space's swept check (exact in R3, but slow near cylinders). The decisions
+    are the swept check's: balls only certify clear motions, and a sample
+    that breaks the margin proves the motion does too.
+    """
+    reach = space.motion_speed_bound(a, b)
+    ends = (slack_a > 0) & (slack_b > 0) if margin <= 0 else (slack_a >= 0) & (slack_b >= 0)
+    ok = ends & (slack_a + slack_b > reach)
+    rest = np.flatnonzero(ends & ~ok)
+    if rest.size:
+        t = np.arange(1, samples) / samples
+        inner = space.interpolate(a[rest][:, None, :], b[rest][:, None, :], t[None, :])  # (rest, samples-1, d)
+        flat = inner.reshape(-1, a.shape[1])
+        step = space.motion_speed_bound(a[rest], b[rest]) / samples  # travel between neighbouring samples
+        m = space.motion_slack(flat, margin, np.repeat(step, samples - 1)).reshape(len(rest), samples - 1)
+        m = np.concatenate([slack_a[rest][:, None], m, slack_b[rest][:, None]], axis=1)
+        alive = np.all(m > 0 if margin <= 0 else m >= 0, axis=1)
+        covered = alive & np.all(m[:, :-1] + m[:, 1:] > step[:, None], axis=1)
+        ok[rest[covered]] = True
+        exact = rest[alive & ~covered]
+        if exact.size:
+            ok[exact] = space.motion_is_clear(a[exact], b[exact], margin)
+    return ok
 
 
 def online_graph(pathmap: SegmentedPathmap) -> OnlineGraph:

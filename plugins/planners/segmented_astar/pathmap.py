@@ -77,6 +77,8 @@ class SegmentedPathmap:
     alignment: str = "corners"
     uses: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     stats: dict = field(default_factory=dict)
+    #: Douglas-Peucker tolerance (m) the paths were thinned with before segmentation (0: every point kept)
+    thinning: float = 0.0
 
     @property
     def n_segments(self) -> int:
@@ -129,6 +131,7 @@ class SegmentedPathmap:
             "tolerance": float(self.tolerance),
             "alignment": self.alignment,
             "pathmap_stats": json.dumps(self.stats),
+            "thinning": float(self.thinning),
         }
 
     @classmethod
@@ -146,6 +149,7 @@ class SegmentedPathmap:
             str(data["alignment"]),
             np.asarray(data["uses"], np.int64),
             json.loads(str(data.get("pathmap_stats", "{}"))),
+            float(data.get("thinning", 0.0)),
         )
         pathmap.validate()
         return pathmap
@@ -276,17 +280,62 @@ def _junction_motions(repository_points, first, count, rep, flip, path_of) -> tu
     return u, repository_points[u_end], repository_points[v_start]
 
 
+def thin_repository(repository: Repository, space, tolerance: float, margin: float = 0.0) -> Repository:
+    """Every path thinned by Douglas-Peucker within ``tolerance`` (m), each kept chord certified (keeping margin).
+
+    The corner flags of the kept points are kept; the lengths are the stored paths' (unchanged).
+    """
+    from dataclasses import replace
+
+    from surgiplan.paths import thin
+
+    points, corner, starts = [], [], [0]
+    for k in range(repository.n_paths):
+        a, b = repository.path_start[k], repository.path_start[k + 1]
+        path = repository.points[a:b]
+        if len(path) > 2:
+            kept, _ = thin(space, path, np.full(len(path) - 1, margin), tolerance)
+            # thin() returns rows of ``path`` in order: recover their indices
+            index = np.zeros(len(kept), dtype=np.int64)
+            j = 0
+            for i, q in enumerate(kept):
+                while not np.array_equal(path[j], q):
+                    j += 1
+                index[i] = j
+                j += 1
+        else:
+            index = np.arange(len(path))
+        points.append(path[index])
+        corner.append(repository.corner[a:b][index])
+        starts.append(starts[-1] + len(index))
+    return replace(
+        repository,
+        points=np.concatenate(points) if points else repository.points[:0],
+        corner=np.concatenate(corner) if corner else repository.corner[:0],
+        path_start=np.asarray(starts, dtype=repository.path_start.dtype),
+    )
+
+
 def build_pathmap(repository: Repository, space, *, n_s: int = 3, tolerance: float | None = None,
                   alignment: str = "corners", reverse: bool = True, margin: float = 0.0,
-                  seed: int = 0) -> SegmentedPathmap:
+                  seed: int = 0, thinning: float = 0.0) -> SegmentedPathmap:
     """The segmented pathmap of ``repository`` (paper 001 §3.2, §4.1).
 
-    ``tolerance`` (m) defaults to w_tip, the tip sphere's diameter.
+    ``tolerance`` (m) defaults to w_tip, the tip sphere's diameter, less
+    ``thinning``: with ``thinning`` > 0 each path is first thinned by
+    Douglas-Peucker within it (certified chords), so that every original
+    point lies within thinning + tolerance = w_tip of its rebuilt path.
     Junction motions are certified in ``space`` (keeping ``margin``).
     """
     if n_s < 1:
         raise ValueError("segments need at least one point")
-    tolerance = 2.0 * space.tip_radius if tolerance is None else float(tolerance)
+    w_tip = 2.0 * space.tip_radius
+    tolerance = w_tip - thinning if tolerance is None else float(tolerance)
+    if tolerance < 0:
+        raise ValueError(f"thinning ({thinning * 1e3:.3g} mm) must not exceed w_tip ({w_tip * 1e3:.3g} mm)")
+    original = repository
+    if thinning > 0:
+        repository = thin_repository(repository, space, thinning, margin)
     points = repository.points
     first, count, path_of = segment_instances(repository, n_s, alignment)
     n = len(first)
@@ -347,10 +396,15 @@ def build_pathmap(repository: Repository, space, *, n_s: int = 3, tolerance: flo
         tolerance,
         alignment,
         uses,
+        thinning=float(thinning),
     )
-    pathmap.stats = pathmap_statistics(repository, pathmap)
+    # m and the raw file against the repository as stored (every point), whatever the encoding
+    pathmap.stats = pathmap_statistics(original, pathmap)
     pathmap.stats.update({"junction_rounds": rounds, "unmerged_for_junctions": int(unmerged),
-                          "reverse_matching": bool(reverse)})
+                          "reverse_matching": bool(reverse), "thinning_m": float(thinning),
+                          "thinned_points": len(repository.points),
+                          # the sharing alone: points of the thinned paths over points stored
+                          "m_sharing": len(repository.points) / max(len(pathmap.segment_points), 1)})
     return pathmap
 
 
@@ -410,9 +464,32 @@ def pathmap_statistics(repository: Repository, pathmap: SegmentedPathmap) -> dic
 
 
 def reconstruction_error(repository: Repository, pathmap: SegmentedPathmap) -> np.ndarray:
-    """Per path, the largest distance (m) between an original point and its rebuilt counterpart."""
+    """Per path, the largest distance (m) between the original and its rebuilt path.
+
+    Point by point when every point was kept; for a thinned pathmap the
+    two-sided distance between the polylines: every original point to the
+    rebuilt path, and every rebuilt point to the original path.
+    """
     rebuilt, offsets = pathmap.reconstruct_all()
+    if pathmap.thinning > 0:
+        out = np.zeros(repository.n_paths)
+        for k in range(repository.n_paths):
+            original = repository.points[repository.path_start[k] : repository.path_start[k + 1]]
+            mine = rebuilt[offsets[k] : offsets[k + 1]]
+            out[k] = max(_to_polyline(original, mine).max(), _to_polyline(mine, original).max())
+        return out
     if len(rebuilt) != len(repository.points) or not np.array_equal(offsets, repository.path_start):
         raise ValueError("the pathmap does not rebuild paths of the repository's lengths")
     error = np.linalg.norm(rebuilt - repository.points, axis=1)
     return np.maximum.reduceat(error, repository.path_start[:-1]) if len(error) else np.zeros(0)
+
+
+def _to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """Distance (m) from each point to the polyline (its segments, or its one point)."""
+    if len(polyline) == 1:
+        return np.linalg.norm(points - polyline[0], axis=1)
+    a, b = polyline[:-1][None], polyline[1:][None]  # (1, s, 3)
+    d = b - a
+    t = np.clip(np.einsum("psk,psk->ps", points[:, None] - a, d) / np.maximum(np.einsum("psk,psk->ps", d, d),
+                                                                             1e-300), 0, 1)
+    return np.linalg.norm(points[:, None] - (a + t[..., None] * d), axis=2).min(axis=1)

@@ -71,20 +71,22 @@ def _npz(arrays: dict) -> bytes:
 
 def table1(repository: Repository, space, *, sizes=(2, 3, 4, 5), alignment: str = "corners",
            reverse: bool = True, tolerance: float | None = None, margin: float = 0.0,
-           directory: Path | None = None) -> list[dict]:
+           directory: Path | None = None, thinning: float = 0.0) -> list[dict]:
     """Table 1 rows for the paper's method and the configured one; writes the compared files to ``directory``."""
     raw = _npz(raw_arrays(repository))
     if directory is not None:
         write_bytes_atomic(Path(directory) / "repository.npz", raw)
-    methods = {"paper": (METHODS["paper"]["alignment"], METHODS["paper"]["reverse"])}
+    methods = {"paper": (METHODS["paper"]["alignment"], METHODS["paper"]["reverse"], 0.0)}
     ours = f"{alignment}{'+reverse' if reverse else ''}"
-    if (alignment, reverse) != methods["paper"]:
-        methods[ours] = (alignment, reverse)
+    if (alignment, reverse, 0.0) != methods["paper"]:
+        methods[ours] = (alignment, reverse, 0.0)
+    if thinning > 0:  # the configured encoding, beside the same segmentation without thinning
+        methods[f"{ours}+thinned"] = (alignment, reverse, float(thinning))
     rows = []
-    for method, (method_alignment, method_reverse) in methods.items():
+    for method, (method_alignment, method_reverse, method_thinning) in methods.items():
         for n_s in sizes:
             pathmap = build_pathmap(repository, space, n_s=n_s, tolerance=tolerance, alignment=method_alignment,
-                                    reverse=method_reverse, margin=margin)
+                                    reverse=method_reverse, margin=margin, thinning=method_thinning)
             data = _npz(pathmap.to_arrays())
             if directory is not None:
                 write_bytes_atomic(Path(directory) / f"pathmap_{method}_ns{n_s}.npz", data)
@@ -164,7 +166,8 @@ def bar_chart(path: Path, rows: list[dict], title: str = "") -> None:
         ax.bar(offset, links, width, bottom=np.add(common, unique), color="#999999", hatch=hatch, edgecolor="white",
                label="references and delimiters" if k == 0 else None)
         for xo, top in zip(offset, np.add(np.add(common, unique), links), strict=True):
-            ax.text(xo, top, method.split("+")[0], ha="center", va="bottom", fontsize=6, rotation=90)
+            short = "thinned" if method.endswith("+thinned") else method.split("+")[0]
+            ax.text(xo, top, short, ha="center", va="bottom", fontsize=6, rotation=90)
         ax_m.plot(sizes, m, "o-" if method != "paper 001" else "s", label=method)
     raw = next((r["raw_kb"] for r in rows), None)
     if raw:
@@ -173,12 +176,15 @@ def bar_chart(path: Path, rows: list[dict], title: str = "") -> None:
     ax.set_xticks(x, [f"n_s = {n}" for n in sizes])
     ax.set_ylabel("storage (KB)")
     ax.set_title("segmented pathmap size (hatched: paper 001 Table 1)")
-    ax.legend(fontsize=7, loc="upper left")
+    # below the axes, not over the n_s = 2 bars; headroom above the tallest bar for its label
+    tallest = max([raw or 0.0, PAPER_RAW_KB] + [r["pathmap_kb"] for r in rows])
+    ax.set_ylim(0, 1.12 * tallest)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
     ax_m.set_xlabel("segment size n_s")
     ax_m.set_ylabel("memory savings factor m = length(P) / |S|")
     ax_m.set_xticks(sizes)
     ax_m.grid(alpha=0.3)
-    ax_m.legend(fontsize=7)
+    ax_m.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, frameon=False)
     ax_m.set_title("m (paper eq. 1)")
     if title:
         fig.suptitle(title, fontsize=10)

@@ -37,14 +37,14 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt, field_validator
 from surgiplan.errors import OutputError
-from surgiplan.paths import certify_edges
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 from surgiplan.plugins.planners.optmis.offline import OptMISSettings, require_r3, run_offline
 from surgiplan.plugins.planners.optmis.paths import PathOptions, paths_from_source
 from surgiplan.plugins.planners.optmis.search_space import build_search_graph
+from surgiplan.scene import meets_margin
 from surgiplan.units import Length, PositiveLength, Vec3
 
-from .graph import Attachment, OnlineGraph, online_graph
+from .graph import Attachment, OnlineGraph, certify_motions, online_graph
 from .pathmap import ALIGNMENTS, SegmentedPathmap, build_pathmap
 from .report import table1, write_report
 
@@ -82,6 +82,10 @@ class SegmentedAStarSettings(OptMISSettings):
     alignment: Literal["path", "corners"] = "corners"
     #: a segment also matches one traversed the other way
     reverse: bool = True
+    #: thin each path by Douglas-Peucker within this tolerance (certified chords) before segmenting it;
+    #: the common-segment tolerance then defaults to w_tip - thinning, so every original point stays
+    #: within w_tip of its rebuilt path (0: every point of the paths is kept, as in the paper)
+    thinning: Length = 0.0
     # query settings (exclude=True: they do not change the stored pathmap, so not its content key)
     #: how far a start or goal may be linked to the pathmap by a straight motion (to the nearest point
     #: of each of the ``link_candidates`` nearest chains of the online graph); none: no limit
@@ -133,6 +137,15 @@ class SegmentedAStar(Planner):
     def build(self, problem: PlanningProblem) -> PathmapArtifact:
         settings = self.settings
         self._check_outputs()
+        w_tip = 2.0 * getattr(problem.space, "tip_radius", 0.0)
+        if settings.tolerance is None and settings.thinning > w_tip:
+            from surgiplan.errors import PlanningInputError
+
+            raise PlanningInputError(
+                f"thinning ({settings.thinning * 1e3:.3g} mm) must not exceed w_tip, the tip's diameter "
+                f"({w_tip * 1e3:.3g} mm): the common-segment tolerance is w_tip - thinning",
+                location="settings.thinning",
+            )
         offline = run_offline(problem, settings)
         started = time.perf_counter()
         with problem.progress.task("segmented pathmap", total=1) as task:
@@ -145,6 +158,7 @@ class SegmentedAStar(Planner):
                 reverse=settings.reverse,
                 margin=settings.margin,
                 seed=settings.seed,
+                thinning=settings.thinning,
             )
             task.advance(1)
         pathmap.stats["pathmap_s"] = time.perf_counter() - started
@@ -164,6 +178,7 @@ class SegmentedAStar(Planner):
                     tolerance=settings.tolerance,
                     margin=settings.margin,
                     directory=directory,
+                    thinning=settings.thinning,
                 )
                 write_report(directory, rows, self._report_title(problem, offline.repository))
                 task.advance(1)
@@ -203,33 +218,54 @@ class SegmentedAStar(Planner):
         return artifact
 
     # ------------------------------------------------------------------ online
-    def _attach(self, artifact: PathmapArtifact, q: np.ndarray, counters: dict) -> tuple[list[Attachment], str]:
-        """Ways from q into the graph: a pathmap point, certified straight links, or a local plan."""
+    def _attach(self, artifact: PathmapArtifact, ends: np.ndarray, clearance: np.ndarray,
+                counters: dict) -> list[tuple[list[Attachment], str]]:
+        """Ways from each of ``ends`` into the graph: a pathmap point, certified straight links, or a local plan.
+
+        Both ends at once: one nearest-neighbour query and one batch of certified link motions.
+        """
         graph, space, settings = artifact.graph, artifact.space, self.settings
-        distance, v = graph.tree.query(q)
-        on_map = distance <= 1e-12
-        if on_map and graph.is_junction[v]:
-            # a point of interest or a branch point: the pathmap alone, as in the paper
-            return graph.attachments_at_vertex(int(v), q[None], 0.0), "vertex"
-        out = graph.attachments_at_vertex(int(v), q[None], 0.0) if on_map else []
-        index = self.link_candidates(artifact, q)
-        index = index[np.any(graph.points[index] != q, axis=1)]  # not to itself
+        distance, vertex = graph.tree.query(ends)
+        out: list[list[Attachment]] = []
+        candidates: list[np.ndarray] = []
+        for q, d, v in zip(ends, distance, vertex, strict=True):
+            on_map = d <= 1e-12
+            if on_map and graph.is_junction[v]:
+                candidates.append(np.zeros(0, np.int64))  # a point of interest or a branch point: the pathmap alone
+                out.append(graph.attachments_at_vertex(int(v), q[None], 0.0))
+                continue
+            out.append(graph.attachments_at_vertex(int(v), q[None], 0.0) if on_map else [])
+            index = self.link_candidates(artifact, q)
+            candidates.append(index[np.any(graph.points[index] != q, axis=1)])  # not to itself
+        owner = np.concatenate([np.full(len(c), k) for k, c in enumerate(candidates)]).astype(np.int64)
+        index = np.concatenate(candidates).astype(np.int64)
+        ok = np.zeros(0, dtype=bool)
         if index.size:
-            targets = graph.points[index]
-            # two covering balls (the clearance at both ends) certify most links without a swept check
-            slack = float(space.clearance(q[None])[0]) - settings.margin
-            ok, _ = certify_edges(space, np.repeat(q[None], len(index), 0), targets, np.full(len(index), slack),
-                                  graph.clearance[index] - settings.margin, settings.margin)
+            slack = clearance - settings.margin
+            ok = certify_motions(space, ends[owner], graph.points[index], slack[owner],
+                                 graph.clearance[index] - settings.margin, settings.margin)
             counters["link_checks"] += len(index)
-            for vertex, point in zip(index[ok], targets[ok], strict=True):
-                link = np.stack([q, point])
-                out += graph.attachments_at_vertex(int(vertex), link, float(np.linalg.norm(point - q)))
-            if out:
-                return out, "vertex" if on_map and not np.any(ok) else "straight"
-        if out:
-            return out, "vertex"
-        counters["local_plans"] += 1
-        return self._local_plan(artifact, q), "local"
+        kinds: list[tuple[list[Attachment], str]] = []
+        for k, q in enumerate(ends):
+            mine = owner == k
+            on_map = distance[k] <= 1e-12
+            if on_map and graph.is_junction[vertex[k]]:
+                kinds.append((out[k], "vertex"))
+                continue
+            clear = index[mine & ok]
+            points = graph.points[clear]
+            cost = np.linalg.norm(points - q, axis=1).tolist()
+            links = np.stack([np.broadcast_to(q, points.shape), points], axis=1)  # (links, 2, 3)
+            for v, link, c in zip(clear.tolist(), links, cost, strict=True):
+                out[k] += graph.attachments_at_vertex(v, link, c)
+            if clear.size:
+                kinds.append((out[k], "straight"))
+            elif out[k]:
+                kinds.append((out[k], "vertex"))
+            else:
+                counters["local_plans"] += 1
+                kinds.append((self._local_plan(artifact, q), "local"))
+        return kinds
 
     def link_candidates(self, artifact: PathmapArtifact, q: np.ndarray) -> np.ndarray:
         """Graph vertices a straight link from q may go to, nearest first.
@@ -344,15 +380,34 @@ class SegmentedAStar(Planner):
     def _plan(self, artifact: PathmapArtifact, start: np.ndarray, goal: np.ndarray) -> PlanResult:
         space, graph = artifact.space, artifact.graph
         # a point of the pathmap is a certified configuration already; anything else is checked
-        on_map = graph.tree.query(np.stack([start, goal]))[0] <= 1e-12
+        ends = np.stack([start, goal])
+        on_map = graph.tree.query(ends)[0] <= 1e-12
+        clearance = space.clearance(ends)
         if not np.all(on_map):
-            failure = self.check_endpoints(space, start, goal, self.settings.margin)
-            if failure is not None:
-                return failure
+            # space.is_valid for both ends from one clearance query; the messages come from check_endpoints
+            valid = space.within_limits(ends) & space.in_workspace(ends) & meets_margin(clearance,
+                                                                                         self.settings.margin)
+            if not np.all(valid | on_map):
+                failure = self.check_endpoints(space, start, goal, self.settings.margin)
+                if failure is not None:
+                    return failure
         started = time.perf_counter()
         counters = {"link_checks": 0, "local_plans": 0}
-        starts, start_kind = self._attach(artifact, start, counters)
-        goals, goal_kind = self._attach(artifact, goal, counters)
+        slack = clearance - self.settings.margin
+        # two points off the pathmap in line of sight: no route through the graph is shorter than the
+        # straight motion (the graph's answer would be it), so it is returned without linking
+        in_sight = not np.any(on_map) and bool(
+            certify_motions(space, start[None], goal[None], slack[:1], slack[1:], self.settings.margin)[0]
+        )
+        if in_sight:
+            finished = time.perf_counter()
+            straight = float(np.linalg.norm(goal - start))
+            metrics = {"start_link": "direct", "goal_link": "direct", **counters, "w_tip_m": 2 * space.tip_radius,
+                       "link_s": 0.0, "astar_s": 0.0, "online_s": finished - started, "expanded_junctions": 0,
+                       "path_cost_m": straight}
+            return PlanResult(PlanStatus.SOLVED, np.stack([start, goal]), metrics,
+                              clearance_threshold=self.settings.margin or None)
+        (starts, start_kind), (goals, goal_kind) = self._attach(artifact, ends, clearance, counters)
         linked = time.perf_counter()
         metrics: dict[str, Any] = {
             "start_link": start_kind,
@@ -377,8 +432,8 @@ class SegmentedAStar(Planner):
                 )
         # routes that need no junction: along the one chain both ends joined, or straight from start to goal
         direct = graph.along_one_chain(starts, goals)
-        if "vertex" not in (start_kind, goal_kind) and space.motion_is_clear(start[None], goal[None],
-                                                                             self.settings.margin)[0]:
+        if np.any(on_map) and "vertex" not in (start_kind, goal_kind) and certify_motions(
+                space, start[None], goal[None], slack[:1], slack[1:], self.settings.margin)[0]:
             straight = float(np.linalg.norm(goal - start))
             if direct is None or straight < direct[0]:
                 direct = (straight, np.stack([start, goal]))
