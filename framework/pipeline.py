@@ -50,6 +50,8 @@ from .yamlio import LineMap, format_path, line_of, load_yaml
 
 #: validation-context key holding the directory relative input files resolve against
 BASE_DIR_KEY = "base_dir"
+#: validation-context key holding the trainee record's path (settings may read a trainee's proficiency from it)
+RECORD_KEY = "record"
 
 STAGE_PLUGIN_KIND = {stage: kind for kind, (_, stage) in KINDS.items() if stage}
 
@@ -355,6 +357,8 @@ def load_pipeline(
     base_dir = path.resolve().parent
     unit = _declared_unit(data, "m", path, lines, ())
     context = _context(unit, base_dir)
+    record = data.get("record")
+    context[RECORD_KEY] = Path(record if isinstance(record, str) else "out/trainees.sqlite")
     errors: list[ConfigError] = []
 
     # pass 1: structure (every error; the parts that are sound go on to the next passes)

@@ -468,6 +468,12 @@ TABLE = [
         ["settings.via_points: 10,000,000,000,000 via points needs about", "of memory; this machine allows"],
     ),
     (
+        "milestones-1e9",
+        "validate",
+        _change(lambda d: d["pipeline"].__setitem__(0, _stage(plugin="safe_prm", settings={"milestones": 10**9}))),
+        ["pipeline[0].settings.milestones: a roadmap pair of 1,000,000,000 milestones (k = 15) needs about 3.87 TiB"],
+    ),
+    (
         "duplicate-stage-names",
         "validate",
         _change(lambda d: d["pipeline"].extend([_stage(name="a"), _stage(name="a")])),

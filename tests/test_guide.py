@@ -459,3 +459,25 @@ def test_live_feed_gets_every_sample_and_each_event(block_world, tmp_path):
     starts = [p for c, p in feed.messages if c == "event" and p["change"] == "start"]
     assert len(starts) == len(guide.annotations["events"])
     assert feed.messages[0][1]["recommended"] == guide.annotations["recommended_tips"]
+
+
+def test_the_next_recommended_path_adapts_to_the_recorded_trainee(attempt, tmp_path, cli):
+    """proficiency: {trainee, task, percentile}: d_thresh is the percentile of the trainee's recorded deviations."""
+    tmp, _ = attempt
+    samples = read_samples(tmp / "out" / "attempt-samples.csv")
+    data = yaml.safe_load(guide_pipeline(tmp_path).read_text())
+    data["record"] = str(tmp / "record.sqlite")
+    data["pipeline"] = data["pipeline"][:1]
+    data["pipeline"][0]["settings"]["proficiency"] = {"trainee": "alice", "task": "block-world", "percentile": 80}
+    path = tmp_path / "next.yaml"
+    path.write_text(yaml.safe_dump(data))
+    code, _, err = cli("run", path, "--quiet")
+    assert code == 0, err
+    plan = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]
+    assert plan["metrics"]["d_thresh_m"] == pytest.approx(np.percentile(samples["deviation_m"], 80), rel=1e-7)
+    assert plan["metrics"]["trainee"]["attempts"] == 1
+    assert plan["metrics"]["clearance_threshold_m"] == plan["metrics"]["d_thresh_m"]
+    data["pipeline"][0]["settings"]["proficiency"]["trainee"] = "bob"
+    path.write_text(yaml.safe_dump(data))
+    code, _, err = cli("validate", path)
+    assert code == 2 and "pipeline[0].settings.proficiency" in err and "no trainee 'bob'" in err

@@ -207,7 +207,7 @@ def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> 
     ax.set_ylabel(f"y ({unit})")
 
 
-def _legend(fig, scene: Scene, views: Sequence[PathView], unit: str, k: float) -> None:
+def _legend(fig, scene: Scene, views: Sequence[PathView], unit: str, k: float, top_view: bool = True) -> None:
     """One legend for the figure, listing only what is drawn."""
     handles = [
         Line2D([], [], color=SAFE_COLOUR, linewidth=2.2, label="path"),
@@ -225,7 +225,7 @@ def _legend(fig, scene: Scene, views: Sequence[PathView], unit: str, k: float) -
         handles.append(Line2D([], [], color=CRITICAL_COLOUR, linewidth=1.6, label="critical region (no safe detour)"))
     if any(len(v.detours) for v in views):
         handles.append(Line2D([], [], color=DETOUR_COLOUR, linewidth=1.4, linestyle="--", label="avoided by a detour"))
-    if any(_over_obstacles(scene, v.tips) for v in views):
+    if top_view and any(_over_obstacles(scene, v.tips) for v in views):
         handles.append(Line2D([], [], color="#555555", linestyle=(0, (2, 2)), label="passes over an obstacle"))
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=8, frameon=False)
 
@@ -262,7 +262,7 @@ def overview_figure(
     if title:
         fig.suptitle(title, fontsize=12)
     fig.tight_layout(rect=(0, 0.6 / (4.6 * rows + 0.6), 1, 1))
-    _legend(fig, panels[0][0], [v for _, v in panels], unit, k)
+    _legend(fig, panels[0][0], [v for _, v in panels], unit, k, top_view=False)
     _save(fig, path)
 
 

@@ -35,6 +35,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
+from surgiplan.resources import ResourceEstimate
 from surgiplan.units import Length
 
 log = logging.getLogger(__name__)
@@ -86,6 +87,14 @@ def _ompl():
 
 
 class OmplPlanner(Planner):
+    @classmethod
+    def estimate_resources(cls, settings, problem):
+        if settings.planner not in ("PRM", "PRMstar"):
+            return []
+        # OMPL's boost graph: a state, vertex properties and ~10 neighbours' edges per milestone (~1.5 kB)
+        n = settings.milestones
+        return [ResourceEstimate(n * 1500, f"OMPL's roadmap of {n:,} milestones", "milestones")]
+
     Settings = OmplSettings
 
     # ------------------------------------------------------------------ conversions

@@ -85,6 +85,31 @@ class OptMISSettings(BaseModel):
             raise ValueError("smoothing.resolution must not exceed smoothing.knot_spacing")
         return self
 
+    def estimate(self, scene) -> list:
+        """Memory of the search space and the repository, from the scene's size and the spacings."""
+        from surgiplan.resources import ResourceEstimate
+
+        extent = np.asarray(scene.extent, float)
+        grid = float(np.prod(extent / self.grid_spacing)) * 1.5  # the grid, plus the half-spacing grid near obstacles
+        area = sum(float(o.to_trimesh().area) for o in scene.obstacles)
+        surface = area / self.surface_spacing**2
+        vertices = grid + surface
+        points = len(self.points) if self.points is not None else len(scene.points)
+        pairs = points * (points - 1) / 2
+        per_path = float(np.linalg.norm(extent)) * 2 / self.smoothing.resolution  # a path's samples, generously
+        return [
+            ResourceEstimate(
+                vertices * (800 + 48 * self.neighbours),
+                f"a search space of about {vertices:,.0f} vertices (grid_spacing, surface_spacing)",
+                "grid_spacing" if grid >= surface else "surface_spacing",
+            ),
+            ResourceEstimate(
+                pairs * per_path * 24,
+                f"{pairs:,.0f} paths between {points} points of interest at smoothing.resolution",
+                "smoothing",
+            ),
+        ]
+
     def search_options(self) -> SearchOptions:
         return SearchOptions(self.grid_spacing, self.surface_spacing, self.surface_gap, self.neighbours, self.seed)
 
@@ -149,11 +174,13 @@ def run_offline(problem: PlanningProblem, settings: OptMISSettings) -> Offline:
     key = offline_key(space, names, pois, search, paths)
     store = checkpoint_dir(problem.workdir, key)
     started = time.perf_counter()
-    graph = search_space(space, names, pois, search, settings.margin, store_dir=store, key=key,
-                         progress=problem.progress)
+    graph = search_space(
+        space, names, pois, search, settings.margin, store_dir=store, key=key, progress=problem.progress
+    )
     graph_s = time.perf_counter() - started
-    repository = build_repository(space, graph, names, pois, paths, executor=problem.executor,
-                                  progress=problem.progress, store_dir=store)
+    repository = build_repository(
+        space, graph, names, pois, paths, executor=problem.executor, progress=problem.progress, store_dir=store
+    )
     repository.stats["search_space_s"] = graph_s
     repository.stats.update(graph.stats())
     return Offline(graph, repository, key)

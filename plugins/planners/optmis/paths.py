@@ -70,8 +70,16 @@ def tree_vertices(predecessors: np.ndarray, source: int, targets: np.ndarray) ->
     return np.flatnonzero(on_path)
 
 
-def taut_parents(space, vertices: np.ndarray, clearance: np.ndarray, predecessors: np.ndarray, source,
-                 members: np.ndarray, margin: float, max_jump: float = np.inf) -> tuple[np.ndarray, int]:
+def taut_parents(
+    space,
+    vertices: np.ndarray,
+    clearance: np.ndarray,
+    predecessors: np.ndarray,
+    source,
+    members: np.ndarray,
+    margin: float,
+    max_jump: float = np.inf,
+) -> tuple[np.ndarray, int]:
     """Any-angle parents of the tree(s) ``members`` by pointer jumping; the result is still a tree.
 
     ``source``: the root vertex, or an array of roots (a forest: see :func:`paths_from_sources`).
@@ -148,8 +156,9 @@ def edge_directions(space, points: np.ndarray) -> np.ndarray:
     return np.where(edge[:, None], _unit(along), 0.0)
 
 
-def refine_corners(space, polylines: list[np.ndarray], margin: float, floor: float,
-                   iterations: int = 12) -> tuple[list[np.ndarray], int]:
+def refine_corners(
+    space, polylines: list[np.ndarray], margin: float, floor: float, iterations: int = 12
+) -> tuple[list[np.ndarray], int]:
     """Slide the corners of taut paths along the obstacle edges to where the paths are shortest.
 
     Tautening keeps each turn at the vertex where the zig-zag graph path
@@ -275,9 +284,14 @@ def knots_of(points: np.ndarray, knot_spacing: float, turn_radius: float = 0.0) 
         tail = turn_radius if (i < last and length > 4 * turn_radius) else 0.0
         inner = length - lead - tail
         count = max(1, int(np.ceil(inner / knot_spacing - 1e-9)))
-        t = np.concatenate([[0.0], ([lead / length] if lead else []),
-                            (lead + inner * np.arange(1, count) / count) / length,
-                            ([1.0 - tail / length] if tail else [])])
+        t = np.concatenate(
+            [
+                [0.0],
+                ([lead / length] if lead else []),
+                (lead + inner * np.arange(1, count) / count) / length,
+                ([1.0 - tail / length] if tail else []),
+            ]
+        )
         knots.append(a + t[:, None] * (b - a))
         flags = np.zeros(len(t), dtype=bool)
         flags[0] = True
@@ -287,8 +301,9 @@ def knots_of(points: np.ndarray, knot_spacing: float, turn_radius: float = 0.0) 
     return np.concatenate(knots), np.concatenate(corner)
 
 
-def paths_from_sources(space, graph, vertices: np.ndarray, clearance: np.ndarray, sources, targets,
-                       options: PathOptions) -> list[dict]:
+def paths_from_sources(
+    space, graph, vertices: np.ndarray, clearance: np.ndarray, sources, targets, options: PathOptions
+) -> list[dict]:
     """optMIS paths from each vertex in ``sources`` to each vertex of its ``targets`` array.
 
     The sources are processed together: one Dijkstra call for all of them,
@@ -316,8 +331,16 @@ def paths_from_sources(space, graph, vertices: np.ndarray, clearance: np.ndarray
     tiled_vertices = np.tile(vertices, (count, 1)) if count > 1 else vertices
     tiled_clearance = np.tile(clearance, count) if count > 1 else clearance
     if members:
-        parent, checks = taut_parents(space, tiled_vertices, tiled_clearance, flat, roots, np.concatenate(members),
-                                      options.margin, options.max_jump)
+        parent, checks = taut_parents(
+            space,
+            tiled_vertices,
+            tiled_clearance,
+            flat,
+            roots,
+            np.concatenate(members),
+            options.margin,
+            options.max_jump,
+        )
     else:
         parent = flat.copy()
         parent[roots] = roots
@@ -348,24 +371,27 @@ def paths_from_sources(space, graph, vertices: np.ndarray, clearance: np.ndarray
             corner_flags.append(flags)
             sizes.append(len(path.points))
             kinds.append([np.count_nonzero(path.kinds == kind) for kind in (GLOBAL, WINDOW, CHORD)])
-        out.append({
-            "targets": wanted[reachable],
-            "reachable": reachable,
-            "unreachable": wanted[~reachable],
-            "points": np.concatenate(points) if points else np.zeros((0, 3)),
-            "path_start": np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
-            "corner": np.concatenate(corner_flags) if corner_flags else np.zeros(0, dtype=bool),
-            "graph_length": distance[t, wanted[reachable]],
-            "taut_length": np.array([_length(polylines[k]) for k in mine]),
-            "length": np.array([smoothed[k].length for k in mine]),
-            "kinds": np.asarray(kinds, dtype=np.int64).reshape(-1, 3),
-            "checks": int(checks) if t == 0 else 0,
-        })
+        out.append(
+            {
+                "targets": wanted[reachable],
+                "reachable": reachable,
+                "unreachable": wanted[~reachable],
+                "points": np.concatenate(points) if points else np.zeros((0, 3)),
+                "path_start": np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+                "corner": np.concatenate(corner_flags) if corner_flags else np.zeros(0, dtype=bool),
+                "graph_length": distance[t, wanted[reachable]],
+                "taut_length": np.array([_length(polylines[k]) for k in mine]),
+                "length": np.array([smoothed[k].length for k in mine]),
+                "kinds": np.asarray(kinds, dtype=np.int64).reshape(-1, 3),
+                "checks": int(checks) if t == 0 else 0,
+            }
+        )
     return out
 
 
-def paths_from_source(space, graph, vertices: np.ndarray, clearance: np.ndarray, source: int, targets: np.ndarray,
-                      options: PathOptions) -> dict:
+def paths_from_source(
+    space, graph, vertices: np.ndarray, clearance: np.ndarray, source: int, targets: np.ndarray, options: PathOptions
+) -> dict:
     """optMIS paths from vertex ``source`` to each vertex in ``targets``; unreachable ones are listed.
 
     Returns a mapping of arrays: ``targets`` (the reachable ones, in order),

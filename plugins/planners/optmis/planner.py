@@ -48,8 +48,14 @@ def link_vertices(space, graph: SearchGraph, q: np.ndarray, margin: float, candi
         k = min(k, graph.n)
         _, index = graph.tree.query(q, k=k)
         index = np.atleast_1d(index)
-        ok, _ = certify_edges(space, np.repeat(q[None], len(index), 0), graph.vertices[index],
-                              np.full(len(index), clearance - margin), graph.clearance[index] - margin, margin)
+        ok, _ = certify_edges(
+            space,
+            np.repeat(q[None], len(index), 0),
+            graph.vertices[index],
+            np.full(len(index), clearance - margin),
+            graph.clearance[index] - margin,
+            margin,
+        )
         if np.any(ok):
             return index[ok], clearance
         if k == graph.n:
@@ -64,9 +70,11 @@ def search_between(space, graph: SearchGraph, start: np.ndarray, goal: np.ndarra
     for q, what in ((start, "start"), (goal, "goal")):
         index, _ = link_vertices(space, graph, q, settings.margin, settings.link_candidates)
         if not index.size:
-            return {"message": f"the {what} {space.scene.describe_point(q)} cannot be linked to the search space: "
-                               f"no certified straight motion to any of its {8 * settings.link_candidates} "
-                               "nearest vertices"}
+            return {
+                "message": f"the {what} {space.scene.describe_point(q)} cannot be linked to the search space: "
+                f"no certified straight motion to any of its {8 * settings.link_candidates} "
+                "nearest vertices"
+            }
         links.append(index)
     vertices = np.concatenate([graph.vertices, start[None], goal[None]])
     clearance = np.concatenate([graph.clearance, space.clearance(np.stack([start, goal]))])
@@ -80,12 +88,15 @@ def search_between(space, graph: SearchGraph, start: np.ndarray, goal: np.ndarra
         np.linalg.norm(graph.vertices[links[1]] - goal, axis=1),
         np.linalg.norm(graph.vertices[links[1]] - goal, axis=1),
     ]
-    augmented = coo_matrix((np.maximum(np.concatenate(lengths), 1e-15), (np.concatenate(rows), np.concatenate(cols))),
-                           (n + 2, n + 2)).tocsr()
+    augmented = coo_matrix(
+        (np.maximum(np.concatenate(lengths), 1e-15), (np.concatenate(rows), np.concatenate(cols))), (n + 2, n + 2)
+    ).tocsr()
     out = paths_from_source(space, augmented, vertices, clearance, n, np.array([n + 1]), settings.path_options())
     if not len(out["targets"]):
-        return {"message": f"start {space.scene.describe_point(start)} and goal {space.scene.describe_point(goal)} "
-                           "are not connected in the search space"}
+        return {
+            "message": f"start {space.scene.describe_point(start)} and goal {space.scene.describe_point(goal)} "
+            "are not connected in the search space"
+        }
     return out
 
 
@@ -100,6 +111,10 @@ class OptMISPlanSettings(OptMISSettings):
 
 class OptMIS(Planner):
     """optMIS: all-pairs optimal paths between points of interest, stored; certified smooth paths."""
+
+    @classmethod
+    def estimate_resources(cls, settings, problem):
+        return settings.estimate(problem.scene)
 
     Settings = OptMISPlanSettings
     artifact_version = 1
@@ -172,8 +187,9 @@ class OptMIS(Planner):
                     {
                         "graph_length_m": float(repository.graph_length[k]),
                         "taut_length_m": float(repository.taut_length[k]),
-                        "smoothing_intervals": dict(zip(("spline", "window_spline", "chord"),
-                                                        repository.kinds[k].tolist(), strict=True)),
+                        "smoothing_intervals": dict(
+                            zip(("spline", "window_spline", "chord"), repository.kinds[k].tolist(), strict=True)
+                        ),
                     }
                 )
         else:
@@ -186,8 +202,9 @@ class OptMIS(Planner):
                 {
                     "graph_length_m": float(out["graph_length"][0]),
                     "taut_length_m": float(out["taut_length"][0]),
-                    "smoothing_intervals": dict(zip(("spline", "window_spline", "chord"), out["kinds"][0].tolist(),
-                                                    strict=True)),
+                    "smoothing_intervals": dict(
+                        zip(("spline", "window_spline", "chord"), out["kinds"][0].tolist(), strict=True)
+                    ),
                 }
             )
         metrics["lookup_s"] = time.perf_counter() - started

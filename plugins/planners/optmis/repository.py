@@ -275,15 +275,25 @@ def _load_graph(path: Path, key: str) -> SearchGraph | None:
         arrays, meta = load_bundle(path)
         if meta.get("key") != key:
             return None
-        return SearchGraph(arrays["vertices"], arrays["clearance"], arrays["edges"], arrays["poi_vertex"],
-                           float(meta["margin"]))
+        return SearchGraph(
+            arrays["vertices"], arrays["clearance"], arrays["edges"], arrays["poi_vertex"], float(meta["margin"])
+        )
     except (ValueError, KeyError) as exc:
         log.warning("ignoring the damaged search-space checkpoint %s (%s); rebuilding it", path, exc)
         return None
 
 
-def search_space(space, names: list[str], pois: np.ndarray, search: SearchOptions, margin: float, *,
-                 store_dir: Path | None = None, key: str = "", progress: Progress | None = None) -> SearchGraph:
+def search_space(
+    space,
+    names: list[str],
+    pois: np.ndarray,
+    search: SearchOptions,
+    margin: float,
+    *,
+    store_dir: Path | None = None,
+    key: str = "",
+    progress: Progress | None = None,
+) -> SearchGraph:
     """The search space, loaded from ``store_dir`` when a finished one for ``key`` is there."""
     progress = progress or NullProgress()
     path = store_dir / "search_space.npz" if store_dir is not None else None
@@ -307,8 +317,12 @@ def search_space(space, names: list[str], pois: np.ndarray, search: SearchOption
     if path is not None:
         save_bundle(
             path,
-            {"vertices": graph.vertices, "clearance": graph.clearance, "edges": graph.edges,
-             "poi_vertex": graph.poi_vertex},
+            {
+                "vertices": graph.vertices,
+                "clearance": graph.clearance,
+                "edges": graph.edges,
+                "poi_vertex": graph.poi_vertex,
+            },
             {"key": key, "margin": graph.margin},
         )
     return graph
@@ -332,9 +346,18 @@ def source_groups(n: int, group: int) -> list[list[int]]:
     return groups
 
 
-def build_repository(space, graph: SearchGraph, names: list[str], pois: np.ndarray, options: PathOptions, *,
-                     executor: Executor | None = None, progress: Progress | None = None,
-                     store_dir: Path | None = None, group: int = 4) -> Repository:
+def build_repository(
+    space,
+    graph: SearchGraph,
+    names: list[str],
+    pois: np.ndarray,
+    options: PathOptions,
+    *,
+    executor: Executor | None = None,
+    progress: Progress | None = None,
+    store_dir: Path | None = None,
+    group: int = 4,
+) -> Repository:
     """All-pairs paths, one executor task per group of sources; resumable through ``store_dir``.
 
     Grouping sources lets their checks share the fixed cost of each batched
@@ -356,8 +379,14 @@ def build_repository(space, graph: SearchGraph, names: list[str], pois: np.ndarr
     tasks = {f"sources-{g[0]:04d}-{g[-1]:04d}": {**common, "source_pois": g} for g in source_groups(n, group)}
     store = TaskStore(store_dir / "paths") if store_dir is not None else None
     resumed = sum(1 for key in tasks if store is not None and key in store)
-    results = run_tasks(executor, sources_task, tasks, store=store, progress=progress,
-                        description=f"optMIS paths ({n} points of interest, {n * (n - 1) // 2} pairs)")
+    results = run_tasks(
+        executor,
+        sources_task,
+        tasks,
+        store=store,
+        progress=progress,
+        description=f"optMIS paths ({n} points of interest, {n * (n - 1) // 2} pairs)",
+    )
     parts = [results[key] for key in tasks]
 
     def cat(key, shape, dtype=float):

@@ -158,8 +158,9 @@ def surface_vertices(scene, spacing: float, offset: float) -> np.ndarray:
     points = np.concatenate(points)
     normals = np.concatenate(normals)
     # merge the copies of shared points (1 um grid) and average their normals
-    _, first, inverse = np.unique(np.round(points / 1e-6).astype(np.int64), axis=0, return_index=True,
-                                  return_inverse=True)
+    _, first, inverse = np.unique(
+        np.round(points / 1e-6).astype(np.int64), axis=0, return_index=True, return_inverse=True
+    )
     inverse = inverse.reshape(-1)
     summed = np.zeros((len(first), 3))
     np.add.at(summed, inverse, normals)
@@ -178,8 +179,9 @@ def jittered_grid(lo: np.ndarray, hi: np.ndarray, spacing: float, rng: np.random
     return grid + rng.uniform(-JITTER * spacing, JITTER * spacing, grid.shape)
 
 
-def seed_vertices(space: R3Space, *, grid_spacing: float, surface_spacing: float, surface_gap: float,
-                  margin: float, seed: int) -> np.ndarray:
+def seed_vertices(
+    space: R3Space, *, grid_spacing: float, surface_spacing: float, surface_gap: float, margin: float, seed: int
+) -> np.ndarray:
     """Candidate vertices (before the clearance filter): surfaces, workspace grid, tight-space grid."""
     scene = space.scene
     rng = np.random.default_rng(seed)
@@ -212,9 +214,18 @@ def check_points_of_interest(space: R3Space, names: list[str], pois: np.ndarray,
         raise PlanningInputError("; ".join(problems), location="points")
 
 
-def build_search_graph(space: R3Space, pois: np.ndarray, *, grid_spacing: float, surface_spacing: float,
-                       surface_gap: float, neighbours: int, margin: float = 0.0, seed: int = 0,
-                       names: list[str] | None = None) -> SearchGraph:
+def build_search_graph(
+    space: R3Space,
+    pois: np.ndarray,
+    *,
+    grid_spacing: float,
+    surface_spacing: float,
+    surface_gap: float,
+    neighbours: int,
+    margin: float = 0.0,
+    seed: int = 0,
+    names: list[str] | None = None,
+) -> SearchGraph:
     """The optMIS search space for the tip sphere of ``space`` (its ``tip_radius`` is w_tip / 2).
 
     ``pois`` (N, 3) m become vertices exactly; ``margin`` (m) is the clearance
@@ -224,8 +235,14 @@ def build_search_graph(space: R3Space, pois: np.ndarray, *, grid_spacing: float,
     pois = np.asarray(pois, dtype=float).reshape(-1, 3)
     names = names or [f"#{k}" for k in range(len(pois))]
     check_points_of_interest(space, names, pois, margin)
-    candidates = seed_vertices(space, grid_spacing=grid_spacing, surface_spacing=surface_spacing,
-                               surface_gap=surface_gap, margin=margin, seed=seed)
+    candidates = seed_vertices(
+        space,
+        grid_spacing=grid_spacing,
+        surface_spacing=surface_spacing,
+        surface_gap=surface_gap,
+        margin=margin,
+        seed=seed,
+    )
     candidates = candidates[scene.in_bounds(candidates)]
     clearance = space.clearance(candidates)
     keep = clearance > margin if margin <= 0 else clearance >= margin
@@ -253,7 +270,7 @@ def build_search_graph(space: R3Space, pois: np.ndarray, *, grid_spacing: float,
     pairs = np.stack([keys // n, keys % n], axis=1)
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
     slack = clearance - margin
-    ok, _ = certify_edges(space, vertices[pairs[:, 0]], vertices[pairs[:, 1]], slack[pairs[:, 0]],
-                          slack[pairs[:, 1]], margin)
-    return SearchGraph(vertices, clearance, pairs[ok].astype(np.int32), poi_vertex.astype(np.int64).reshape(-1),
-                       margin)
+    ok, _ = certify_edges(
+        space, vertices[pairs[:, 0]], vertices[pairs[:, 1]], slack[pairs[:, 0]], slack[pairs[:, 1]], margin
+    )
+    return SearchGraph(vertices, clearance, pairs[ok].astype(np.int32), poi_vertex.astype(np.int64).reshape(-1), margin)

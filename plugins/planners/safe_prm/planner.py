@@ -49,6 +49,7 @@ from pydantic import (
     model_validator,
 )
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
+from surgiplan.resources import ResourceEstimate
 from surgiplan.units import LENGTH_SCALE_KEY, Length, PositiveLength
 
 from . import query as prm_query
@@ -102,6 +103,49 @@ class FromAttempts(BaseModel):
         return self
 
 
+class FromRecord(BaseModel):
+    """d_thresh from the trainee record: the ``percentile`` of the trainee's recorded deviations on ``task``
+    (all attempts, or the ``last`` few), so the next recommended path adapts to how they actually move."""
+
+    model_config = ConfigDict(extra="forbid")
+    trainee: str = Field(min_length=1)
+    task: str = Field(min_length=1)
+    percentile: float = Field(default=95.0, gt=0, le=100)
+    last: PositiveInt | None = None
+    # filled in from the record when the settings are validated (part of the artifact's content key)
+    record: str | None = None
+    d_thresh: float | None = None
+    attempts: int | None = None
+    samples: int | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _user_keys_only(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            unknown = set(data) - {"trainee", "task", "percentile", "last", "record", "d_thresh", "attempts", "samples"}
+            if unknown:
+                raise ValueError(f"unknown key(s) {', '.join(sorted(unknown))}; give trainee, task, percentile, last")
+        return data
+
+    @model_validator(mode="after")
+    def _read(self, info: ValidationInfo):
+        from surgiplan.guidance import RecordError, TraineeRecord
+
+        path = Path((info.context or {}).get("record") or "out/trainees.sqlite")
+        if not path.is_file():
+            raise ValueError(f"no trainee record at {path} (a guide stage with trainee: writes one; see record:)")
+        try:
+            with TraineeRecord(path) as record:
+                p = record.proficiency(self.trainee, self.task, self.percentile, self.last)
+        except RecordError as exc:
+            raise ValueError(exc.message) from None
+        self.record = str(path)
+        self.d_thresh = p.d_thresh
+        self.attempts = p.attempts
+        self.samples = p.samples
+        return self
+
+
 class SmoothingSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
     enabled: bool = True
@@ -120,7 +164,7 @@ class SmoothingSettings(BaseModel):
 
 class SafePRMSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    proficiency: str | float | FromAttempts = "intermediate"
+    proficiency: str | float | FromAttempts | FromRecord = "intermediate"
     levels: dict[str, Length] = Field(default_factory=lambda: dict(DEFAULT_LEVELS))
     milestones: PositiveInt = 3000
     #: Algorithm 3's loop: when a query finds no path, grow the roadmap (doubling) up to this many
@@ -136,9 +180,11 @@ class SafePRMSettings(BaseModel):
         from surgiplan.units import _to_metres
 
         if isinstance(value, dict):
+            if "trainee" in value:
+                return FromRecord.model_validate(value, context=info.context)
             return FromAttempts.model_validate(value, context=info.context)
         if isinstance(value, bool):
-            raise ValueError("expected a level name, a length or {from_attempts: FILE}")
+            raise ValueError("expected a level name, a length, {from_attempts: FILE} or {trainee: NAME, task: TASK}")
         if isinstance(value, int | float):
             return _to_metres(value, info)
         if isinstance(value, str) and value[:1].isdigit():
@@ -162,7 +208,7 @@ class SafePRMSettings(BaseModel):
     @property
     def d_thresh(self) -> float:
         """The clearance threshold (m) this proficiency asks for."""
-        if isinstance(self.proficiency, FromAttempts):
+        if isinstance(self.proficiency, FromAttempts | FromRecord):
             return float(self.proficiency.d_thresh)
         if isinstance(self.proficiency, str):
             return float(self.levels[self.proficiency])
@@ -172,6 +218,9 @@ class SafePRMSettings(BaseModel):
     def proficiency_label(self) -> str:
         if isinstance(self.proficiency, FromAttempts):
             return f"from attempts ({Path(self.proficiency.from_attempts).name}, p{self.proficiency.percentile:g})"
+        if isinstance(self.proficiency, FromRecord):
+            p = self.proficiency
+            return f"trainee {p.trainee} at {p.task} ({p.attempts} attempt(s), p{p.percentile:g})"
         if isinstance(self.proficiency, str):
             return self.proficiency
         return "custom"
@@ -192,6 +241,12 @@ def auto_radius(space, milestones: int) -> float:
     return 3.0 * (volume / milestones) ** (1.0 / len(extent))
 
 
+#: measured peak memory of a roadmap build, per milestone: about 500 B plus 250 B per neighbour (k); a build of
+#: 32,000 milestones at k = 15 peaked at 2.8 kB per milestone, 2,000 at 4.3 kB (tracemalloc)
+_BYTES_PER_MILESTONE = 500
+_BYTES_PER_NEIGHBOUR = 250
+
+
 class SafePRM(Planner):
     """The safe PRM of paper 000 with certified edges, projection, smoothing and critical regions."""
 
@@ -199,6 +254,17 @@ class SafePRM(Planner):
     artifact_version = 1
 
     # ------------------------------------------------------------------ build
+    @classmethod
+    def estimate_resources(cls, settings, problem):
+        n = max(settings.milestones, settings.max_milestones or 0)
+        key = (
+            "max_milestones"
+            if settings.max_milestones and settings.max_milestones > settings.milestones
+            else "milestones"
+        )
+        per = _BYTES_PER_MILESTONE + _BYTES_PER_NEIGHBOUR * settings.k
+        return [ResourceEstimate(n * per, f"a roadmap pair of {n:,} milestones (k = {settings.k})", key)]
+
     def _build(self, problem: PlanningProblem, milestones: int) -> RoadmapPair:
         space = problem.space
         if space.coordinate_weights is None:
@@ -293,6 +359,17 @@ class SafePRM(Planner):
                 "deviation_median_m": p.deviation_median,
                 "deviation_max_m": p.deviation_max,
             }
+        if isinstance(self.settings.proficiency, FromRecord):
+            p = self.settings.proficiency
+            metrics["trainee"] = {
+                "record": p.record,
+                "trainee": p.trainee,
+                "task": p.task,
+                "percentile": p.percentile,
+                "last": p.last,
+                "attempts": p.attempts,
+                "samples": p.samples,
+            }
         if not outcome.found:
             return PlanResult.failure(PlanStatus.NO_PATH, space.dimension, outcome.message, **metrics)
 
@@ -333,17 +410,35 @@ class SafePRM(Planner):
         message = ""
         if regions:
             message = (
-                f"{len(regions)} critical region(s) below the {d_thresh * 1000:.3g} mm threshold, "
+                f"{len(regions)} critical region(s) below the {space.scene.describe_length(d_thresh)} threshold, "
                 "where no safe detour exists"
             )
+        detours = self._avoided_passages(space, outcome.detours, d_thresh)
+        metrics["detours"] = len(detours)
         return PlanResult(
             PlanStatus.SOLVED,
             path,
             metrics,
             message,
             clearance_threshold=d_thresh or None,
-            annotations={"critical_regions": regions},
+            annotations={"critical_regions": regions, "detours": detours},
         )
+
+    @staticmethod
+    def _avoided_passages(space, stretches: list[np.ndarray], d_thresh: float) -> list[dict]:
+        """The passages a repair avoided: where the replaced stretch of R's path came closer than d_thresh
+        (each contiguous run of it, as tip positions), as paper 000 Fig. 4 circles them with dashed ovals."""
+        out = []
+        resolution = float(np.min(space.scene.extent)) / 400.0
+        for stretch in stretches:
+            if len(stretch) < 2:
+                continue
+            dense = space.densify(stretch, resolution)
+            low = space.clearance(dense) < d_thresh
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], low.astype(int), [0]])))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                out.append({"tips_m": space.tip(dense[a:b]).tolist()})
+        return out
 
     @staticmethod
     def _centre_critical(space, dense: np.ndarray, risky: np.ndarray, resolution: float, d_thresh: float) -> np.ndarray:

@@ -43,6 +43,8 @@ class QueryOutcome:
     timings: dict[str, float] = field(default_factory=dict)
     #: nodes the searches settled (R, then R_safe for each repair)
     settled: int = 0
+    #: configurations (k, d) of each risky stretch of R's path that a repair replaced (a detour avoided it)
+    detours: list[np.ndarray] = field(default_factory=list)
 
 
 def _link_ends(
@@ -187,10 +189,11 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     safe_node = np.concatenate([roadmap.safe, ends_safe])
     kinds = edge_kinds(core, safe_node, q)
     repaired = 0
+    avoided: list[list[int]] = []
     if all(k == SAFE for k in kinds):
         result = core  # Algorithm 3: a path already safe is returned as it is
     else:
-        result, kinds, repaired = repair(core, safe_node, q, kinds)
+        result, kinds, repaired = repair(core, safe_node, q, kinds, avoided)
     timings["repair_s"] = time.perf_counter() - started
 
     result = np.asarray(result)
@@ -201,4 +204,13 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
         [np.asarray(head).reshape(-1, space.dimension), on_path, np.asarray(tail).reshape(-1, space.dimension)]
     )
     kinds = ([LINK] if head else []) + kinds + ([LINK] if tail else [])
-    return QueryOutcome(True, path, kinds, repaired, timings=timings, settled=q.settled)
+
+    def configurations(nodes: list[int]) -> np.ndarray:
+        nodes = np.asarray(nodes)
+        out = roadmap.milestones[np.minimum(nodes, n - 1)]
+        out[nodes == n] = start
+        out[nodes == n + 1] = goal
+        return out
+
+    detours = [configurations(stretch) for stretch in avoided if stretch]
+    return QueryOutcome(True, path, kinds, repaired, timings=timings, settled=q.settled, detours=detours)

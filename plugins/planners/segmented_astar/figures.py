@@ -20,9 +20,18 @@ def _length(points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum()) if len(points) > 1 else 0.0
 
 
-def replanning_figure(path: Path, scene, first: np.ndarray, travelled: np.ndarray, replanned: np.ndarray,
-                      labels: dict[str, np.ndarray], *, unit: str = "mm", unit_scale: float = 1e-3,
-                      title: str = "") -> None:
+def replanning_figure(
+    path: Path,
+    scene,
+    first: np.ndarray,
+    travelled: np.ndarray,
+    replanned: np.ndarray,
+    labels: dict[str, np.ndarray],
+    *,
+    unit: str = "mm",
+    unit_scale: float = 1e-3,
+    title: str = "",
+) -> None:
     """``first``: the plan A -> B; ``travelled``: its part up to R; ``replanned``: R -> C (all (n, 3) m).
 
     ``labels``: named points to mark (A, B, C, R).
@@ -40,15 +49,21 @@ def replanning_figure(path: Path, scene, first: np.ndarray, travelled: np.ndarra
     ax3 = fig.add_subplot(1, 2, 1, projection="3d")
     ax2 = fig.add_subplot(1, 2, 2)
     for _, mesh in meshes:
-        ax3.add_collection3d(Poly3DCollection(mesh.vertices[mesh.faces] * k, facecolor=OBSTACLE, edgecolor="none",
-                                              alpha=0.3))
-        ax2.add_collection(PolyCollection(mesh.vertices[mesh.faces][:, :, :2] * k, facecolor=OBSTACLE,
-                                          edgecolor="none", alpha=0.8))
+        ax3.add_collection3d(
+            Poly3DCollection(mesh.vertices[mesh.faces] * k, facecolor=OBSTACLE, edgecolor="none", alpha=0.3)
+        )
+        ax2.add_collection(
+            PolyCollection(mesh.vertices[mesh.faces][:, :, :2] * k, facecolor=OBSTACLE, edgecolor="none", alpha=0.8)
+        )
     rest = first[len(travelled) - 1 :] if len(travelled) else first
     pieces = [
         (travelled, FIRST, "-", f"A to R, travelled ({_length(travelled) * k:.1f} {unit})"),
-        (np.vstack([travelled[-1:], rest[1:]]) if len(travelled) else rest, ABANDONED, "--",
-         f"R to B, abandoned (plan A to B: {_length(first) * k:.1f} {unit})"),
+        (
+            np.vstack([travelled[-1:], rest[1:]]) if len(travelled) else rest,
+            ABANDONED,
+            "--",
+            f"R to B, abandoned (plan A to B: {_length(first) * k:.1f} {unit})",
+        ),
         (replanned, REPLANNED, "-", f"replanned, R to C ({_length(replanned) * k:.1f} {unit})"),
     ]
     for points, colour, style, label in pieces:

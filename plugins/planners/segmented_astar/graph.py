@@ -172,8 +172,7 @@ class OnlineGraph:
         self.position = position
         # cumulative length along each chain, for attachments in its middle
         self.chain_cum = [
-            np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points[c], axis=0), axis=1))])
-            for c in chains
+            np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(self.points[c], axis=0), axis=1))]) for c in chains
         ]
         # the junction graph for A*, on local indices 0..J-1 and plain Python lists (A* runs in pure Python)
         junctions = np.flatnonzero(junction)
@@ -241,8 +240,13 @@ class OnlineGraph:
         return best, np.concatenate([a.link, between[1:], b.link[::-1][1:]])
 
     # ------------------------------------------------------------------ search
-    def astar(self, starts: list[Attachment], goals: list[Attachment], goal_point: np.ndarray,
-              direct: tuple[float, np.ndarray] | None = None) -> SearchOutcome:
+    def astar(
+        self,
+        starts: list[Attachment],
+        goals: list[Attachment],
+        goal_point: np.ndarray,
+        direct: tuple[float, np.ndarray] | None = None,
+    ) -> SearchOutcome:
         """Shortest path from any start attachment to any goal attachment (compiled A*, :mod:`.astar`).
 
         ``direct``: an optional (cost, points) candidate joining start and goal
@@ -282,8 +286,9 @@ class OnlineGraph:
         return SearchOutcome(path[keep], float(cost), int(expanded), junctions)
 
 
-def certify_motions(space, a: np.ndarray, b: np.ndarray, slack_a: np.ndarray, slack_b: np.ndarray,
-                    margin: float, samples: int = 8) -> np.ndarray:
+def certify_motions(
+    space, a: np.ndarray, b: np.ndarray, slack_a: np.ndarray, slack_b: np.ndarray, margin: float, samples: int = 8
+) -> np.ndarray:
     """Which straight motions a[i] → b[i] keep ``margin``: certified, with as few swept checks as possible.
 
     ``slack_*``: the clearance beyond the margin at the ends. Two covering

@@ -316,9 +316,18 @@ def thin_repository(repository: Repository, space, tolerance: float, margin: flo
     )
 
 
-def build_pathmap(repository: Repository, space, *, n_s: int = 3, tolerance: float | None = None,
-                  alignment: str = "corners", reverse: bool = True, margin: float = 0.0,
-                  seed: int = 0, thinning: float = 0.0) -> SegmentedPathmap:
+def build_pathmap(
+    repository: Repository,
+    space,
+    *,
+    n_s: int = 3,
+    tolerance: float | None = None,
+    alignment: str = "corners",
+    reverse: bool = True,
+    margin: float = 0.0,
+    seed: int = 0,
+    thinning: float = 0.0,
+) -> SegmentedPathmap:
     """The segmented pathmap of ``repository`` (paper 001 §3.2, §4.1).
 
     ``tolerance`` (m) defaults to w_tip, the tip sphere's diameter, less
@@ -400,11 +409,17 @@ def build_pathmap(repository: Repository, space, *, n_s: int = 3, tolerance: flo
     )
     # m and the raw file against the repository as stored (every point), whatever the encoding
     pathmap.stats = pathmap_statistics(original, pathmap)
-    pathmap.stats.update({"junction_rounds": rounds, "unmerged_for_junctions": int(unmerged),
-                          "reverse_matching": bool(reverse), "thinning_m": float(thinning),
-                          "thinned_points": len(repository.points),
-                          # the sharing alone: points of the thinned paths over points stored
-                          "m_sharing": len(repository.points) / max(len(pathmap.segment_points), 1)})
+    pathmap.stats.update(
+        {
+            "junction_rounds": rounds,
+            "unmerged_for_junctions": int(unmerged),
+            "reverse_matching": bool(reverse),
+            "thinning_m": float(thinning),
+            "thinned_points": len(repository.points),
+            # the sharing alone: points of the thinned paths over points stored
+            "m_sharing": len(repository.points) / max(len(pathmap.segment_points), 1),
+        }
+    )
     return pathmap
 
 
@@ -490,6 +505,7 @@ def _to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
         return np.linalg.norm(points - polyline[0], axis=1)
     a, b = polyline[:-1][None], polyline[1:][None]  # (1, s, 3)
     d = b - a
-    t = np.clip(np.einsum("psk,psk->ps", points[:, None] - a, d) / np.maximum(np.einsum("psk,psk->ps", d, d),
-                                                                             1e-300), 0, 1)
+    t = np.clip(
+        np.einsum("psk,psk->ps", points[:, None] - a, d) / np.maximum(np.einsum("psk,psk->ps", d, d), 1e-300), 0, 1
+    )
     return np.linalg.norm(points[:, None] - (a + t[..., None] * d), axis=2).min(axis=1)

@@ -69,9 +69,18 @@ def _npz(arrays: dict) -> bytes:
     return buffer.getvalue()
 
 
-def table1(repository: Repository, space, *, sizes=(2, 3, 4, 5), alignment: str = "corners",
-           reverse: bool = True, tolerance: float | None = None, margin: float = 0.0,
-           directory: Path | None = None, thinning: float = 0.0) -> list[dict]:
+def table1(
+    repository: Repository,
+    space,
+    *,
+    sizes=(2, 3, 4, 5),
+    alignment: str = "corners",
+    reverse: bool = True,
+    tolerance: float | None = None,
+    margin: float = 0.0,
+    directory: Path | None = None,
+    thinning: float = 0.0,
+) -> list[dict]:
     """Table 1 rows for the paper's method and the configured one; writes the compared files to ``directory``."""
     raw = _npz(raw_arrays(repository))
     if directory is not None:
@@ -85,8 +94,16 @@ def table1(repository: Repository, space, *, sizes=(2, 3, 4, 5), alignment: str 
     rows = []
     for method, (method_alignment, method_reverse, method_thinning) in methods.items():
         for n_s in sizes:
-            pathmap = build_pathmap(repository, space, n_s=n_s, tolerance=tolerance, alignment=method_alignment,
-                                    reverse=method_reverse, margin=margin, thinning=method_thinning)
+            pathmap = build_pathmap(
+                repository,
+                space,
+                n_s=n_s,
+                tolerance=tolerance,
+                alignment=method_alignment,
+                reverse=method_reverse,
+                margin=margin,
+                thinning=method_thinning,
+            )
             data = _npz(pathmap.to_arrays())
             if directory is not None:
                 write_bytes_atomic(Path(directory) / f"pathmap_{method}_ns{n_s}.npz", data)
@@ -159,12 +176,35 @@ def bar_chart(path: Path, rows: list[dict], title: str = "") -> None:
                 m.append(row["m"])
         offset = x - 0.4 + width * (k + 0.5)
         hatch = "//" if method == "paper 001" else None
-        ax.bar(offset, common, width, color=colours["common"], hatch=hatch, edgecolor="white",
-               label="common segments" if k == 0 else None)
-        ax.bar(offset, unique, width, bottom=common, color=colours["unique"], hatch=hatch, edgecolor="white",
-               label="unique segments" if k == 0 else None)
-        ax.bar(offset, links, width, bottom=np.add(common, unique), color="#999999", hatch=hatch, edgecolor="white",
-               label="references and delimiters" if k == 0 else None)
+        ax.bar(
+            offset,
+            common,
+            width,
+            color=colours["common"],
+            hatch=hatch,
+            edgecolor="white",
+            label="common segments" if k == 0 else None,
+        )
+        ax.bar(
+            offset,
+            unique,
+            width,
+            bottom=common,
+            color=colours["unique"],
+            hatch=hatch,
+            edgecolor="white",
+            label="unique segments" if k == 0 else None,
+        )
+        ax.bar(
+            offset,
+            links,
+            width,
+            bottom=np.add(common, unique),
+            color="#999999",
+            hatch=hatch,
+            edgecolor="white",
+            label="references and delimiters" if k == 0 else None,
+        )
         for xo, top in zip(offset, np.add(np.add(common, unique), links), strict=True):
             short = "thinned" if method.endswith("+thinned") else method.split("+")[0]
             ax.text(xo, top, short, ha="center", va="bottom", fontsize=6, rotation=90)

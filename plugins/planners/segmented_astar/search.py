@@ -115,6 +115,10 @@ class PathmapArtifact:
 class SegmentedAStar(Planner):
     """A* on the segmented pathmap; arbitrary starts and goals; replanning."""
 
+    @classmethod
+    def estimate_resources(cls, settings, problem):
+        return settings.estimate(problem.scene)
+
     Settings = SegmentedAStarSettings
     artifact_version = 1
 
@@ -211,15 +215,18 @@ class SegmentedAStar(Planner):
         if self.settings.report is not None:
             directory = Path(self.settings.report.dir)
             if not rows:
-                log.warning("the stored pathmap was built without report:, so it has no Table 1; delete the "
-                            "artifact file to rebuild it with the report")
+                log.warning(
+                    "the stored pathmap was built without report:, so it has no Table 1; delete the "
+                    "artifact file to rebuild it with the report"
+                )
             elif not (directory / "table1.csv").is_file():
                 write_report(directory, rows)
         return artifact
 
     # ------------------------------------------------------------------ online
-    def _attach(self, artifact: PathmapArtifact, ends: np.ndarray, clearance: np.ndarray,
-                counters: dict) -> list[tuple[list[Attachment], str]]:
+    def _attach(
+        self, artifact: PathmapArtifact, ends: np.ndarray, clearance: np.ndarray, counters: dict
+    ) -> list[tuple[list[Attachment], str]]:
         """Ways from each of ``ends`` into the graph: a pathmap point, certified straight links, or a local plan.
 
         Both ends at once: one nearest-neighbour query and one batch of certified link motions.
@@ -242,8 +249,14 @@ class SegmentedAStar(Planner):
         ok = np.zeros(0, dtype=bool)
         if index.size:
             slack = clearance - settings.margin
-            ok = certify_motions(space, ends[owner], graph.points[index], slack[owner],
-                                 graph.clearance[index] - settings.margin, settings.margin)
+            ok = certify_motions(
+                space,
+                ends[owner],
+                graph.points[index],
+                slack[owner],
+                graph.clearance[index] - settings.margin,
+                settings.margin,
+            )
             counters["link_checks"] += len(index)
         kinds: list[tuple[list[Attachment], str]] = []
         for k, q in enumerate(ends):
@@ -301,17 +314,36 @@ class SegmentedAStar(Planner):
         pois = np.concatenate([q[None], graph.points[inside]])
         spacing = min(settings.grid_spacing, half / 2)
         try:
-            search = build_search_graph(local, pois, grid_spacing=spacing, surface_spacing=settings.surface_spacing,
-                                        surface_gap=settings.surface_gap, neighbours=settings.neighbours,
-                                        margin=settings.margin, seed=settings.seed)
+            search = build_search_graph(
+                local,
+                pois,
+                grid_spacing=spacing,
+                surface_spacing=settings.surface_spacing,
+                surface_gap=settings.surface_gap,
+                neighbours=settings.neighbours,
+                margin=settings.margin,
+                seed=settings.seed,
+            )
         except Exception as exc:  # a degenerate local box (too few vertices): no local plan
             log.debug("no local search space around %s: %s", q, exc)
             return []
-        options = PathOptions(taut=True, smoothing=False, resolution=settings.smoothing.resolution,
-                              knot_spacing=settings.smoothing.knot_spacing, margin=settings.margin)
+        options = PathOptions(
+            taut=True,
+            smoothing=False,
+            resolution=settings.smoothing.resolution,
+            knot_spacing=settings.smoothing.knot_spacing,
+            margin=settings.margin,
+        )
         targets = np.arange(1, len(pois))
-        out = paths_from_source(local, search.graph, search.vertices, search.clearance, int(search.poi_vertex[0]),
-                                search.poi_vertex[targets], options)
+        out = paths_from_source(
+            local,
+            search.graph,
+            search.vertices,
+            search.clearance,
+            int(search.poi_vertex[0]),
+            search.poi_vertex[targets],
+            options,
+        )
         attachments = []
         reached = targets[out["reachable"]]
         for k, target in enumerate(reached):
@@ -347,20 +379,33 @@ class SegmentedAStar(Planner):
             "expanded_junctions": second.metrics.get("expanded_junctions"),
         }
         if not second.solved:
-            return PlanResult.failure(second.status, 3, f"replanning to the new goal failed: {second.message}",
-                                      **metrics)
+            return PlanResult.failure(
+                second.status, 3, f"replanning to the new goal failed: {second.message}", **metrics
+            )
         combined = np.concatenate([travelled, second.path[1:]])
         keep = np.concatenate([[True], np.any(np.diff(combined, axis=0) != 0, axis=1)])
         if replan.figure:
             from .figures import replanning_figure
 
             labels = {"A": start, "B": goal, "C": new_goal, "R": current}
-            replanning_figure(Path(replan.figure), artifact.space.scene, path, travelled, second.path, labels,
-                              title=f"replanning (paper 001 Fig. 6): A to B, new goal C after {replan.at:.0%} "
-                              f"of the way (replanned in {second.metrics['online_s'] * 1e3:.2f} ms)")
+            replanning_figure(
+                Path(replan.figure),
+                artifact.space.scene,
+                path,
+                travelled,
+                second.path,
+                labels,
+                title=f"replanning (paper 001 Fig. 6): A to B, new goal C after {replan.at:.0%} "
+                f"of the way (replanned in {second.metrics['online_s'] * 1e3:.2f} ms)",
+            )
             metrics["replan"]["figure"] = replan.figure
-        return PlanResult(PlanStatus.SOLVED, combined[keep], metrics, final_goal=new_goal,
-                          annotations={"replan": {"position_m": current.tolist(), "travelled_m": float(where)}})
+        return PlanResult(
+            PlanStatus.SOLVED,
+            combined[keep],
+            metrics,
+            final_goal=new_goal,
+            annotations={"replan": {"position_m": current.tolist(), "travelled_m": float(where)}},
+        )
 
     def replan(self, artifact: PathmapArtifact, current, new_goal) -> PlanResult:
         """A new path from the current position (anywhere, e.g. partway along the last path) to a new goal."""
@@ -373,8 +418,9 @@ class SegmentedAStar(Planner):
                 return np.asarray(artifact.space.scene.points[goal], float)
             from surgiplan.errors import PlanningInputError, choices_hint
 
-            raise PlanningInputError(f"no point named '{goal}'; {choices_hint(goal, names)}",
-                                     location="settings.replan.goal")
+            raise PlanningInputError(
+                f"no point named '{goal}'; {choices_hint(goal, names)}", location="settings.replan.goal"
+            )
         return np.asarray(goal, float)
 
     def _plan(self, artifact: PathmapArtifact, start: np.ndarray, goal: np.ndarray) -> PlanResult:
@@ -385,8 +431,7 @@ class SegmentedAStar(Planner):
         clearance = space.clearance(ends)
         if not np.all(on_map):
             # space.is_valid for both ends from one clearance query; the messages come from check_endpoints
-            valid = space.within_limits(ends) & space.in_workspace(ends) & meets_margin(clearance,
-                                                                                         self.settings.margin)
+            valid = space.within_limits(ends) & space.in_workspace(ends) & meets_margin(clearance, self.settings.margin)
             if not np.all(valid | on_map):
                 failure = self.check_endpoints(space, start, goal, self.settings.margin)
                 if failure is not None:
@@ -402,11 +447,20 @@ class SegmentedAStar(Planner):
         if in_sight:
             finished = time.perf_counter()
             straight = float(np.linalg.norm(goal - start))
-            metrics = {"start_link": "direct", "goal_link": "direct", **counters, "w_tip_m": 2 * space.tip_radius,
-                       "link_s": 0.0, "astar_s": 0.0, "online_s": finished - started, "expanded_junctions": 0,
-                       "path_cost_m": straight}
-            return PlanResult(PlanStatus.SOLVED, np.stack([start, goal]), metrics,
-                              clearance_threshold=self.settings.margin or None)
+            metrics = {
+                "start_link": "direct",
+                "goal_link": "direct",
+                **counters,
+                "w_tip_m": 2 * space.tip_radius,
+                "link_s": 0.0,
+                "astar_s": 0.0,
+                "online_s": finished - started,
+                "expanded_junctions": 0,
+                "path_cost_m": straight,
+            }
+            return PlanResult(
+                PlanStatus.SOLVED, np.stack([start, goal]), metrics, clearance_threshold=self.settings.margin or None
+            )
         (starts, start_kind), (goals, goal_kind) = self._attach(artifact, ends, clearance, counters)
         linked = time.perf_counter()
         metrics: dict[str, Any] = {
@@ -432,8 +486,11 @@ class SegmentedAStar(Planner):
                 )
         # routes that need no junction: along the one chain both ends joined, or straight from start to goal
         direct = graph.along_one_chain(starts, goals)
-        if np.any(on_map) and "vertex" not in (start_kind, goal_kind) and certify_motions(
-                space, start[None], goal[None], slack[:1], slack[1:], self.settings.margin)[0]:
+        if (
+            np.any(on_map)
+            and "vertex" not in (start_kind, goal_kind)
+            and certify_motions(space, start[None], goal[None], slack[:1], slack[1:], self.settings.margin)[0]
+        ):
             straight = float(np.linalg.norm(goal - start))
             if direct is None or straight < direct[0]:
                 direct = (straight, np.stack([start, goal]))
