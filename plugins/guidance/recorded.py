@@ -1,7 +1,8 @@
 """``recorded_attempt``: replay a recorded attempt from a CSV file.
 
-The file has a header row and one row per sample. Columns (any order; other
-columns are ignored, so a guide stage's own ``<stage>-samples.csv`` replays):
+The file has a header row and one row per sample; lines starting with ``#``
+are comments. Columns (any order; other columns are ignored, so a guide
+stage's own ``<stage>-samples.csv`` replays):
 
 * ``t``: time (s; ``t_ms`` for milliseconds), increasing;
 * either the tip position ``x, y, z`` (the pipeline's length unit, or the
@@ -65,12 +66,18 @@ def read_attempt_csv(path: Path, length_scale: float) -> tuple[np.ndarray, np.nd
     except OSError as exc:
         raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
     with handle:
-        reader = csv.reader(handle)
+        try:
+            numbered = [(i, line) for i, line in enumerate(handle, start=1) if not line.lstrip().startswith("#")]
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{path} is not a CSV text file: {exc}") from None
+        reader = csv.reader(line for _, line in numbered)
+        line_numbers = iter(i for i, _ in numbered)
         try:
             header = [h.strip().lower() for h in next(reader)]
+            next(line_numbers)
         except StopIteration:
             raise ValueError(f"{path} is empty") from None
-        except (csv.Error, UnicodeDecodeError) as exc:
+        except csv.Error as exc:
             raise ValueError(f"{path} is not a CSV text file: {exc}") from None
         index: dict[str, tuple[int, float]] = {}
         for i, name in enumerate(header):
@@ -102,7 +109,7 @@ def read_attempt_csv(path: Path, length_scale: float) -> tuple[np.ndarray, np.nd
         times, values = [], []
         previous = -math.inf
         try:
-            for line, row in enumerate(reader, start=2):
+            for line, row in zip(line_numbers, reader, strict=False):
                 if not row or all(not cell.strip() for cell in row):
                     continue
                 try:
