@@ -42,6 +42,7 @@ from .errors import OutputError, StageError, SurgiplanError
 from .executors import DaskExecutor, Executor, LocalExecutor
 from .outputs.figures import PathView, overview_figure, plan_figure
 from .outputs.gltf import write_scene_glb
+from .outputs.report import write_run_report
 from .pipeline import Pipeline, StageSpec
 from .planning import PlanningProblem, PlanResult
 from .progress import NullProgress, Progress, StageProgress
@@ -101,7 +102,7 @@ def begin_run(out: Path, pipeline_file: Path) -> Path:
                 location="output.dir",
             )
     _write_marker(marker, pipeline_file, [])
-    for stale in ("result.json",):
+    for stale in ("result.json", "report.html"):
         (out / stale).unlink(missing_ok=True)
     return marker
 
@@ -486,6 +487,7 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
         "not_run": [{"stage": s.kind, "name": s.name, "plugin": s.plugin.name} for s in not_run],
         "files": sorted(set(files)),
     }
+    write_run_report(out, document, pipeline)  # report.html, last but one (lists itself in document["files"])
     write_json_atomic(out / "result.json", document)
     marker.unlink(missing_ok=True)
     outcome = RunOutcome(out, results, [*sorted(set(files)), "result.json"], status)
