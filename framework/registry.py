@@ -267,7 +267,7 @@ def plugin_class_problem(kind: str, cls: Any) -> str:
     if permissive:
         return (
             f"its settings model {', '.join(permissive)} accepts unknown keys; declare "
-            "model_config = ConfigDict(extra=\"forbid\") so a misspelt setting is an error"
+            'model_config = ConfigDict(extra="forbid") so a misspelt setting is an error'
         )
     return ""
 

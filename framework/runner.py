@@ -40,6 +40,7 @@ from .config import ExecutorModel
 from .devices import ExecutionReport, Trajectory
 from .errors import OutputError, StageError, SurgiplanError
 from .executors import DaskExecutor, Executor, LocalExecutor
+from .live import LiveFeed
 from .outputs.figures import PathView, overview_figure, plan_figure
 from .outputs.gltf import write_scene_glb
 from .outputs.report import write_run_report
@@ -358,13 +359,14 @@ def run_execute_stage(
         files=list(report.files),
         tip_path=report.executed_tip_path,
         space="r3",
+        annotations=dict(report.annotations or {}),
     )
 
 
 # ----------------------------------------------------------------------------- the run
 
 
-def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> RunOutcome:
+def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: LiveFeed | None = None) -> RunOutcome:
     """Run every stage and write result.json, figures and scene.glb into the output directory.
 
     ``result.json`` is written in every case, last: when a stage raises (the
@@ -401,6 +403,7 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
                 {r.name: r for r in results},
                 out / ".work" / spec.name,
                 length_unit=unit,
+                live=live or LiveFeed(),  # what the stage publishes, for `surgiplan view --live`
             )
             try:
                 if spec.kind == "plan":

@@ -205,7 +205,7 @@
     const [lo, hi] = sc.bounds;
     bounds = new THREE.Box3(new THREE.Vector3(...lo), new THREE.Vector3(...hi));
     const size = bounds.getSize(new THREE.Vector3());
-    R = 0.006 * Math.min(size.x, size.y, size.z);
+    R = 0.008 * Math.min(size.x, size.y, size.z);
     const box = new THREE.LineSegments(
       new THREE.EdgesGeometry(new THREE.BoxGeometry(size.x, size.y, size.z)),
       new THREE.LineBasicMaterial({ color: 0x9a9a9a })
@@ -370,7 +370,7 @@
     }
     for (const key of ["start", "goal"]) {
       if (!st[key]) continue;
-      const m = sphere(st[key], 2.2 * R, key === "start" ? "#2b2b2b" : "#d4a017");
+      const m = sphere(st[key], 3 * R, key === "start" ? "#2b2b2b" : "#d4a017");
       m.userData = { kind: key, stage: st.name, label: `${st.name}: ${key}` };
       pickable.push(m);
       addLayer(st.name, "path", m);
@@ -414,13 +414,13 @@
       const trail = new THREE.Line(trailGeometry, new THREE.LineBasicMaterial({ color: colour(st.colour) }));
       trail.userData = { kind: "trail", stage: st.name };
       addLayer(st.name, "timeline", trail);
-      const marker = sphere([tip[0], tip[1], tip[2]], 2.4 * R, "#ff7f0e");
+      const marker = sphere([tip[0], tip[1], tip[2]], 4.5 * R, "#ff7f0e");
       marker.userData = { kind: "instrument", stage: st.name, label: `${st.name}: instrument` };
       pickable.push(marker);
       addLayer(st.name, "timeline", marker);
       let ghost = null;
       if (commanded) {
-        ghost = sphere([commanded[0], commanded[1], commanded[2]], 2.4 * R, "#1f6fb4", { transparent: true, opacity: 0.45, depthWrite: false });
+        ghost = sphere([commanded[0], commanded[1], commanded[2]], 4.5 * R, "#1f6fb4", { transparent: true, opacity: 0.45, depthWrite: false });
         ghost.userData = { kind: "commanded", stage: st.name, label: `${st.name}: commanded` };
         addLayer(st.name, "timeline", ghost);
       }
@@ -475,6 +475,7 @@
   function legend(stages) {
     const L = document.getElementById("legend");
     L.innerHTML = "";
+    L.style.display = "block";
     for (const st of stages) L.append(el("span", { class: "sw", style: `background:${st.colour}` }), st.name);
     L.append(el("span", { class: "sw", style: "background:#d62728" }), "below threshold",
       el("span", { class: "sw", style: "background:#ff7f0e;opacity:.6" }), "critical region",
@@ -743,7 +744,7 @@
       liveStage.trail = new THREE.Line(g, new THREE.LineBasicMaterial({ color: colour("#1f6fb4") }));
       liveStage.trail.userData = { kind: "trail" };
       world.add(liveStage.trail);
-      liveStage.marker = sphere([0, 0, 0], 2.4 * R, "#ff7f0e");
+      liveStage.marker = sphere([0, 0, 0], 4.5 * R, "#ff7f0e");
       liveStage.marker.userData = { kind: "instrument", label: "instrument" };
       pickable.push(liveStage.marker);
       world.add(liveStage.marker);
