@@ -285,7 +285,7 @@ def _pick(frames: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, frames - 1, MAX_FRAMES)).astype(np.int64))
 
 
-def _mesh_out(label, times, positions, triangles, stress, time_label) -> dict[str, Any]:
+def _mesh_out(label, times, positions, triangles, stress, time_label, largest=None) -> dict[str, Any]:
     positions = np.asarray(positions, dtype=float)
     stress = None if stress is None else np.asarray(stress, dtype=float)
     out: dict[str, Any] = {
@@ -302,7 +302,12 @@ def _mesh_out(label, times, positions, triangles, stress, time_label) -> dict[st
         finite = stress[np.isfinite(stress)]
         out["stress"] = pack(stress)  # (frames, triangles) Pa
         out["stress_range"] = [float(finite.min()), float(finite.max())] if finite.size else [0.0, 1.0]
-        out["max_stress"] = [float(np.nanmax(s)) if s.size else 0.0 for s in stress]
+        # the largest stress of each state over every element (the surface shows only the outer ones)
+        out["max_stress"] = (
+            [float(v) for v in largest]
+            if largest is not None
+            else [float(np.nanmax(s)) if s.size else 0.0 for s in stress]
+        )
     return out
 
 
@@ -364,7 +369,7 @@ def simulate_mesh(out: Path, entry: Mapping[str, Any], notes: Notes) -> dict[str
     if not sequence:
         return None
     picked = [sequence[i] for i in _pick(len(sequence))]
-    positions, stresses, times = [], [], []
+    positions, stresses, times, largest = [], [], [], []
     surface = None
     for t, path in picked:
         try:
@@ -383,12 +388,15 @@ def simulate_mesh(out: Path, entry: Mapping[str, Any], notes: Notes) -> dict[str
             continue
         positions.append(points)
         stresses.append(None if stress is None else stress[surface[:, 3]])
+        largest.append(None if stress is None else float(np.max(stress)))
         times.append(t)
     if not positions:
         return None
     stress = None if any(s is None for s in stresses) else np.stack(stresses)
     label = "fraction of the motion applied" if len(times) > 1 else "equilibrium"
-    return _mesh_out(pvd or "tissue", times, np.stack(positions), surface[:, :3], stress, label)
+    return _mesh_out(
+        pvd or "tissue", times, np.stack(positions), surface[:, :3], stress, label, None if stress is None else largest
+    )
 
 
 def states_mesh(out: Path, relative: str, notes: Notes) -> dict[str, Any] | None:
@@ -413,7 +421,14 @@ def states_mesh(out: Path, relative: str, notes: Notes) -> dict[str, Any] | None
     if stress is not None and stress.ndim == 2 and len(stress) == len(positions):
         owner = face_owner(elements, triangles)
         per_triangle = np.where(owner[None, :] >= 0, stress[picked][:, np.clip(owner, 0, None)], np.nan)
-    mesh = _mesh_out(relative, picked.astype(float), positions[picked], triangles, per_triangle, "trajectory state")
+    largest = None
+    if "max_stress" in arrays and len(arrays["max_stress"]) == len(positions):
+        largest = np.asarray(arrays["max_stress"], dtype=float)[picked]
+    elif stress is not None and stress.ndim == 2 and len(stress) == len(positions):
+        largest = stress[picked].max(axis=1)
+    mesh = _mesh_out(
+        relative, picked.astype(float), positions[picked], triangles, per_triangle, "trajectory state", largest
+    )
     if "area_points" in arrays:
         area = np.asarray(arrays["area_points"], dtype=float).reshape(-1, 3)
         visible = np.asarray(arrays.get("visible", np.zeros(len(area))), dtype=bool).ravel()

@@ -121,6 +121,8 @@ class LiveViewer:
             "surgiplan live view",
         )
         self.bound: int | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
 
     # ------------------------------------------------------------------ HTTP and the handshake
     def _process_request(self, connection, request):
@@ -242,12 +244,19 @@ class LiveViewer:
                 "choose another --port, and give `surgiplan run --live ws://127.0.0.1:PORT/feed`)",
                 location="--port",
             ) from None
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
         async with server:
             self.bound = next(iter(server.sockets)).getsockname()[1]
             _open(f"http://{HOST}:{self.bound}/", open_browser, announce)
             announce(f"feed a run into it: surgiplan run PIPELINE --live ws://{HOST}:{self.bound}/feed")
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(asyncio.Event().wait(), exit_after)
+                await asyncio.wait_for(self._stop.wait(), exit_after)
+
+    def stop(self) -> None:
+        """End :meth:`serve` (from any thread)."""
+        if self._loop is not None and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
 
 
 def serve_live(
