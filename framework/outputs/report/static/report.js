@@ -66,7 +66,8 @@
 
   // ------------------------------------------------------------------ three.js scene
   const view = document.getElementById("view");
-  const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  // live: no multisampling, so a machine without a GPU (software WebGL) spends less of the CPU the stage needs
+  const renderer = new THREE.WebGLRenderer({ antialias: !LIVE, preserveDrawingBuffer: true });
   renderer.setPixelRatio(window.devicePixelRatio || 1);
   view.insertBefore(renderer.domElement, view.firstChild);
   const scene = new THREE.Scene();
