@@ -301,7 +301,12 @@ def _mesh_out(label, times, positions, triangles, stress, time_label, largest=No
     if stress is not None:
         finite = stress[np.isfinite(stress)]
         out["stress"] = pack(stress)  # (frames, triangles) Pa
-        out["stress_range"] = [float(finite.min()), float(finite.max())] if finite.size else [0.0, 1.0]
+        # stresses span decades (the grasp against the far edge): from the 1st percentile of the positive
+        # ones (at least 1e-4 of the largest) the page colours on a log scale
+        positive = finite[finite > 0]
+        hi = float(finite.max()) if finite.size else 1.0
+        lo = max(float(np.percentile(positive, 1)), hi * 1e-4) if positive.size else 0.0
+        out["stress_range"] = [lo, hi] if hi > lo else [0.0, max(hi, 1.0)]
         # the largest stress of each state over every element (the surface shows only the outer ones)
         out["max_stress"] = (
             [float(v) for v in largest]
@@ -463,8 +468,10 @@ def _array(value, columns: int | None = None) -> np.ndarray | None:
     return a
 
 
-def timeline_data(out: Path, entry: Mapping[str, Any], notes: Notes) -> dict[str, Any] | None:
-    """The stage's motion over time: its ``timeline`` annotation, else its execution CSV, else its path."""
+def timeline_data(out: Path, entry: Mapping[str, Any], notes: Notes, scene=None) -> dict[str, Any] | None:
+    """The stage's motion over time: its ``timeline`` annotation, else its execution CSV, else its path.
+
+    Without a recorded clearance, the tip's clearance is measured on ``scene`` (when given)."""
     annotations = entry.get("annotations") or {}
     timeline = annotations.get("timeline") if isinstance(annotations, Mapping) else None
     source = None
@@ -517,6 +524,13 @@ def timeline_data(out: Path, entry: Mapping[str, Any], notes: Notes) -> dict[str
     if not len(t):
         return None
     keep = _keep_indices(len(t), None, MAX_TIMELINE_SAMPLES)
+    if "clearance" not in series and scene is not None:
+        try:  # the tip point's own clearance, measured on the scene
+            series["clearance"] = np.full(len(t), np.nan)
+            series["clearance"][keep] = np.asarray(scene.clearance(tip[keep]), dtype=float)
+        except Exception as exc:
+            series.pop("clearance", None)
+            log.info("report: clearance of stage %s not measured: %s", entry.get("name"), exc)
     data: dict[str, Any] = {
         "source": source,
         "time_unit": "sample" if source == "path" else "s",
@@ -626,7 +640,7 @@ def report_data(out: Path, document: Mapping[str, Any], pipeline=None) -> dict[s
             if states is not None:
                 stage["mesh"] = states_mesh(out, states, notes)
             if kind in TIME_KINDS:
-                stage["timeline"] = timeline_data(out, entry, notes)
+                stage["timeline"] = timeline_data(out, entry, notes, scene)
                 stage["path"] = path_data(entry, None, scene, None)
                 source = (
                     getattr(spec, "path_from", None)
