@@ -5,6 +5,10 @@ chromium (`executable_path`). Chromium is kept off the network by its flags (no 
 networking, component updates, sync, QUIC or first-run fetches; a fresh profile), and every page is
 watched: a request to anything but file:// or 127.0.0.1 fails the test. WebGL runs on SwiftShader
 (no GPU). Tests skip, saying why, only where no browser can be had.
+
+Checked with strace over the whole chromium process tree while a report loads: no sendto/sendmsg
+and no TCP connect to any address but loopback. Chromium still connect()s a UDP socket to a public
+IPv6 address (its IPv6-reachability probe: a UDP connect sends no packet, it only picks a route).
 """
 
 from __future__ import annotations
@@ -30,6 +34,14 @@ CHROMIUM_FLAGS = [
     "--disable-extensions",
     "--metrics-recording-only",
     "--no-pings",
+    "--disable-domain-reliability",
+    "--disable-client-side-phishing-detection",
+    "--disable-breakpad",
+    "--no-default-browser-check",
+    "--disable-features=Translate,OptimizationHints,MediaRouter,DialMediaRouteProvider,AutofillServerCommunication,"
+    "CertificateTransparencyComponentUpdater",
+    # no host resolves but 127.0.0.1: nothing can be reached by name (pages use file:// and 127.0.0.1 only)
+    "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
     "--use-angle=swiftshader",
     "--enable-unsafe-swiftshader",
 ]

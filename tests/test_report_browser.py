@@ -363,7 +363,7 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
     try:
         page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
         feed = url.replace("http://", "ws://").rstrip("/") + "/feed"
-        path = robot_pipeline(tmp_path, "live", realtime=True, speed=100.0)
+        path = robot_pipeline(tmp_path, "live", realtime=True, speed=60.0)  # about 2.4 s of motion
         run = subprocess.Popen(
             [*SURGIPLAN, "run", str(path), "--quiet", "--live", feed],
             stdout=subprocess.PIPE,
