@@ -396,3 +396,47 @@ def test_the_viewer_relays_a_feed_to_a_page_in_order_and_refuses_strangers():
     viewer.stop()
     thread.join(10)
     assert not thread.is_alive()
+
+
+def test_a_guide_stage_shows_recommended_against_followed(tmp_path):
+    """The guide stage's contract (issue 17): its timeline and the path it recommended, in its annotations."""
+    t = np.linspace(0, 3, 61)
+    followed = np.column_stack([0.01 + 0.04 * t, 0.05 + 0.002 * np.sin(3 * t), np.full_like(t, 0.02)])
+    recommended = [[0.01, 0.05, 0.02], [0.13, 0.05, 0.02]]
+    events = [{"t": 1.2, "kind": "below_threshold", "start_t": 1.2, "end_t": 1.5, "message": "3.1 mm from A2"}]
+    document = {
+        "name": "g",
+        "status": "succeeded",
+        "length_unit": "mm",
+        "stages": [
+            {"stage": "plan", "name": "beginner", "plugin": "safe_prm", "status": "solved", "path": recommended},
+            {
+                "stage": "guide",
+                "name": "attempt",
+                "plugin": "recorded",
+                "status": "completed",
+                "path": followed.tolist(),
+                "metrics": {"score": 87.0},
+                "annotations": {
+                    "timeline": {
+                        "t": t.tolist(),
+                        "tip": followed.tolist(),
+                        "deviation": np.abs(followed[:, 1] - 0.05).tolist(),
+                        "clearance": np.full_like(t, 0.004).tolist(),
+                        "progress": (0.04 * t).tolist(),
+                        "events": events,
+                    },
+                    "events": events,
+                    "path_from": "beginner",
+                    "recommended_tips": recommended,
+                },
+            },
+        ],
+    }
+    stage = report_data(tmp_path, document)["stages"][1]
+    assert stage["reference"]["name"] == "beginner"
+    np.testing.assert_allclose(_unpack(stage["reference"]["tips"]), recommended, atol=1e-8)
+    timeline = stage["timeline"]
+    assert timeline["source"] == "timeline" and timeline["samples"] == len(t)
+    np.testing.assert_allclose(_unpack(timeline["deviation"]), np.abs(followed[:, 1] - 0.05), atol=1e-8)
+    assert timeline["events"] == [{"t": 1.2, "kind": "below_threshold", "message": "3.1 mm from A2"}]

@@ -648,7 +648,10 @@ def report_data(out: Path, document: Mapping[str, Any], pipeline=None) -> dict[s
                     or ((entry.get("annotations") or {}).get("path_from"))
                 )
                 reference = by_name.get(source) if isinstance(source, str) else None
-                if reference is not None:
+                recommended = _array((entry.get("annotations") or {}).get("recommended_tips"), 3)
+                if recommended is not None and len(recommended) >= 2:  # a guide stage records what it recommended
+                    stage["reference"] = {"name": str(source or "recommended"), "tips": pack(recommended)}
+                elif reference is not None:
                     tips = _tips_of(reference, specs.get(source))
                     if tips is not None:
                         stage["reference"] = {"name": source, "tips": pack(tips)}

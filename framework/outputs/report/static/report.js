@@ -60,7 +60,7 @@
   }
   function badgeClass(status) {
     if (["solved", "completed", "converged", "succeeded", "followed"].includes(status)) return "badge ok";
-    if (["stopped", "refused", "no_path", "failed", "timeout", "skipped", "not_run"].includes(status)) return "badge warn";
+    if (["stopped", "refused", "no_path", "failed", "timeout", "skipped", "not_run", "incomplete"].includes(status)) return "badge warn";
     return "badge bad";
   }
 
@@ -753,7 +753,7 @@
     function onStage(p) {
       liveStage.name = p.name;
       liveStage.n = 0;
-      liveStage.times = []; liveStage.clearance = []; liveStage.threshold = p.clearance_threshold || null;
+      liveStage.times = []; liveStage.clearance = []; liveStage.threshold = p.threshold || p.clearance_threshold || null;
       liveTs.events = []; liveTs.series = [{ name: "clearance", unit: "m", values: liveStage.clearance, colour: "#2ca02c", threshold: liveStage.threshold }];
       if (liveStage.reference) { world.remove(liveStage.reference); liveStage.reference = null; }
       if (p.recommended && p.recommended.length > 1) {
