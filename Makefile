@@ -7,7 +7,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAIN_JOB ?= configs/block_world_proficiency.yaml
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench clean browser
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -18,8 +18,20 @@ $(VENV)/.run-deps: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl]' -e examples/surgiplan-hello
+	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl,browser]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
+
+# The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client
+# (never `playwright install`, which downloads a browser build). Quick when it is there; installed with
+# apt where we may (CI runs as root); elsewhere those tests skip and say why.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing chromium (apt) for the browser tests"; \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1 || \
+	    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null; } || \
+	    echo "warning: could not install chromium: the browser tests will skip"; \
+	  else echo "warning: no chromium and no root to install it (apt-get install chromium): the browser tests will skip"; fi; }
 
 run: $(VENV)/.run-deps
 	$(BIN)/surgiplan run $(MAIN_JOB)
@@ -27,7 +39,7 @@ run: $(VENV)/.run-deps
 lint: $(VENV)/.test-deps
 	$(BIN)/ruff check .
 
-test: lint
+test: lint browser
 	$(BIN)/python -m pytest -q
 
 bench: $(VENV)/.test-deps

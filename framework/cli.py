@@ -1,4 +1,4 @@
-"""The ``surgiplan`` command line: run, validate, plugins, trainee.
+"""The ``surgiplan`` command line: run, validate, plugins, trainee, view.
 
 Exit status: 0 success; 1 a stage did not succeed or a plugin failed;
 2 bad input (the message names the file, the key and the problem);
@@ -8,6 +8,7 @@ Exit status: 0 success; 1 a stage did not succeed or a plugin failed;
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import sys
@@ -63,6 +64,16 @@ def _parser() -> argparse.ArgumentParser:
         help="no progress bars and no summary table: one line saying where the results are",
     )
 
+    run.add_argument(
+        "--live",
+        nargs="?",
+        const="ws://127.0.0.1:8765/feed",
+        default=None,
+        metavar="URL",
+        help="feed what running stages do to `surgiplan view --live` (default ws://127.0.0.1:8765/feed)",
+    )
+    _add_view_parser(sub)
+
     validate = sub.add_parser("validate", help="check a pipeline (or scene) file without running it")
     validate.add_argument("file", type=Path)
 
@@ -91,7 +102,16 @@ def _cmd_run(args) -> int:
 
     pipeline = load_pipeline(args.file, output_dir=args.out)
     progress = NullProgress() if args.quiet else RichProgress()
-    outcome = run_pipeline(pipeline, progress=progress)
+    live = _live_feed(args.live, pipeline)
+    ended = "error"
+    try:
+        outcome = run_pipeline(pipeline, progress=progress, live=live)
+        ended = outcome.status.value
+    except KeyboardInterrupt:
+        ended = "interrupted"
+        raise
+    finally:
+        _close_live_feed(live, ended)
     if not args.quiet:
         unit = pipeline.model.length_unit
         # piped output (CI logs, files) has no terminal width: do not fold the table into 80 columns
@@ -244,6 +264,89 @@ def _cmd_plugins(args) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- the report and the live view (issue 18)
+
+
+def _add_view_parser(sub) -> None:
+    view = sub.add_parser(
+        "view",
+        help="show a run's report.html (served on 127.0.0.1), or with --live what a running stage does",
+        description="Serve OUT_DIR's report.html on 127.0.0.1 and open it in the browser (Ctrl-C stops); "
+        "with --live, the live viewer that `surgiplan run --live` feeds.",
+    )
+    view.add_argument("out_dir", nargs="?", type=Path, metavar="OUT_DIR", help="a run's output directory")
+    view.add_argument("--live", action="store_true", help="the live viewer: watch a running execute or guide stage")
+    view.add_argument("--port", type=int, default=None, help="port on 127.0.0.1 (default: any free one; --live 8765)")
+    view.add_argument("--no-browser", action="store_true", help="print the address, do not open a browser")
+    view.add_argument("--exit-after", type=float, default=None, metavar="S", help="stop after S seconds")
+
+
+def _cmd_view(args) -> int:
+    from .errors import ConfigError
+
+    if args.port is not None and not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port}: choose 0 to 65535", location="--port")
+    announce = functools.partial(print, flush=True)
+    if args.live:
+        from .live import DEFAULT_PORT
+        from .outputs.report.server import serve_live
+
+        if args.out_dir is not None:
+            raise ConfigError("give OUT_DIR or --live, not both", location="view")
+        announce("surgiplan live view (Ctrl-C stops):")
+        serve_live(
+            port=DEFAULT_PORT if args.port is None else args.port,
+            open_browser=not args.no_browser,
+            exit_after=args.exit_after,
+            announce=announce,
+        )
+        return 0
+    if args.out_dir is None:
+        raise ConfigError("give a run's output directory (surgiplan view OUT_DIR), or --live", location="view")
+    from .outputs.report.server import serve_directory
+    from .outputs.report.view import ensure_report
+
+    report = ensure_report(args.out_dir, announce)
+    announce(f"{report} (Ctrl-C stops):")
+    serve_directory(
+        args.out_dir,
+        port=args.port or 0,
+        open_browser=not args.no_browser,
+        exit_after=args.exit_after,
+        announce=announce,
+    )
+    return 0
+
+
+def _live_feed(url, pipeline):
+    """The feed `run --live` hands to every stage (None without --live): the run and its scene first."""
+    if url is None:
+        return None
+    from .live import WebSocketFeed
+    from .outputs.report import scene_data
+    from .units import LENGTH_UNITS
+
+    feed = WebSocketFeed(url)
+    unit = pipeline.model.length_unit
+    stages = [
+        {"name": s.name, "kind": s.kind, "plugin": s.plugin.name, "path_from": s.path_from} for s in pipeline.stages
+    ]
+    run = {"name": pipeline.name, "pipeline_file": str(pipeline.file), "length_unit": unit, "stages": stages}
+    feed.publish("run", {**run, "unit_scale": LENGTH_UNITS[unit]})
+    feed.publish("scene", scene_data(pipeline.scene))
+    return feed
+
+
+def _close_live_feed(feed, status: str) -> None:
+    if feed is not None:
+        feed.publish("run_end", {"status": status})
+        feed.close()
+        if feed.dropped:
+            logging.getLogger("surgiplan").warning(
+                "live feed: %d samples dropped (the viewer was not keeping up)", feed.dropped
+            )
+
+
 def _where_the_record_is(exc: BaseException) -> None:
     outcome = getattr(exc, "outcome", None)
     if outcome is not None:
@@ -256,7 +359,13 @@ def main(argv: list[str] | None = None) -> int:
 
     debug = args.debug or debug_enabled()
     restore_logging = _setup_logging(args.verbose)
-    commands = {"run": _cmd_run, "validate": _cmd_validate, "plugins": _cmd_plugins, "trainee": _cmd_trainee}
+    commands = {
+        "run": _cmd_run,
+        "validate": _cmd_validate,
+        "plugins": _cmd_plugins,
+        "trainee": _cmd_trainee,
+        "view": _cmd_view,
+    }
     try:
         return commands[args.command](args)
     except SurgiplanError as exc:

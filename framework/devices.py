@@ -69,6 +69,8 @@ class ExecutionReport:
     message: str = ""
     #: files the device wrote (figures, logs), relative to the stage context's output directory
     files: list[str] = field(default_factory=list)
+    #: the stage's annotations in result.json, e.g. ``timeline`` (see :mod:`surgiplan.outputs.report.data`)
+    annotations: dict[str, Any] = field(default_factory=dict)
 
 
 class Device(ABC):

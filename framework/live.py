@@ -38,3 +38,154 @@ class LiveFeed:
 
     def close(self) -> None:
         pass
+
+
+# ----------------------------------------------------------------------------- a feed to a live viewer
+
+#: where ``surgiplan view --live`` listens by default, and where ``surgiplan run --live`` sends
+DEFAULT_PORT = 8765
+DEFAULT_URL = f"ws://127.0.0.1:{DEFAULT_PORT}/feed"
+
+#: channels whose latest payload is sent again first whenever the feed (re)connects
+STICKY = ("run", "scene", "stage")
+
+
+def loopback_url(url: str) -> tuple[str, int, str]:
+    """(host, port, path) of a ``ws://`` URL on this machine; anything else is a :class:`ConfigError`."""
+    import ipaddress
+    from urllib.parse import urlsplit
+
+    from .errors import ConfigError
+
+    try:
+        parts = urlsplit(url)
+        host, port = parts.hostname or "", parts.port
+    except ValueError as exc:
+        raise ConfigError(f"live viewer address {url!r} is not a URL ({exc})", location="--live") from None
+    if parts.scheme != "ws" or not host or port is None:
+        raise ConfigError(f"live viewer address {url!r}: give ws://127.0.0.1:PORT/feed", location="--live")
+    try:
+        local = host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        local = False
+    if not local:
+        raise ConfigError(
+            f"live viewer address {url!r} is not on this machine: a run feeds only a viewer on 127.0.0.1 or ::1",
+            location="--live",
+        )
+    return host, port, parts.path or "/feed"
+
+
+class WebSocketFeed(LiveFeed):
+    """Forwards publications to a live viewer (``surgiplan view --live``) over a websocket on loopback.
+
+    :meth:`publish` only appends to a bounded queue and wakes a sender thread: it never blocks and never
+    raises, whatever the viewer does. The sender batches what has queued (one websocket message per
+    batch), so thousands of samples a second cost one send every few milliseconds. When the queue is full
+    the oldest samples are dropped (counted in :attr:`dropped`). The latest ``run``, ``scene`` and
+    ``stage`` payloads are sent again first on every (re)connection, so a viewer started late still
+    draws the scene and the running stage. Connection attempts are bounded: one a second for
+    ``retry_for`` seconds, after which the feed stops trying and drops everything.
+    """
+
+    active = True
+
+    def __init__(
+        self, url: str = DEFAULT_URL, *, queue_size: int = 50_000, retry_for: float = 30.0, open_timeout: float = 2.0
+    ) -> None:
+        import collections
+        import threading
+
+        loopback_url(url)
+        self.url = url
+        self.retry_for = float(retry_for)
+        self.open_timeout = float(open_timeout)
+        self.sent = 0
+        self.dropped = 0
+        self.connected = False
+        self._queue: collections.deque = collections.deque(maxlen=queue_size)
+        self._sticky: dict[str, Any] = {}
+        self._wake = threading.Event()
+        self._closing = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="surgiplan-live-feed", daemon=True)
+        self._thread.start()
+
+    def publish(self, channel: str, payload: Mapping[str, Any]) -> None:
+        if not self.active:
+            return
+        if channel in STICKY:
+            self._sticky[channel] = payload
+        if len(self._queue) == self._queue.maxlen:
+            self.dropped += 1
+        self._queue.append((channel, payload))
+        self._wake.set()
+
+    def close(self, timeout: float = 3.0) -> None:
+        """Send what is queued (for at most ``timeout`` seconds), then close the connection."""
+        self._closing.set()
+        self._wake.set()
+        self._thread.join(timeout)
+        self.active = False
+
+    # ------------------------------------------------------------------ the sender thread
+    def _encode(self, items) -> str:
+        import json
+
+        from .storage import _json_default
+
+        return json.dumps([{"channel": c, "payload": p} for c, p in items], default=_json_default, allow_nan=False)
+
+    def _run(self) -> None:
+        import logging
+        import time
+
+        from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+        from websockets.sync.client import connect
+
+        log = logging.getLogger(__name__)
+        give_up = time.monotonic() + self.retry_for
+        warned = reconnect = False
+        while True:
+            try:
+                socket = connect(self.url, open_timeout=self.open_timeout, close_timeout=1.0, max_size=2**20)
+            except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
+                if not warned:
+                    log.warning(
+                        "no live viewer at %s (%s): start `surgiplan view --live`; trying for %.0f s",
+                        self.url,
+                        exc,
+                        max(0.0, give_up - time.monotonic()),
+                    )
+                    warned = True
+                if time.monotonic() >= give_up or self._closing.is_set():
+                    break
+                self._closing.wait(1.0)
+                continue
+            self.connected = True
+            log.info("live feed connected to %s", self.url)
+            try:
+                with socket:
+                    sticky = list(self._sticky.items())
+                    if sticky and (reconnect or self.dropped):  # else they are still in the queue
+                        socket.send(self._encode(sticky))
+                    while True:
+                        self._wake.wait(0.05)
+                        self._wake.clear()
+                        batch = []
+                        while self._queue and len(batch) < 5000:
+                            batch.append(self._queue.popleft())
+                        if batch:
+                            socket.send(self._encode(batch))
+                            self.sent += len(batch)
+                        elif self._closing.is_set():
+                            break
+            except (ConnectionClosed, OSError, TimeoutError, ValueError) as exc:
+                log.warning("live viewer at %s went away (%s)", self.url, exc)
+            finally:
+                self.connected = False
+            if self._closing.is_set():
+                break
+            give_up = time.monotonic() + self.retry_for  # the viewer went away: look for it again, for a while
+            warned, reconnect = False, True
+        self.active = False
+        self._queue.clear()

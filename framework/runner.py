@@ -41,8 +41,10 @@ from .devices import ExecutionReport, Trajectory
 from .errors import OutputError, StageError, SurgiplanError
 from .executors import DaskExecutor, Executor, LocalExecutor
 from .guidance.stage import run_guide_stage
+from .live import LiveFeed
 from .outputs.figures import PathView, overview_figure, plan_figure
 from .outputs.gltf import write_scene_glb
+from .outputs.report import write_run_report
 from .pipeline import Pipeline, StageSpec
 from .planning import PlanningProblem, PlanResult
 from .progress import NullProgress, Progress, StageProgress
@@ -102,7 +104,7 @@ def begin_run(out: Path, pipeline_file: Path) -> Path:
                 location="output.dir",
             )
     _write_marker(marker, pipeline_file, [])
-    for stale in ("result.json",):
+    for stale in ("result.json", "report.html"):
         (out / stale).unlink(missing_ok=True)
     return marker
 
@@ -358,13 +360,14 @@ def run_execute_stage(
         files=list(report.files),
         tip_path=report.executed_tip_path,
         space="r3",
+        annotations=dict(report.annotations or {}),
     )
 
 
 # ----------------------------------------------------------------------------- the run
 
 
-def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> RunOutcome:
+def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: LiveFeed | None = None) -> RunOutcome:
     """Run every stage and write result.json, figures and scene.glb into the output directory.
 
     ``result.json`` is written in every case, last: when a stage raises (the
@@ -401,6 +404,7 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
                 {r.name: r for r in results},
                 out / ".work" / spec.name,
                 length_unit=unit,
+                live=live or LiveFeed(),  # what the stage publishes, for `surgiplan view --live`
             )
             try:
                 if spec.kind == "plan":
@@ -496,6 +500,7 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None) -> Run
         "not_run": [{"stage": s.kind, "name": s.name, "plugin": s.plugin.name} for s in not_run],
         "files": sorted(set(files)),
     }
+    write_run_report(out, document, pipeline)  # report.html, last but one (lists itself in document["files"])
     write_json_atomic(out / "result.json", document)
     marker.unlink(missing_ok=True)
     outcome = RunOutcome(out, results, [*sorted(set(files)), "result.json"], status)

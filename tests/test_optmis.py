@@ -109,8 +109,12 @@ def _around_a_corner(a, b, corner, radius):
 
 def test_path_around_a_wall_is_within_half_a_percent_of_the_closed_form_shortest_path():
     # a wall as tall as the workspace: the only way is round its end, bending at one vertical edge
-    scene = Scene(np.zeros(3), np.array([40, 40, 10]) * MM, [box("wall", (18, 0, 0), (22, 30, 10))],
-                  {"west": np.array([8, 12, 5]) * MM, "east": np.array([33, 20, 5]) * MM})
+    scene = Scene(
+        np.zeros(3),
+        np.array([40, 40, 10]) * MM,
+        [box("wall", (18, 0, 0), (22, 30, 10))],
+        {"west": np.array([8, 12, 5]) * MM, "east": np.array([33, 20, 5]) * MM},
+    )
     s = R3Space(scene, TIP_RADIUS)
     result = run_offline(PlanningProblem(scene, s), OptMISSettings(**SETTINGS))
     path = result.repository.between(0, 1)
@@ -181,8 +185,9 @@ def test_interrupted_build_resumes_without_recomputing_finished_sources(tmp_path
     graph_builds = []
     real_build = optmis_repository.build_search_graph
     monkeypatch.setattr(optmis_repository, "sources_task", counting_task)
-    monkeypatch.setattr(optmis_repository, "build_search_graph",
-                        lambda *a, **k: graph_builds.append(1) or real_build(*a, **k))
+    monkeypatch.setattr(
+        optmis_repository, "build_search_graph", lambda *a, **k: graph_builds.append(1) or real_build(*a, **k)
+    )
     # one source per task, so that there are eight tasks to interrupt
     monkeypatch.setattr(optmis_repository, "source_groups", lambda n, group: [[i] for i in range(n - 1)])
     settings = OptMISSettings(**SETTINGS)
@@ -223,8 +228,9 @@ def test_process_pool_builds_the_same_repository_as_inline():
     graph = offline().graph
     fresh = offline().repository
     with LocalExecutor(workers=2) as executor:
-        pooled = optmis_repository.build_repository(s, graph, fresh.names, fresh.pois,
-                                                    OptMISSettings(**SETTINGS).path_options(), executor=executor)
+        pooled = optmis_repository.build_repository(
+            s, graph, fresh.names, fresh.pois, OptMISSettings(**SETTINGS).path_options(), executor=executor
+        )
     for name in ("pairs", "path_start", "points", "corner", "unreachable", "length"):
         np.testing.assert_array_equal(getattr(pooled, name), getattr(fresh, name))
 
@@ -241,8 +247,7 @@ def test_dask_executor_builds_the_same_repository_as_the_local_one():
     options = OptMISSettings(**SETTINGS).path_options()
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with DaskExecutor(cluster.scheduler_address) as executor:
-            remote = optmis_repository.build_repository(s, graph, fresh.names, fresh.pois, options,
-                                                        executor=executor)
+            remote = optmis_repository.build_repository(s, graph, fresh.names, fresh.pois, options, executor=executor)
     assert remote.stats["executor"].startswith("dask")
     for name in ("pairs", "path_start", "points", "corner", "unreachable", "length"):
         np.testing.assert_array_equal(getattr(remote, name), getattr(fresh, name))
@@ -276,8 +281,9 @@ def test_artifact_round_trip_answers_the_same():
     values = to_jsonable({k: v for k, v in data.items() if not isinstance(v, np.ndarray)})
     loaded = planner.load_artifact({**values, **arrays}, p)
     pois = artifact.repository.pois
-    np.testing.assert_array_equal(planner.query(loaded, pois[1], pois[6]).path,
-                                  planner.query(artifact, pois[1], pois[6]).path)
+    np.testing.assert_array_equal(
+        planner.query(loaded, pois[1], pois[6]).path, planner.query(artifact, pois[1], pois[6]).path
+    )
     damaged = {**values, **arrays, "path_start": arrays["path_start"][:-3]}
     with pytest.raises(ValueError, match="path offsets"):
         planner.load_artifact(damaged, p)
@@ -287,9 +293,15 @@ def test_point_of_interest_inside_an_obstacle_is_named():
     points = {"ok": (5, 10, 5), "buried": (20, 10, 5), "outside": (5, 10, 45)}
     scene = small_world(points)
     with pytest.raises(PlanningInputError) as caught:
-        optmis_graph.build_search_graph(space(scene), np.array(list(scene.points.values())), grid_spacing=4 * MM,
-                                        surface_spacing=2 * MM, surface_gap=0.3 * MM, neighbours=8,
-                                        names=list(scene.points))
+        optmis_graph.build_search_graph(
+            space(scene),
+            np.array(list(scene.points.values())),
+            grid_spacing=4 * MM,
+            surface_spacing=2 * MM,
+            surface_gap=0.3 * MM,
+            neighbours=8,
+            names=list(scene.points),
+        )
     message = str(caught.value)
     assert "'buried' (20, 10, 5) mm is not free for the instrument tip" in message
     assert "obstacle 'W1'" in message

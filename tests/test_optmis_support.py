@@ -52,8 +52,13 @@ def small_world(points=POINTS_MM) -> Scene:
         box("cup-east", (58, 28, 0), (59, 36, 10)),
         box("cup-lid", (49, 27, 10), (59, 37, 11)),
     ]
-    return Scene(np.zeros(3), np.array([60, 40, 30]) * MM, obstacles,
-                 {k: np.asarray(v, float) * MM for k, v in points.items()}, "small-world")
+    return Scene(
+        np.zeros(3),
+        np.array([60, 40, 30]) * MM,
+        obstacles,
+        {k: np.asarray(v, float) * MM for k, v in points.items()},
+        "small-world",
+    )
 
 
 def space(scene=None) -> R3Space:

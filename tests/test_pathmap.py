@@ -108,8 +108,10 @@ def test_identical_paths_are_stored_once():
         np.concatenate([repository.path_start, repository.path_start[1:] + repository.path_start[-1]]),
         np.concatenate([repository.points, repository.points]),
         np.concatenate([repository.corner, repository.corner]),
-        *(np.concatenate([getattr(repository, n), getattr(repository, n)])
-          for n in ("graph_length", "taut_length", "length", "kinds")),
+        *(
+            np.concatenate([getattr(repository, n), getattr(repository, n)])
+            for n in ("graph_length", "taut_length", "length", "kinds")
+        ),
         repository.unreachable,
     )
     once = build_pathmap(repository, space(), n_s=3, tolerance=0.0)

@@ -62,8 +62,12 @@ def dijkstra_with_links(artifact, p, start, goal) -> float:
     for node, q in ((n, start), (n + 1, goal)):
         index = p.link_candidates(artifact, q)  # the planner's choice of candidates; certified here by coal
         distance = np.linalg.norm(graph.points[index] - q, axis=1)
-        clear = coal_scene_segment_distance(small_world(), np.repeat(q[None], len(index), 0), graph.points[index],
-                                            TIP_RADIUS) > 0
+        clear = (
+            coal_scene_segment_distance(
+                small_world(), np.repeat(q[None], len(index), 0), graph.points[index], TIP_RADIUS
+            )
+            > 0
+        )
         rows += [np.full(clear.sum(), node), index[clear]]
         cols += [index[clear], np.full(clear.sum(), node)]
         weights += [distance[clear]] * 2
@@ -176,8 +180,10 @@ def test_online_paths_are_collision_free_and_no_longer_than_the_stored_ones():
             np.testing.assert_array_equal(result.path[0], start)
             np.testing.assert_array_equal(result.path[-1], goal)
         else:  # only the sealed cup may be unreachable
-            inside_cup = [bool(np.all((q >= np.array([50, 28, 0]) * MM) & (q <= np.array([58, 36, 10]) * MM)))
-                          for q in (start, goal)]
+            inside_cup = [
+                bool(np.all((q >= np.array([50, 28, 0]) * MM) & (q <= np.array([58, 36, 10]) * MM)))
+                for q in (start, goal)
+            ]
             assert any(inside_cup), result.message
 
 
@@ -239,9 +245,11 @@ def test_replanning_midway_gives_a_new_path_from_the_current_position(tmp_path):
 def write_pipeline(tmp_path, extra="", points=POINTS_MM, report_dir=None):
     (tmp_path / "small.yaml").write_text(scene_yaml(points))
     out = tmp_path / "out"
-    settings = ("{grid_spacing: 4, surface_spacing: 2, neighbours: 12, seed: 3, "
-                f"report: {{dir: {report_dir or out / 'table1'}, segment_points: [2, 3]}}, "
-                "replan: {goal: c, at: 0.5}}")
+    settings = (
+        "{grid_spacing: 4, surface_spacing: 2, neighbours: 12, seed: 3, "
+        f"report: {{dir: {report_dir or out / 'table1'}, segment_points: [2, 3]}}, "
+        "replan: {goal: c, at: 0.5}}"
+    )
     config = tmp_path / "pipeline.yaml"
     config.write_text(
         "name: small-offline-online\nlength_unit: mm\nscene: small.yaml\npipeline:\n"
@@ -297,7 +305,7 @@ def test_report_directory_that_cannot_be_written_fails_before_any_work(tmp_path,
     # only the pathmap stage, so that nothing runs before the check
     text = config.read_text()
     start = text.index("  - {stage: plan, name: repository")
-    config.write_text(text[:start] + text[text.index("  - {stage: plan, name: pathmap"):])
+    config.write_text(text[:start] + text[text.index("  - {stage: plan, name: pathmap") :])
     code, _, err = cli("run", config, "--quiet")
     assert code == 2, err
     assert "settings.report.dir: cannot write to directory" in err and "a-file/table1" in err

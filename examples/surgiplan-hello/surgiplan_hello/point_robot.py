@@ -9,11 +9,21 @@ an obstacle anywhere along it (exact capsule clearances), whatever planner
 produced it. It reports the executed tip path, the tracking error and the
 executed clearance re-measured on the scene.
 
+With ``realtime: true`` the motion takes as long as it would on the gantry
+(each sample waits for its time), and each sample is published on the
+stage's live feed (``context.live``: ``surgiplan run --live`` and
+``surgiplan view --live``) as it happens. The samples are also returned as
+the stage's ``timeline`` annotation (time, executed and commanded tip,
+clearance, deviation from the command, events), which ``report.html`` plays
+back with a time slider.
+
 A device implements the lifecycle transitions it needs (``on_configure``,
 ``on_activate``, ...; all optional) and ``run``.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, PositiveFloat
@@ -27,6 +37,7 @@ class PointRobotSettings(BaseModel):
     rate: PositiveFloat = 200.0  # Hz
     tool_radius: Length = 0.0
     safety_margin: Length = 0.0
+    realtime: bool = False  # take as long as the motion does, publishing each sample as it happens
 
 
 class PointRobot(Device):
@@ -34,6 +45,8 @@ class PointRobot(Device):
 
     def on_configure(self, context) -> None:
         self.scene = context.scene
+        self.live = context.live
+        self.stage = context.name
 
     def run(self, trajectory) -> ExecutionReport:
         s = self.settings
@@ -63,6 +76,15 @@ class PointRobot(Device):
             executed[i] = command[i - 1] + (executed[i - 1] - command[i - 1]) * decay
         error = np.linalg.norm(executed - command, axis=1)
         flown = self.scene.motion_clearance(executed[:-1], executed[1:], s.tool_radius)
+        at = self.scene.clearance(executed, s.tool_radius)
+        closest = int(np.argmin(at))
+        events = [
+            {"t": 0.0, "kind": "start", "message": f"{len(t)} samples at {s.rate:g} Hz"},
+            {"t": float(t[closest]), "kind": "closest_approach", "message": f"{at[closest] * 1000:.3g} mm"},
+            {"t": float(duration), "kind": "command_end", "message": "the command reached the goal"},
+        ]
+        events.sort(key=lambda e: e["t"])
+        late = self._play(trajectory, tips, t, command, executed, at, error, events)
         metrics = {
             "duration_s": float(t[-1]),
             "tracking_error_max_m": float(error.max()),
@@ -71,4 +93,44 @@ class PointRobot(Device):
             "planned_min_clearance_m": float(clearance.min()),
             "samples": len(t),
         }
-        return ExecutionReport(ExecuteStatus.COMPLETED, metrics, executed_tip_path=executed)
+        if s.realtime:
+            metrics["realtime_late_max_s"] = float(late.max(initial=0.0))  # how far behind its time a sample was
+            metrics["realtime_late_samples"] = int(np.count_nonzero(late > 1.0 / s.rate))
+        timeline = {
+            "t": t,
+            "tip": executed,
+            "commanded": command,
+            "clearance": at,
+            "deviation": error,
+            "events": events,
+        }
+        return ExecutionReport(
+            ExecuteStatus.COMPLETED, metrics, executed_tip_path=executed, annotations={"timeline": timeline}
+        )
+
+    def _play(self, trajectory, tips, t, command, executed, clearance, error, events) -> np.ndarray:
+        """Publish the motion on the live feed (at the pace of its clock when ``realtime``); the lateness
+        of each sample (s)."""
+        live, realtime = self.live, self.settings.realtime
+        late = np.zeros(len(t))
+        if not (live.active or realtime):
+            return late
+        if live.active:
+            stage = {"name": self.stage, "kind": "execute", "plugin": "point_robot", "path_from": trajectory.source}
+            live.publish("stage", {**stage, "recommended": tips.tolist()})
+        pending = list(events)
+        start = time.perf_counter()
+        for i in range(len(t)):
+            if realtime:
+                wait = start + t[i] - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+                late[i] = max(0.0, -wait)
+            if live.active:
+                sample = {"t": float(t[i]), "tip": executed[i].tolist(), "commanded": command[i].tolist()}
+                live.publish("tip", {**sample, "clearance": float(clearance[i]), "deviation": float(error[i])})
+                while pending and pending[0]["t"] <= t[i]:
+                    live.publish("event", pending.pop(0))
+        if live.active:
+            live.publish("status", {"status": "completed"})
+        return late

@@ -1,0 +1,129 @@
+"""A real headless browser for the tests of report.html and the live view: Debian's chromium, driven by Playwright.
+
+Never `playwright install` (it downloads a browser build): Playwright's client drives the system's
+chromium (`executable_path`). Chromium is kept off the network by its flags (no background
+networking, component updates, sync, QUIC or first-run fetches; a fresh profile), and every page is
+watched: a request to anything but file:// or 127.0.0.1 fails the test. WebGL runs on SwiftShader
+(no GPU). Tests skip, saying why, only where no browser can be had.
+
+Checked with strace over the whole chromium process tree while a report loads: no sendto/sendmsg
+and no TCP connect to any address but loopback. Chromium still connect()s a UDP socket to a public
+IPv6 address (its IPv6-reachability probe: a UDP connect sends no packet, it only picks a route).
+"""
+
+from __future__ import annotations
+
+import io
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-default-apps",
+    "--disable-extensions",
+    "--metrics-recording-only",
+    "--no-pings",
+    "--disable-domain-reliability",
+    "--disable-client-side-phishing-detection",
+    "--disable-breakpad",
+    "--no-default-browser-check",
+    "--disable-features=Translate,OptimizationHints,MediaRouter,DialMediaRouteProvider,AutofillServerCommunication,"
+    "CertificateTransparencyComponentUpdater",
+    # no host resolves but 127.0.0.1: nothing can be reached by name (pages use file:// and 127.0.0.1 only)
+    "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+]
+#: the chromium driver's own messages about SwiftShader are warnings, never errors
+VIEWPORT = {"width": 1400, "height": 850}
+
+
+def chromium_path() -> str:
+    path = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
+    if path is None:
+        pytest.skip("no chromium on this machine (apt-get install chromium; `make test` installs it)")
+    return path
+
+
+class Browser:
+    """One chromium for a test module; pages record their console errors and every request."""
+
+    def __init__(self) -> None:
+        try:
+            from playwright.sync_api import sync_playwright
+        except ImportError:
+            pytest.skip("Playwright's client is not installed (pip install -e '.[browser]'; `make test` does)")
+        executable = chromium_path()
+        self._profile = tempfile.mkdtemp(prefix="surgiplan-chromium-")
+        self._playwright = sync_playwright().start()
+        try:
+            self.context = self._playwright.chromium.launch_persistent_context(
+                self._profile, executable_path=executable, args=CHROMIUM_FLAGS, headless=True, viewport=VIEWPORT
+            )
+        except Exception as exc:
+            self._playwright.stop()
+            pytest.skip(f"chromium does not start here: {exc}")
+
+    def page(self, url: str, *, ready: str = "window.surgiplan && window.surgiplan.ready", timeout: float = 60_000):
+        page = self.context.new_page()
+        page.requests = []
+        page.problems = []
+        page.on("request", lambda r: page.requests.append(r.url))
+        page.on("console", lambda m: page.problems.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
+        page.on("pageerror", lambda e: page.problems.append(f"page error: {e}"))
+        page.goto(url)
+        wait_for(page, ready, timeout)
+        return page
+
+    def close(self) -> None:
+        try:
+            self.context.close()
+        finally:
+            self._playwright.stop()
+            shutil.rmtree(self._profile, ignore_errors=True)
+
+
+def wait_for(page, expression: str, timeout: float = 30_000) -> None:
+    """Poll ``expression`` in the page until it is true (the page's CSP forbids Playwright's eval-based wait)."""
+    import time
+
+    deadline = time.monotonic() + timeout / 1000
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{expression!r} still false after {timeout / 1000:.0f} s")
+        page.wait_for_timeout(25)
+
+
+def offsite(requests: list[str], allowed=("file://", "data:", "http://127.0.0.1:", "ws://127.0.0.1:")) -> list[str]:
+    """The requests that left this machine's files and loopback."""
+    return [u for u in requests if not u.startswith(allowed)]
+
+
+def canvas_pixels(page) -> np.ndarray:
+    """The 3D canvas as an (h, w, 3) uint8 array, from a screenshot of it."""
+    from PIL import Image
+
+    png = page.locator("#view > canvas").screenshot()
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def drawn_fraction(pixels: np.ndarray, background=(0xF7, 0xF7, 0xF4), tolerance: int = 6) -> float:
+    """The fraction of pixels that are not the scene's background colour."""
+    return float(np.mean(np.any(np.abs(pixels.astype(int) - np.array(background)) > tolerance, axis=2)))
+
+
+def red_pixels(pixels: np.ndarray) -> int:
+    """Pixels of the below-threshold red (#d62728, shaded)."""
+    p = pixels.astype(int)
+    return int(np.count_nonzero((p[..., 0] > 150) & (p[..., 1] < 90) & (p[..., 2] < 90)))
