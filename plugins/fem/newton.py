@@ -70,8 +70,9 @@ handful of iterations where nonlinear CG needs hundreds:
   the same positions), which it would otherwise compute as its first step:
   that saves the time and changes no bit of the answer.
 
-Linear algebra: SuperLU on the fixed, pre-ordered pattern of
-:class:`~.assembly.TangentPattern` (no ordering work per factorisation).
+Linear algebra: the fixed pattern of :class:`~.assembly.TangentPattern`,
+factored by PARDISO (symbolic analysis once per pattern, inertia from the
+factorisation) or SuperLU (pre-ordered), see :mod:`.linear`.
 """
 
 from __future__ import annotations
@@ -82,7 +83,8 @@ from typing import Literal
 
 import numpy as np
 
-from .assembly import Factorization, TangentPattern
+from .assembly import TangentPattern
+from .linear import PardisoFactor, SuperLUFactor
 from .loads import ExternalLoads
 from .stvk import StVKElements
 
@@ -565,7 +567,7 @@ class EquilibriumSolver:
 class CachedFactor:
     """A factored, constrained tangent and what it was built from (reusable by later steps and solves)."""
 
-    lu: Factorization
+    lu: PardisoFactor | SuperLUFactor
     data: np.ndarray  # the unconstrained tangent's values (pattern order), for K_fc products
     diagonal: np.ndarray  # (3n,) diagonal of the constrained matrix, original numbering
     prescribed: np.ndarray  # (3n,) bool
@@ -580,5 +582,5 @@ class CachedFactor:
     shift: float = 1e-4
 
     def positive_pivots(self) -> bool:
-        """Whether every pivot is positive: for a symmetric matrix factored without pivoting, definiteness."""
+        """Whether the factored matrix is positive definite, read from the factorisation (its pivots)."""
         return self.lu.positive_pivots()

@@ -198,6 +198,22 @@ class SolverSettings(_Strict):
     max_iterations: PositiveInt = 60
     #: auto: exact tangent, positive semi-definite surrogate when needed; definite; exact
     tangent: Literal["auto", "definite", "exact"] = "auto"
+    #: the sparse direct solver: auto (PARDISO where pypardiso and oneMKL are installed, else SuperLU),
+    #: pardiso (an error where it is not installed) or superlu (scipy's, always there)
+    linear_solver: Literal["auto", "pardiso", "superlu"] = "auto"
+
+    @model_validator(mode="after")
+    def _solver_available(self):
+        if self.linear_solver == "pardiso":
+            from .linear import pardiso_available
+
+            ok, why = pardiso_available()
+            if not ok:
+                raise ValueError(
+                    "linear_solver 'pardiso' needs pypardiso and Intel oneMKL: pip install 'surgiplan[pardiso]' "
+                    f"(or linear_solver: auto, which falls back to SuperLU); here: {why}"
+                )
+        return self
 
 
 class StVKSettings(_Strict):
