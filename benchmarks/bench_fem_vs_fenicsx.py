@@ -61,7 +61,7 @@ from pathlib import Path
 for _name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ.setdefault(_name, "1")  # one thread on each side (the DOLFINx process inherits this)
 
-import numpy as np
+import numpy as np  # noqa: E402  (after the thread counts: BLAS reads them when it loads)
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -73,7 +73,7 @@ WHEEL = "dolfinx-solver-real==0.11.0.post0"
 
 def dolfinx_worker(case_path: str, out_path: str) -> None:
     """Solve one case with DOLFINx in every configuration; write positions, energy, reactions, times."""
-    import dolfinx_solver  # noqa: F401  (the wheel's bootstrap: MPI before the bindings)
+    import dolfinx_solver  # noqa: F401, I001  (the wheel's bootstrap: MPI before the bindings)
     import basix.ufl
     import dolfinx
     import dolfinx.fem.petsc as fpetsc
@@ -303,7 +303,10 @@ def ensure_environment() -> tuple[Path | None, str]:
         return python, ""
     base = find_python312()
     if base is None:
-        return None, "no Python 3.12 found (set FENICSX_PYTHON, or put python3.12 on the path): DOLFINx's wheel needs it"
+        return (
+            None,
+            "no Python 3.12 found (set FENICSX_PYTHON, or put python3.12 on the path): DOLFINx's wheel needs it",
+        )
     steps = [[base, "-m", "venv", "--clear", str(VENV)], [str(python), "-m", "pip", "install", "--quiet", WHEEL]]
     for step in steps:
         print("fenicsx environment:", " ".join(step), flush=True)
@@ -312,7 +315,9 @@ def ensure_environment() -> tuple[Path | None, str]:
             tail = (done.stderr or done.stdout).strip().splitlines()[-3:]
             return None, f"'{' '.join(step)}' failed: {' / '.join(tail)}"
     check = subprocess.run(
-        [str(python), "-c", "import dolfinx_solver, dolfinx; print(dolfinx.__version__)"], capture_output=True, text=True
+        [str(python), "-c", "import dolfinx_solver, dolfinx; print(dolfinx.__version__)"],
+        capture_output=True,
+        text=True,
     )
     if check.returncode != 0:
         return None, f"DOLFINx does not import: {check.stderr.strip().splitlines()[-1:]}"
@@ -480,9 +485,7 @@ def compare(name: str, model, constraints, start, tolerance: dict, python: Path,
             summary["median_s"] = round(statistics.median(entry["times"]), 4)
             positions = theirs[f"positions:{config}"]
             gradient = theirs[f"gradient:{config}"]
-            summary["displacement_rel"] = float(
-                np.abs(positions - state.positions).max() / np.abs(displacement).max()
-            )
+            summary["displacement_rel"] = float(np.abs(positions - state.positions).max() / np.abs(displacement).max())
             summary["energy_rel"] = float(abs(entry["energy"] - state.energy) / abs(state.energy))
             summary["reaction_rel"] = float(
                 np.abs(gradient[held] - reactions[held]).max() / np.abs(reactions[held]).max()

@@ -105,6 +105,7 @@ def plan_once(data: dict, grasp_xyz, sampling: dict, goal, executor, store: Path
     row["goals"] = int((roadmap.ok & (roadmap.visible >= spec.settings.visibility.threshold - 1e-12)).sum())
     row["edges"] = len(roadmap.edges)
     row["fem_cpu_s"] = roadmap.timing.get("fem_s", 0.0)
+    row["build_timing"] = {k: round(float(v), 3) for k, v in roadmap.timing.items()}
     for metric in ("max_energy", "max_stress"):
         runs = []
         for _ in range(repeats):
