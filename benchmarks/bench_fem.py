@@ -164,7 +164,7 @@ def iteration_pieces() -> list[dict]:
         "element tangents (definite surrogate)": lambda: kernel.evaluate(state.positions, hessian=True, definite=True),
         "assembly (bincount)": lambda: solver.pattern.assemble(hessian),
         "constraints": lambda: solver.pattern.constrain(data, prescribed),
-        "LU factorisation (SuperLU, pre-ordered)": lambda: solver.pattern.factorize(constrained),
+        f"factorisation ({solver.pattern.solver})": lambda: solver.pattern.factorize(constrained),
         "triangular solves": lambda: factor.solve(x),
         "self-intersection check": lambda: model.evaluate_state(state.positions),
     }
@@ -363,6 +363,7 @@ def convergence_figure(cantilever_rows: list[dict], locking_rows: list[dict]) ->
 
 
 def main() -> None:
+    load_at_start = os.getloadavg()[0]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer samples and repeats (a smoke run)")
     parser.add_argument("--store", help="task store of the sampled equilibria (resume an interrupted run)")
@@ -408,7 +409,11 @@ def main() -> None:
         + [{"part": "cantilever convergence", **r} for r in convergence]
         + [{"part": "bending locking", **r} for r in locked]
     )
-    note = "flap 20x20x2 cells x5 tets; OMP_NUM_THREADS=1; medians over steps" + (" (quick)" if args.quick else "")
+    note = (
+        f"flap 20x20x2 cells x5 tets; OMP_NUM_THREADS=1; medians over steps; sparse solver "
+        f"{flap().solver.pattern.solver}; load average at the start {load_at_start:.2f} (1 min) on {os.cpu_count()} "
+        "cores shared with other work" + (" (quick)" if args.quick else "")
+    )
     print(f"\nwritten: {save('fem', rows, note)} and {figure}")
 
 

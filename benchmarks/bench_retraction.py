@@ -20,9 +20,19 @@ Scenarios are the shipped configs: ``configs/retraction_incision.yaml``
 config's candidates are used (the stage's start first).
 
     python benchmarks/bench_retraction.py [--quick] [--grasps 2] [--samples 1000] [--guided 200] [--store DIR]
+    python benchmarks/bench_retraction.py --compare REF [--rounds 1] [--scenarios 1 2]
 
 ``--store DIR`` keeps the checkpointed equilibria between runs (resumable);
 timings of a resumed run are not generation times.
+
+``--compare REF`` measures sample generation (1,000 random samples, one
+grasp, the executor's 2 workers) of this tree and of the git revision REF
+(e.g. the commit before a speed-up) in the same run, alternating which goes
+first, each in a fresh process with an empty task store, and compares the
+plans both find (the optimised costs of both metrics on the roadmap):
+``results/retraction_speed.json``. The machine is shared, so both sides of a
+comparison meet the same load, which is recorded (1-minute load average at
+the start and end of each generation).
 """
 
 from __future__ import annotations
@@ -30,6 +40,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -41,7 +52,7 @@ import yaml
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per worker process
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import save, table
+from common import RESULTS, save, table
 from surgiplan import load_pipeline
 from surgiplan.executors import LocalExecutor
 from surgiplan.planning import PlanningProblem
@@ -105,6 +116,7 @@ def plan_once(data: dict, grasp_xyz, sampling: dict, goal, executor, store: Path
     row["goals"] = int((roadmap.ok & (roadmap.visible >= spec.settings.visibility.threshold - 1e-12)).sum())
     row["edges"] = len(roadmap.edges)
     row["fem_cpu_s"] = roadmap.timing.get("fem_s", 0.0)
+    row["build_timing"] = {k: round(float(v), 3) for k, v in roadmap.timing.items()}
     for metric in ("max_energy", "max_stress"):
         runs = []
         for _ in range(repeats):
@@ -134,6 +146,132 @@ def plan_once(data: dict, grasp_xyz, sampling: dict, goal, executor, store: Path
     return row
 
 
+def generation_worker(root: str, out: str, scenario: int, samples: int) -> None:
+    """One generation (random samples, the stage's start grasp) with the tree ``root``'s own plan_once."""
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("tree_bench", Path(root) / "benchmarks" / "bench_retraction.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    config, stage, _, _ = bench.SCENARIOS[scenario]
+    data = bench.stage_data(config, stage)
+    grasp = data["pipeline"][0]["start"]["xyz"]
+    executor = LocalExecutor(2)
+    load = os.getloadavg()[0]
+    try:
+        with tempfile.TemporaryDirectory() as store:
+            row = bench.plan_once(data, grasp, {"kind": "uniform", "samples": samples}, None, executor, Path(store), 1)
+    finally:
+        executor.close()
+    result = {
+        "generation_s": row["generation_s"],
+        "load_start": load,
+        "load_end": os.getloadavg()[0],
+        "valid": row["valid"],
+        "goals": row["goals"],
+        "edges": row["edges"],
+        "fem_cpu_s": row["fem_cpu_s"],
+        "cost_max_energy": row["max_energy"]["cost"],
+        "cost_max_stress": row["max_stress"]["cost"],
+        "status": [row["max_energy"]["status"], row["max_stress"]["status"]],
+        "build_timing": row.get("build_timing"),
+    }
+    Path(out).write_text(json.dumps(result))
+
+
+def export_tree(ref: str, where: Path) -> Path:
+    """``git archive REF`` unpacked in ``where``, importable as ``surgiplan`` (PYTHONPATH=where/src)."""
+    root = Path(__file__).resolve().parent.parent
+    archive = subprocess.run(["git", "-C", str(root), "archive", ref], capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(where)], input=archive, check=True)
+    (where / "src").mkdir()
+    (where / "src" / "surgiplan").symlink_to(where / "framework")
+    (where / "framework" / "plugins").symlink_to(where / "plugins")
+    return where
+
+
+def compare(ref: str, scenarios: list[int], rounds: int, samples: int) -> None:
+    """Generation time and plans of this tree against revision ``ref``, alternating, in the same run."""
+    import json
+
+    root = Path(__file__).resolve().parent.parent
+    commit = subprocess.run(["git", "-C", str(root), "rev-parse", ref], capture_output=True, text=True, check=True)
+    here = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, check=True)
+    dirty = subprocess.run(
+        ["git", "-C", str(root), "status", "--porcelain", "--", "plugins", "framework"], capture_output=True, text=True
+    ).stdout.strip()
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-retraction-ref-") as scratch:
+        baseline = export_tree(ref, Path(scratch))
+        trees = {"baseline": (baseline, str(baseline / "src")), "current": (root, "")}
+        for scenario in scenarios:
+            for round_ in range(rounds):
+                order = ["baseline", "current"] if round_ % 2 == 0 else ["current", "baseline"]
+                for name in order:
+                    tree, path = trees[name]
+                    out = Path(scratch) / f"{name}-{scenario}-{round_}.json"
+                    env = dict(os.environ, PYTHONPATH=path) if path else dict(os.environ)
+                    if not path:
+                        env.pop("PYTHONPATH", None)
+                    command = [
+                        sys.executable,
+                        str(Path(__file__).resolve()),
+                        "--generation-worker",
+                        str(tree),
+                        str(out),
+                        str(scenario),
+                        str(samples),
+                    ]
+                    subprocess.run(command, env=env, check=True, cwd=scratch)
+                    result = json.loads(out.read_text())
+                    rows.append({"scenario": scenario, "round": round_, "tree": name, **result})
+                    print(
+                        f"scenario {scenario} round {round_} {name}: {result['generation_s']:.1f} s "
+                        f"(load {result['load_start']:.1f} -> {result['load_end']:.1f}), costs "
+                        f"{result['cost_max_energy']:.6g} J, {result['cost_max_stress']:.6g} Pa",
+                        flush=True,
+                    )
+    summary = []
+    for scenario in scenarios:
+        mine = [r for r in rows if r["scenario"] == scenario]
+        base = [r for r in mine if r["tree"] == "baseline"]
+        new = [r for r in mine if r["tree"] == "current"]
+        b, c = statistics.median(r["generation_s"] for r in base), statistics.median(r["generation_s"] for r in new)
+        summary.append(
+            {
+                "scenario": scenario,
+                "samples": samples,
+                "baseline_generation_s": round(b, 1),
+                "current_generation_s": round(c, 1),
+                "target_s": 150,
+                "speedup": round(b / c, 2),
+                "cost_change_max_energy": (new[0]["cost_max_energy"] - base[0]["cost_max_energy"])
+                / base[0]["cost_max_energy"],
+                "cost_change_max_stress": (new[0]["cost_max_stress"] - base[0]["cost_max_stress"])
+                / base[0]["cost_max_stress"],
+                "valid_baseline_current": [base[0]["valid"], new[0]["valid"]],
+                "goals_baseline_current": [base[0]["goals"], new[0]["goals"]],
+            }
+        )
+    print(table(summary, list(summary[0])))
+    notes = (
+        f"baseline {ref} = {commit.stdout.strip()[:12]}, current HEAD {here.stdout.strip()[:12]}"
+        + (" with uncommitted changes" if dirty else "")
+        + f"; {samples} random samples, the stage's start grasp, local executor with 2 workers, "
+        f"OMP_NUM_THREADS=1, {rounds} round(s) alternating which tree goes first; each generation in a fresh "
+        f"process with an empty task store; {os.cpu_count()} cores shared with other work: load averages per run "
+        "in the rows"
+    )
+    from surgiplan.storage import write_json_atomic
+
+    write_json_atomic(
+        RESULTS / "retraction_speed.json",
+        {"benchmark": "retraction_speed", "notes": notes, "summary": summary, "rows": rows},
+    )
+    print(f"wrote {RESULTS / 'retraction_speed.json'}")
+
+
 def main() -> None:
     load_at_start = os.getloadavg()[0]  # the notes say whether the timings are upper bounds
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -144,7 +282,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--scenarios", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--store", type=Path, default=None)
+    parser.add_argument("--compare", metavar="REF", help="generation time and plans against git revision REF")
+    parser.add_argument("--rounds", type=int, default=1, help="with --compare: rounds, alternating the order")
     args = parser.parse_args()
+    if args.compare:
+        compare(args.compare, args.scenarios, args.rounds, args.samples)
+        return
     if args.quick:
         args.samples, args.guided, args.grasps, args.repeats = 60, 20, 1, 1
     executor = LocalExecutor(2)
@@ -287,4 +430,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) == 6 and sys.argv[1] == "--generation-worker":
+        generation_worker(sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5]))
+    else:
+        main()

@@ -263,3 +263,46 @@ def test_models_pickle_and_solve_the_same_in_worker_processes(tmp_path):
     # resumed: everything comes from the store
     again = run_tasks(LocalExecutor(1), lambda _: pytest.fail("recomputed"), tasks, store=TaskStore(tmp_path / "store"))
     assert np.array_equal(again["chunk-1"]["energy"], results["chunk-1"]["energy"])
+
+
+PROBE = (
+    "      probes:\n"
+    "        - {name: tip_deflection, region: {min: [100, 0, 0], max: [100, 10, 10]}, direction: [0, 0, -2],"
+    " reference: %s, source: a reference}\n"
+)
+
+
+def test_a_probe_reports_a_displacement_against_its_reference(tmp_path, cli):
+    path = write(tmp_path / "beam.yaml", CANTILEVER.format(iterations=60, extra=PROBE % "12.5"))
+    code, _, err = cli("run", path, "--out", tmp_path / "out")
+    assert code == 0, err
+    metrics = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][0]["metrics"]
+    # independently: the mean downward displacement of the tip nodes in the written .vtu (direction normalised)
+    vtu = meshio.read(tmp_path / "out" / "beam.vtu")
+    rest = vtu.points - vtu.point_data["displacement"]
+    tip = np.isclose(rest[:, 0], 0.1)
+    measured = -vtu.point_data["displacement"][tip, 2].mean()
+    assert tip.sum() == 4 and measured > 0.001
+    assert metrics["tip_deflection_m"] == pytest.approx(measured, rel=1e-9)
+    assert metrics["tip_deflection_reference_m"] == pytest.approx(0.0125)  # mm in the file, m in the metrics
+    assert metrics["tip_deflection_relative_error"] == pytest.approx((measured - 0.0125) / 0.0125, rel=1e-9)
+    assert metrics["tip_deflection_source"] == "a reference"
+
+
+def test_a_probe_that_selects_no_node_is_reported_before_anything_is_written(tmp_path, cli):
+    extra = PROBE.replace("min: [100, 0, 0], max: [100, 10, 10]", "min: [200, 0, 0], max: [210, 10, 10]") % "1"
+    path = write(tmp_path / "beam.yaml", CANTILEVER.format(iterations=60, extra=extra))
+    code, _, err = cli("run", path, "--out", tmp_path / "out")
+    assert code == 2
+    assert "probes[0].region: the probe's region contains no node of the mesh" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "out" / "beam.vtu").exists() and not (tmp_path / "out" / "beam.png").exists()
+
+
+def test_the_figure_colours_up_to_the_largest_stress():
+    from surgiplan.plugins.fem.figure import stress_norm
+
+    stress = np.array([1.0e3, 2.0e4, 3.0e5, 1.889e6, np.inf, np.nan])
+    norm = stress_norm(stress / 1e3)
+    assert norm.vmin == 0 and norm.vmax == pytest.approx(1889.0)  # to the maximum, not a percentile
+    assert norm(1889.0) == pytest.approx(1.0) and norm(1889.0 / 4) == pytest.approx(0.5)  # square-root spaced

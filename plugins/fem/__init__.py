@@ -11,7 +11,8 @@ calls this model for every sampled gripper pose. Modules:
 * :mod:`.material` — per-element E, nu, rho, volume penalty; region and image maps;
 * :mod:`.stvk` — the element kernel: energy, forces, tangent (vectorised);
 * :mod:`.loads` — lumped-mass gravity, dead loads, base-plane contact;
-* :mod:`.assembly` — the sparse tangent by precomputed index arrays, SuperLU;
+* :mod:`.assembly` — the sparse tangent by precomputed index arrays;
+* :mod:`.linear` — its sparse direct solvers: PARDISO (oneMKL, analysis once per mesh, inertia), SuperLU;
 * :mod:`.newton` — Newton's method with predictor, line search, stopping rules;
 * :mod:`.intersection` — self-intersection of the deformed surface;
 * :mod:`.model` — :class:`StVKModel`, the public API (what planners use; it imports no stage code);

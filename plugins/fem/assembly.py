@@ -4,9 +4,11 @@ The global tangent of a mesh always has the same sparsity pattern, whatever
 the deformation and whatever nodes are held. :class:`TangentPattern`
 computes once:
 
-* a fill-reducing ordering of the degrees of freedom (SuperLU's minimum
-  degree on A^T + A), applied to the pattern itself, so that every later
-  factorisation skips the ordering (``permc_spec="NATURAL"``);
+* for SuperLU, a fill-reducing ordering of the degrees of freedom
+  (minimum degree on A^T + A), applied to the pattern itself, so that every
+  later factorisation skips the ordering (``permc_spec="NATURAL"``); for
+  PARDISO, its symbolic analysis, on the first factorisation
+  (:mod:`.linear`);
 * the compressed-column pattern in that order, and for each of the 144
   (linear) or 900 (quadratic) entries of every element tangent the position
   it adds to (assembly is one ``np.bincount``);
@@ -26,22 +28,28 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
+from .linear import PardisoSolver, resolve, superlu_factor
+
 
 class TangentPattern:
     """The fixed sparsity pattern of a mesh's tangent, and how to fill and factor it.
 
     ``dofs`` (k, 3, m): global degree of freedom of each element's node and
-    axis (``3 node + axis``), k = 4 or 10 nodes per element; ``n_dofs``: 3 n.
+    axis (``3 node + axis``), k = 4 or 10 nodes per element; ``n_dofs``: 3 n;
+    ``solver``: ``auto``, ``pardiso`` or ``superlu`` (:func:`.linear.resolve`).
     """
 
-    def __init__(self, dofs: np.ndarray, n_dofs: int) -> None:
+    def __init__(self, dofs: np.ndarray, n_dofs: int, solver: str = "auto") -> None:
         self.n_dofs = n_dofs
+        #: the sparse direct solver that factors this pattern's matrices: "pardiso" or "superlu"
+        self.solver = resolve(solver)
         size = 3 * dofs.shape[0]
         d = dofs.reshape(size, -1)
         m = d.shape[1]
         rows = np.broadcast_to(d[:, None, :], (size, size, m)).ravel()
         cols = np.broadcast_to(d[None, :, :], (size, size, m)).ravel()
-        order = self._ordering(rows, cols, n_dofs)  # order[old] = new
+        # order[old] = new: SuperLU factors in this order; PARDISO orders the matrix itself (METIS)
+        order = self._ordering(rows, cols, n_dofs) if self.solver == "superlu" else np.arange(n_dofs)
         self.new_of_old = order
         self.old_of_new = np.argsort(order)
         key = order[cols].astype(np.int64) * n_dofs + order[rows]  # column-major: CSC
@@ -58,6 +66,7 @@ class TangentPattern:
         #: (n, 3, 3) positions of each node's diagonal block
         self.node_blocks = self._positions(r.ravel(), c.ravel()).reshape(-1, 3, 3)
         self._masks: OrderedDict[bytes, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._pardiso: PardisoSolver | None = None
 
     @staticmethod
     def _ordering(rows, cols, n: int) -> np.ndarray:
@@ -122,35 +131,19 @@ class TangentPattern:
             self._masks.popitem(last=False)
         return value
 
-    def factorize(self, data: np.ndarray) -> Factorization:
-        """LU factors of the (constrained) tangent; raises ``RuntimeError`` when it is singular."""
-        lu = sla.splu(
-            self.matrix(data),
-            permc_spec="NATURAL",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        )
-        return Factorization(lu, self)
+    def factorize(self, data: np.ndarray):
+        """Factors of the (constrained) tangent: ``solve(rhs)``, ``positive_pivots()``.
+
+        Raises :class:`~.linear.SingularMatrix` (a ``RuntimeError``) when it is singular.
+        """
+        if self.solver == "pardiso":
+            if self._pardiso is None:
+                self._pardiso = PardisoSolver(self.indptr, self.indices, self.entry_cols)
+            return self._pardiso.factorize(data)
+        return superlu_factor(self.matrix(data), self.new_of_old, self.old_of_new)
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_masks"] = OrderedDict()
+        state["_pardiso"] = None  # a solver handle lives in one process: analysed again on first use
         return state
-
-
-class Factorization:
-    """Solves with a factored tangent, in the original numbering."""
-
-    def __init__(self, lu, pattern: TangentPattern) -> None:
-        self._lu = lu
-        self._pattern = pattern
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        p = self._pattern
-        return self._lu.solve(rhs[p.old_of_new])[p.new_of_old]
-
-    def positive_pivots(self) -> bool:
-        """All pivots (U's diagonal) positive: a symmetric matrix factored on its diagonal is then definite."""
-        if not np.array_equal(self._lu.perm_r, np.arange(self._pattern.n_dofs)):
-            return False  # SuperLU pivoted off the diagonal: the test does not apply
-        return bool(np.all(self._lu.U.diagonal() > 0))

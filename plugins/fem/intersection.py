@@ -82,8 +82,125 @@ def _one_side(corners: np.ndarray, normals: np.ndarray, points: np.ndarray, tol:
     return np.all(side >= -tol, axis=1) | np.all(side <= tol, axis=1)
 
 
+class _Adjacency:
+    """What the surface's connectivity fixes once: the triangle pairs that share exactly one vertex (their
+    bounding boxes always overlap: every state tests them), each with its triangles' vertices opposite the
+    shared one, and the keys of all pairs sharing a vertex or an edge (never candidates of the broad phase)."""
+
+    def __init__(self, triangles: np.ndarray) -> None:
+        t = len(triangles)
+        owner = np.repeat(np.arange(t), 3)
+        vertex = triangles.ravel()
+        order = np.argsort(vertex, kind="stable")
+        vertex, owner = vertex[order], owner[order]
+        starts = np.flatnonzero(np.r_[True, vertex[1:] != vertex[:-1]])
+        counts = np.diff(np.r_[starts, len(vertex)])
+        a, b = [], []
+        for size in np.unique(counts):  # triangles around each vertex, grouped by how many there are
+            fans = owner[starts[counts == size][:, None] + np.arange(size)]
+            i, j = np.triu_indices(size, 1)
+            a.append(fans[:, i].ravel())
+            b.append(fans[:, j].ravel())
+        a, b = np.concatenate(a), np.concatenate(b)
+        pairs = np.unique(np.column_stack([np.minimum(a, b), np.maximum(a, b)]), axis=0)
+        self.keys = pairs[:, 0] * t + pairs[:, 1]  # sorted
+        ta, tb = triangles[pairs[:, 0]], triangles[pairs[:, 1]]
+        same = ta[:, :, None] == tb[:, None, :]
+        one = same.sum(axis=(1, 2)) == 1
+        self.pairs = pairs[one]
+        same = same[one]
+        ia = np.argmax(same.any(axis=2), axis=1)  # the shared vertex's slot in a
+        ib = np.argmax(same.any(axis=1), axis=1)  # and in b
+        rows = np.arange(len(self.pairs))
+        ta, tb = ta[one], tb[one]
+        #: (k, 2) the vertices of a opposite the shared one, and of b
+        self.opposite_a = np.column_stack([ta[rows, (ia + 1) % 3], ta[rows, (ia + 2) % 3]])
+        self.opposite_b = np.column_stack([tb[rows, (ib + 1) % 3], tb[rows, (ib + 2) % 3]])
+        self.count = t
+
+
+_ADJACENCY: dict[bytes, _Adjacency] = {}
+
+
+def _adjacency(triangles: np.ndarray) -> _Adjacency:
+    key = triangles.tobytes()
+    found = _ADJACENCY.get(key)
+    if found is None:
+        if len(_ADJACENCY) > 8:
+            _ADJACENCY.clear()
+        found = _ADJACENCY[key] = _Adjacency(triangles)
+    return found
+
+
+def _straddles(x, plane: np.ndarray, normal: np.ndarray, ends: np.ndarray, tol: float) -> np.ndarray:
+    """Whether the segments ``ends`` (k, 2) lie strictly on both sides of the planes through the first corner
+    ``plane`` (k, 3) with (unnormalised) ``normal`` (k, 3): the straddle test of :func:`segments_cross_triangles`."""
+    sp = np.einsum("ij,ij->i", normal, x[ends[:, 0]] - plane)
+    sq = np.einsum("ij,ij->i", normal, x[ends[:, 1]] - plane)
+    return ((sp < -tol) & (sq > tol)) | ((sp > tol) & (sq < -tol))
+
+
 def self_intersections(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Pairs (k, 2) of boundary triangles (indices into ``triangles``) that cross each other at x."""
+    """Pairs (k, 2) of boundary triangles (indices into ``triangles``) that cross each other at x.
+
+    Pairs sharing one vertex (the fixed neighbours, most of the candidates) are tested directly: they cross
+    only where the edge of one opposite the shared vertex straddles the other's plane, so a plane-side test
+    decides almost all of them, and the few that straddle get the full test. The broad phase then only
+    looks for pairs that share no vertex.
+    """
+    x = np.asarray(x, dtype=float).reshape(-1, 3)
+    triangles = np.asarray(triangles, dtype=np.int64)
+    corners = x[triangles]  # (t, 3, 3)
+    # determinants below this (m^3) are rounding noise: coplanar neighbours must not count as crossing
+    edge = float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max()) if len(triangles) else 0.0
+    tol = 1e-10 * edge**3
+    adjacency = _adjacency(triangles)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    found = []
+    if len(adjacency.pairs):
+        a, b = adjacency.pairs[:, 0], adjacency.pairs[:, 1]
+        maybe_a = _straddles(x, corners[b, 0], normals[b], adjacency.opposite_a, tol)  # a's far edge through b
+        maybe_b = _straddles(x, corners[a, 0], normals[a], adjacency.opposite_b, tol)
+        check = np.flatnonzero(maybe_a | maybe_b)
+        if len(check):
+            ca, cb = corners[a[check]], corners[b[check]]
+            oa, ob = adjacency.opposite_a[check], adjacency.opposite_b[check]
+            hit = segments_cross_triangles(x[oa[:, 0]], x[oa[:, 1]], cb[:, 0], cb[:, 1], cb[:, 2], tol)
+            hit |= segments_cross_triangles(x[ob[:, 0]], x[ob[:, 1]], ca[:, 0], ca[:, 1], ca[:, 2], tol)
+            found.append(adjacency.pairs[check[hit]])
+    pad = 1e-12 * float(np.ptp(x, axis=0).max())
+    pairs = candidate_pairs(corners.min(axis=1) - pad, corners.max(axis=1) + pad)
+    if len(pairs):
+        keys = pairs[:, 0] * adjacency.count + pairs[:, 1]
+        at = np.minimum(np.searchsorted(adjacency.keys, keys), len(adjacency.keys) - 1)
+        pairs = pairs[adjacency.keys[at] != keys] if len(adjacency.keys) else pairs  # share no vertex
+    if len(pairs):
+        found.append(_disjoint_crossings(pairs, corners, normals, tol))
+    if not found:
+        return np.empty((0, 2), dtype=np.int64)
+    out = np.concatenate(found)
+    return out[np.lexsort((out[:, 1], out[:, 0]))]
+
+
+def _disjoint_crossings(pairs: np.ndarray, corners: np.ndarray, normals: np.ndarray, tol: float) -> np.ndarray:
+    """Of candidate pairs sharing no vertex, those that cross (one of the six edges crosses the other)."""
+    a, b = pairs[:, 0], pairs[:, 1]
+    # a triangle entirely on one side of the other's plane cannot cross it (Moller 1997's early exit)
+    maybe = ~_one_side(corners[a], normals[b], corners[b, 0], tol)
+    maybe[maybe] &= ~_one_side(corners[b[maybe]], normals[a[maybe]], corners[a[maybe], 0], tol)
+    pairs = pairs[maybe]
+    ca = corners[pairs[:, 0]]
+    cb = corners[pairs[:, 1]]
+    hit = np.zeros(len(pairs), dtype=bool)
+    for first, second in ((ca, cb), (cb, ca)):
+        for e in range(3):
+            p, q = first[:, e], first[:, (e + 1) % 3]
+            hit |= segments_cross_triangles(p, q, second[:, 0], second[:, 1], second[:, 2], tol)
+    return pairs[hit]
+
+
+def _self_intersections_reference(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The direct method (every bounding-box candidate classified by shared vertices), for tests."""
     x = np.asarray(x, dtype=float).reshape(-1, 3)
     triangles = np.asarray(triangles, dtype=np.int64)
     corners = x[triangles]  # (t, 3, 3)

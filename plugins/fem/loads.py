@@ -80,6 +80,7 @@ class ExternalLoads:
         self.gravity = np.asarray(gravity, dtype=float).reshape(3)
         self.base = base
         self.body_forces = self.masses[:, None] * self.gravity  # N per node
+        self._rest_depth: np.ndarray | None = None  # heights of the rest nodes above the base plane
         self.set_forces(forces)
 
     def set_forces(self, forces: np.ndarray | None) -> None:
@@ -90,14 +91,20 @@ class ExternalLoads:
         self.total_forces = total
         self._flat = total.ravel()
 
-    def evaluate(self, x: np.ndarray, gradient: bool = True) -> LoadEvaluation:
-        work = float(np.dot(self._flat, (x - self.rest).ravel()))
+    def evaluate(self, x: np.ndarray, gradient: bool = True, displacement: bool = False) -> LoadEvaluation:
+        """Potential, gradient and contact of the loads at positions x (n, 3), or displacements u (``displacement``)."""
+        u = np.asarray(x, dtype=float).reshape(self.rest.shape)
+        if not displacement:
+            u = u - self.rest
+        work = float(np.dot(self._flat, u.ravel()))
         grad = -self._flat.copy() if gradient else None
         nodes = np.empty(0, dtype=np.int64)
         blocks = np.empty((0, 3, 3))
         contact = 0.0
         if self.base is not None:
-            depth = self.base.depth(x)
+            if self._rest_depth is None:
+                self._rest_depth = self.base.depth(self.rest)
+            depth = self._rest_depth + u @ self.base.normal
             nodes = np.flatnonzero(depth < 0)
             if len(nodes):
                 k = self.base.stiffness

@@ -232,7 +232,7 @@ class StVKModel(DeformableModel):
     @property
     def solver(self) -> EquilibriumSolver:
         if self._solver is None:
-            pattern = TangentPattern(self.kernel.dofs, 3 * self.mesh.n_nodes)
+            pattern = TangentPattern(self.kernel.dofs, 3 * self.mesh.n_nodes, self.settings.solver.linear_solver)
             floor = 1e-9 * float(self.material.youngs_modulus.mean()) * self.edge_length**2
             self._solver = EquilibriumSolver(self.kernel, self.loads, pattern, self.edge_length, floor)
         return self._solver
@@ -509,6 +509,7 @@ class StVKModel(DeformableModel):
                 "tangent_shift": result.shift,
                 "trace": list(result.trace),
                 "newton_s": result.seconds,
+                "linear_solver": self.solver.pattern.solver,
             },
             reaction_forces=reactions[nodes] if grad is not None else None,
         )

@@ -188,6 +188,27 @@ class BasePlaneModel(_Strict):
     stiffness: PositiveFloat | None = None
 
 
+class ProbeModel(_Strict):
+    """A displacement a simulate stage reports: the mean displacement of the nodes in ``region`` along
+    ``direction`` (a unit vector; e.g. [0, 0, -1] for a deflection downwards), optionally against a
+    ``reference`` value (a length, with its ``source``): the metrics then give the relative error."""
+
+    name: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")]
+    region: RegionModel
+    direction: tuple[Finite, Finite, Finite] = (0.0, 0.0, 1.0)
+    reference: Coordinate | None = None
+    #: where the reference comes from (shown in the figure and the metrics)
+    source: str = ""
+
+    @model_validator(mode="after")
+    def _direction(self):
+        length = sum(c * c for c in self.direction) ** 0.5
+        if not length > 0:
+            raise ValueError("direction must not be zero")
+        self.direction = tuple(c / length for c in self.direction)
+        return self
+
+
 class SolverSettings(_Strict):
     """Newton's stopping rules (see ``newton.py``)."""
 
@@ -198,6 +219,22 @@ class SolverSettings(_Strict):
     max_iterations: PositiveInt = 60
     #: auto: exact tangent, positive semi-definite surrogate when needed; definite; exact
     tangent: Literal["auto", "definite", "exact"] = "auto"
+    #: the sparse direct solver: auto (PARDISO where pypardiso and oneMKL are installed, else SuperLU),
+    #: pardiso (an error where it is not installed) or superlu (scipy's, always there)
+    linear_solver: Literal["auto", "pardiso", "superlu"] = "auto"
+
+    @model_validator(mode="after")
+    def _solver_available(self):
+        if self.linear_solver == "pardiso":
+            from .linear import pardiso_available
+
+            ok, why = pardiso_available()
+            if not ok:
+                raise ValueError(
+                    "linear_solver 'pardiso' needs pypardiso and Intel oneMKL: pip install 'surgiplan[pardiso]' "
+                    f"(or linear_solver: auto, which falls back to SuperLU); here: {why}"
+                )
+        return self
 
 
 class StVKSettings(_Strict):
@@ -217,6 +254,16 @@ class StVKSettings(_Strict):
     #: simulate stage: apply the grasp's motion and the dead loads in this many equal increments, each
     #: warm-started from the one before, and write every step (a ParaView .pvd animation)
     steps: PositiveInt = 1
+    #: simulate stage: displacements to report (metrics and figure), each optionally against a reference
+    probes: list[ProbeModel] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _unique_probes(self):
+        names = [p.name for p in self.probes]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"probe names must be unique: {', '.join(twice)} given twice")
+        return self
 
 
 __all__ = [
@@ -229,6 +276,7 @@ __all__ = [
     "MaterialRegionModel",
     "MaterialSettings",
     "MeshSettings",
+    "ProbeModel",
     "RegionModel",
     "SolverSettings",
     "StVKSettings",

@@ -68,6 +68,7 @@ def run_simulate_stage(model: StVKModel, context: StageContext) -> StageResult:
     settings = model.settings
     if not settings.anchored and settings.grasp is None:
         raise ConfigError("a simulate stage needs anchored nodes or a grasp to hold the tissue", location="settings")
+    probe_nodes(model)  # a probe that selects nothing is reported before anything is solved or written
     steps = settings.steps
     out = Path(context.output_dir)
     name = context.name
@@ -98,6 +99,8 @@ def run_simulate_stage(model: StVKModel, context: StageContext) -> StageResult:
         _write_collection(out / f"{name}.pvd", [(float(f), rel) for f, rel in zip(fractions, files[1:], strict=False)])
         files.insert(1, f"{name}.pvd")
     metrics = _metrics(model, final)
+    probes = probe_metrics(model, final)
+    metrics.update(probes)
     if steps > 1:
         metrics.update(
             {
@@ -118,7 +121,7 @@ def run_simulate_stage(model: StVKModel, context: StageContext) -> StageResult:
         f"largest displacement {metrics['max_displacement_m'] * 1e3:.3g} mm"
         + ("" if ok else " (not converged or not valid)")
     )
-    stage_figure(out / f"{name}.png", model, final, title, metrics if steps > 1 else None)
+    stage_figure(out / f"{name}.png", model, final, title, metrics if steps > 1 else None, _probe_lines(model, probes))
     files.insert(1, f"{name}.png")
     message = final.message
     if final.converged and not final.valid:
@@ -132,6 +135,49 @@ def run_simulate_stage(model: StVKModel, context: StageContext) -> StageResult:
         message=failure + message,
         files=files,
     )
+
+
+def probe_nodes(model: StVKModel) -> list[np.ndarray]:
+    """The nodes of each probe's region; a region without a node is a configuration error (before solving)."""
+    found = []
+    for i, probe in enumerate(model.settings.probes):
+        nodes = model.nodes_in_region(probe.region.min, probe.region.max)
+        if len(nodes) == 0:
+            raise ConfigError(
+                "the probe's region contains no node of the mesh", location=f"settings.probes[{i}].region"
+            )
+        found.append(nodes)
+    return found
+
+
+def probe_metrics(model: StVKModel, state: EquilibriumState) -> dict:
+    """The settings' probes: ``<name>_m`` (the mean displacement of the region's nodes along the direction)
+    and, with a reference, ``<name>_reference_m``, ``<name>_relative_error`` ((measured - reference) /
+    |reference|) and ``<name>_source``."""
+    out: dict = {}
+    for probe, nodes in zip(model.settings.probes, probe_nodes(model), strict=True):
+        moved = (state.positions[nodes] - model.mesh.nodes[nodes]).mean(axis=0)
+        value = float(moved @ np.asarray(probe.direction))
+        out[f"{probe.name}_m"] = value
+        if probe.reference is not None:
+            out[f"{probe.name}_reference_m"] = float(probe.reference)
+            out[f"{probe.name}_relative_error"] = (
+                (value - probe.reference) / abs(probe.reference) if probe.reference != 0 else float("nan")
+            )
+            out[f"{probe.name}_source"] = probe.source
+    return out
+
+
+def _probe_lines(model: StVKModel, probes: dict) -> list[str]:
+    """One line per probe for the figure: "tip_deflection 30.40 mm; elastica ...: 30.17 mm (+0.8 %)"."""
+    lines = []
+    for probe in model.settings.probes:
+        line = f"{probe.name.replace('_', ' ')} {probes[probe.name + '_m'] * 1e3:.4g} mm"
+        if probe.reference is not None:
+            error = probes[probe.name + "_relative_error"]
+            line += f"; {probe.source or 'reference'}: {probe.reference * 1e3:.4g} mm ({error:+.2%})"
+        lines.append(line)
+    return lines
 
 
 def _max_displacement(model: StVKModel, state: EquilibriumState) -> float:

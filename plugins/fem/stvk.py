@@ -126,6 +126,9 @@ class StVKElements:
         self.dofs = 3 * self._tets_t[:, None, :] + np.arange(3)[None, :, None]
         self._dofs_flat = self.dofs.ravel()
         self._gather = np.ascontiguousarray(self.dofs.transpose(1, 0, 2))  # (3, k, m): axis, node, element
+        #: (3n,) m: the rest positions, flat; (3, k, m) per element
+        self.rest = nodes.ravel().copy()
+        self._rest_elements = self.rest[self._gather]
 
     @property
     def n_elements(self) -> int:
@@ -140,6 +143,11 @@ class StVKElements:
     def _element_positions(self, x: np.ndarray) -> np.ndarray:
         """Node positions per element (3, k, m), gathered straight from the flat positions (one take)."""
         return np.asarray(x, dtype=float).ravel()[self._gather]
+
+    def _element_displacements(self, x: np.ndarray, displacement: bool) -> np.ndarray:
+        """Node displacements per element (3, k, m): ``x`` is u itself (``displacement``) or positions X + u."""
+        gathered = np.asarray(x, dtype=float).ravel()[self._gather]
+        return gathered if displacement else gathered - self._rest_elements
 
     def deformation_gradient(self, x: np.ndarray, point: int = 0) -> np.ndarray:
         """F (3, 3, m) at node positions x (n, 3), at quadrature point ``point`` (linear: the only one)."""
@@ -186,11 +194,46 @@ class StVKElements:
         return np.min(dets, axis=0) if len(dets) > 1 else dets[0]
 
     def _strain(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Green strain E (3, 3, m) and tr E."""
+        """Green strain E (3, 3, m) and tr E from F (loses eps |F|^2: see :meth:`_strain_h`)."""
         e = _matmul(f.transpose(1, 0, 2), f)
         e[_DIAG, _DIAG] -= 1.0
         e *= 0.5
         return e, e[0, 0] + e[1, 1] + e[2, 2]
+
+    @staticmethod
+    def _gradient_of_deformation(h: np.ndarray, xe: np.ndarray | None, grad: np.ndarray) -> np.ndarray:
+        """F (3, 3, m): from the positions when given (keeps J of an element crushed to 1e-100 of its
+        volume, which I + H rounds to 0), else I + H."""
+        if xe is not None:
+            return _matmul(xe, grad)
+        f = h.copy()
+        f[_DIAG, _DIAG] += 1.0
+        return f
+
+    @staticmethod
+    def _strain_h(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Green strain E = (H + H^T + H^T H) / 2 (3, 3, m) and tr E from the displacement gradient H.
+
+        No cancellation: E is as accurate relative to the strain as H is, where ``(F^T F - I) / 2`` loses
+        eps |F|^2 whatever the strain; with it the residual forces resolve down to eps times the
+        element forces, which is what lets a tolerance be honoured far below the weight of a node.
+        """
+        ht = h.transpose(1, 0, 2)
+        e = _matmul(ht, h)
+        e += h
+        e += ht
+        e *= 0.5
+        return e, e[0, 0] + e[1, 1] + e[2, 2]
+
+    @staticmethod
+    def _log_volume_ratio(h: np.ndarray, det: np.ndarray) -> np.ndarray:
+        """ln J: log1p(J - 1) with J - 1 = tr H + (tr^2 H - tr H^2) / 2 + det H (accurate for small strains),
+        ln(det F) where J is far from 1 (there the sum cancels and det F is the accurate one)."""
+        tr = h[0, 0] + h[1, 1] + h[2, 2]
+        square = (h * h.transpose(1, 0, 2)).sum(axis=(0, 1))
+        excess = tr + 0.5 * (tr * tr - square) + StVKElements._det(h)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(np.abs(excess) < 0.5, np.log1p(excess), np.log(det))
 
     def _stvk_stress(self, e: np.ndarray, tr: np.ndarray) -> np.ndarray:
         s = 2.0 * self.mu * e
@@ -199,32 +242,44 @@ class StVKElements:
 
     # ------------------------------------------------------------------ energy, forces, tangent
     def evaluate(
-        self, x: np.ndarray, gradient: bool = True, hessian: bool = False, definite: bool = False
+        self,
+        x: np.ndarray,
+        gradient: bool = True,
+        hessian: bool = False,
+        definite: bool = False,
+        displacement: bool = False,
     ) -> ElementEvaluation:
         """Elastic energy (J), optionally its gradient (3n,) and the element tangents (3k, 3k, m).
 
+        ``x``: positions (n, 3) or (3n,), or with ``displacement`` the
+        displacements u = x - X from the rest positions (the solver's
+        unknowns: rounding then stays relative to u, not to where the mesh
+        lies). The kinematics are computed from the displacement gradient
+        H = grad u (F = I + H, E from H, ln J by log1p).
         ``definite``: the positive semi-definite surrogate tangent (see
         :meth:`_tangent`). An inverted or flat element (J <= 0) makes the
         state invalid: energy ``inf`` and nothing else computed.
         """
-        xe = self._element_positions(x)
+        ue = self._element_displacements(x, displacement)
+        xe = None if displacement else self._element_positions(x)
         kinematics = []
         for point in self.points:
-            f = _matmul(xe, point.grad)
+            h = _matmul(ue, point.grad)
+            f = self._gradient_of_deformation(h, xe, point.grad)
             det, cof = self._det_and_cofactor(f)
             if not np.all(det > 0):
                 return ElementEvaluation(np.inf, False)
-            kinematics.append((f, det, cof))
+            kinematics.append((f, h, det, cof))
         for g in self._checks:
-            if not np.all(self._det(_matmul(xe, g)) > 0):
+            if not np.all(self._det(self._gradient_of_deformation(_matmul(ue, g), xe, g)) > 0):
                 return ElementEvaluation(np.inf, False)
         energy = 0.0
         forces = None
         k = None
-        for q, (point, (f, det, cof)) in enumerate(zip(self.points, kinematics, strict=True)):
+        for q, (point, (f, h, det, cof)) in enumerate(zip(self.points, kinematics, strict=True)):
             vol = point.weight
-            e, tr = self._strain(f)
-            log_j = np.log(det)
+            e, tr = self._strain_h(h)
+            log_j = self._log_volume_ratio(h, det)
             w = 0.5 * self.lam * tr**2 + self.mu * (e * e).sum(axis=(0, 1)) + 0.5 * self.kappa * log_j**2
             energy += float(np.dot(vol, w))
             if not (gradient or hessian):
@@ -305,15 +360,20 @@ class StVKElements:
     def second_piola_kirchhoff_at_points(self, x: np.ndarray) -> np.ndarray:
         """S (p, m, 3, 3) in Pa at every quadrature point, including the volume penalty's ``kappa ln J C^-1``."""
         out = []
-        for f in self.deformation_gradients(x):
+        ue = self._element_displacements(x, False)
+        xe = self._element_positions(x)
+        for point in self.points:
+            h = _matmul(ue, point.grad)
+            f = _matmul(xe, point.grad)
             det, cof = self._det_and_cofactor(f)
-            e, tr = self._strain(f)
+            e, tr = self._strain_h(h)
             s = self._stvk_stress(e, tr)
             # C^-1 = F^-1 F^-T from the cofactors in closed form: a degenerate element (det F = 0, or
             # underflowing pivots) gives inf or nan here, never a LinAlgError from a batched inverse
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 inv_t = cof / det
-                s += (self.kappa * np.log(det)) * _matmul(inv_t.transpose(1, 0, 2), inv_t)
+                log_j = self._log_volume_ratio(h, det)
+                s += (self.kappa * log_j) * _matmul(inv_t.transpose(1, 0, 2), inv_t)
             out.append(s.transpose(2, 0, 1))
         return np.stack(out)
 
