@@ -474,6 +474,23 @@ TABLE = [
         ["pipeline[0].settings.milestones: a roadmap pair of 1,000,000,000 milestones (k = 15) needs about 3.87 TiB"],
     ),
     (
+        "fem-mesh-too-large",
+        "validate",
+        _change(
+            lambda d: d["pipeline"].append(
+                {
+                    "stage": "simulate",
+                    "plugin": "stvk",
+                    "settings": {
+                        "mesh": {"box": {"size": [50, 50, 2.5], "divisions": [1000, 1000, 100]}},
+                        "anchored": [{"region": {"min": [0, 0, 0], "max": [0, 50, 2.5]}}],
+                    },
+                }
+            )
+        ),
+        ["pipeline[1].settings.mesh: a mesh of 600,000,000 linear tetrahedra (303,606,303 unknowns) needs about"],
+    ),
+    (
         "duplicate-stage-names",
         "validate",
         _change(lambda d: d["pipeline"].extend([_stage(name="a"), _stage(name="a")])),

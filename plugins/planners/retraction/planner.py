@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
+from surgiplan.resources import ResourceEstimate
 
 from .generation import GraspRoadmap, generate
 from .lazy import LazyPlanner
@@ -53,6 +54,33 @@ class RetractionPlanner(Planner):
     Settings = RetractionSettings
     requires_goal = False
     artifact_version = 1
+
+    @classmethod
+    def estimate_resources(cls, settings, problem):
+        """The deformable model's own estimate, and the samples' states held per grasp (positions and
+        stresses of every sample, and the roadmap's k neighbours each)."""
+        from surgiplan.registry import default_registry
+
+        info = default_registry().get("deformable_model", settings.deformable.plugin)
+        model_settings = info.settings_model.model_validate(settings.deformable.settings)
+        estimates = list(info.cls.estimate_resources(model_settings))
+        box = getattr(getattr(model_settings, "mesh", None), "box", None)
+        if box is not None:
+            nx, ny, nz = box.divisions
+            order = model_settings.mesh.order
+            nodes = (order * nx + 1) * (order * ny + 1) * (order * nz + 1)
+            tets = nx * ny * nz * (5 if box.pattern == "five" else 6)
+            grasps = 1 + sum(e.count for e in settings.grasps.edges) + len(settings.grasps.poses)
+            samples = settings.sampling.samples
+            per_state = nodes * 24 + tets * 8 + settings.roadmap.k * 16
+            estimates.append(
+                ResourceEstimate(
+                    grasps * samples * per_state * 2,
+                    f"{samples:,} samples for each of {grasps} grasps ({nodes:,} nodes a state)",
+                    "sampling",
+                )
+            )
+        return estimates
 
     # ------------------------------------------------------------------ build
     def build(self, problem: PlanningProblem) -> RetractionArtifact:
