@@ -27,6 +27,7 @@ and how clearance is measured (:meth:`Cia402Device.clearance_along`).
 
 from __future__ import annotations
 
+import importlib.resources
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -119,6 +120,29 @@ class Cia402Device(Device):
         acceleration = self._per_joint(s.acceleration_limits, self.default_acceleration, "acceleration_limits")
         return velocity, acceleration
 
+    @classmethod
+    def eds_folder(cls) -> Path:
+        """Where the device package ships its simulated drives' EDS files (``<package>/eds``)."""
+        package = cls.__module__.rpartition(".")[0]
+        return Path(str(importlib.resources.files(package))) / "eds"
+
+    def eds_files(self) -> list[Path]:
+        """Each joint's drive's EDS: the ``eds`` setting, else the shipped simulated drive's."""
+        s = self.settings
+        names = self.model.joint_names
+        if s.eds is None:
+            files = [self.eds_folder() / f"{self.urdf_name}_{name}.eds" for name in names]
+        else:
+            given = s.eds if isinstance(s.eds, list) else [s.eds] * len(names)
+            if len(given) != len(names):
+                raise ConfigError(f"eds: give one file for all joints or {len(names)}, one per joint {names}")
+            base = Path(self.context.base_dir) if self.context is not None else Path.cwd()
+            files = [path if path.is_absolute() else base / path for path in given]
+        for name, path in zip(names, files, strict=True):
+            if not path.is_file():
+                raise ConfigError(f"eds: the EDS file of joint '{name}' does not exist: {path}")
+        return files
+
     def _axes(self) -> tuple[list[AxisConfig], list[AxisHardware]]:
         s = self.settings
         model = self.model
@@ -126,6 +150,8 @@ class Cia402Device(Device):
         ids = s.node_ids or list(range(1, nq + 1))
         if len(ids) != nq or len(set(ids)) != nq or not all(1 <= i <= 127 for i in ids):
             raise ConfigError(f"node_ids: give {nq} distinct CAN node ids (1-127), one per joint {model.joint_names}")
+        if s.master_node_id in ids:
+            raise ConfigError(f"master_node_id {s.master_node_id} is also a drive's node id (node_ids: {ids})")
         cpu = self._per_joint(
             s.counts_per_unit, np.where(model.prismatic, PRISMATIC_COUNTS, REVOLUTE_COUNTS), "counts_per_unit"
         )
@@ -160,6 +186,11 @@ class Cia402Device(Device):
                     float(acceleration[j] * s.simulation.peak_acceleration_factor),
                     float(model.velocity_limit[j] * s.simulation.velocity_factor),
                     float(start[j]),
+                    name=model.joint_names[j],
+                    unit="m" if model.prismatic[j] else "rad",
+                    lower=float(model.lower[j]),
+                    upper=float(model.upper[j]),
+                    following_error_window=float(window[j]),
                 )
             )
         return config, hardware
@@ -198,6 +229,8 @@ class Cia402Device(Device):
             )
         self.model = self.build_model()
         config, hardware = self._axes()
+        for axis, eds in zip(config, self.eds_files(), strict=True):
+            axis.eds = eds
         self._check_bus_load(config)
         self.clock = RealTimeClock() if realtime else SimulatedClock()
         self.faults = ArmedFaults(s.bus.faults, self.clock.now)
@@ -211,7 +244,9 @@ class Cia402Device(Device):
                     s.simulation.position_gain, s.simulation.velocity_gain, sync_timeout=s.simulation.sync_timeout
                 )
                 drives_bus = can.Bus(interface="virtual", channel=self.channel)
-                self.simulator = DriveSimulator(drives_bus, hardware, model, self.clock, self.faults, link)
+                self.simulator = DriveSimulator(
+                    drives_bus, hardware, model, self.clock, self.faults, link, device=self.urdf_name
+                )
                 if realtime:
                     self.simulator.start()
             self.master = DriveMaster(
@@ -224,6 +259,8 @@ class Cia402Device(Device):
                 sdo_timeout=s.sdo_timeout,
                 link=link,
                 description=description,
+                master_node_id=s.master_node_id,
+                boot_timeout=s.boot_timeout,
             )
             self.master.start()
             self.controller = Controller(

@@ -83,7 +83,7 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
     model = MotorModel(simulation.position_gain, simulation.velocity_gain, sync_timeout=simulation.sync_timeout)
     bus, _ = open_bus(BusSettings.model_validate(settings["bus"]))
     clock = RealTimeClock()
-    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None)
+    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None, device=args.device)
 
 
 def main(argv: list[str] | None = None) -> int:
