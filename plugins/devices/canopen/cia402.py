@@ -261,9 +261,11 @@ class DriveDefaults:
     #: the axis' travel: the software position limits at power-up (None: the whole INTEGER32 range)
     lower: float | None = None
     upper: float | None = None
-    #: the motor's speed limit: max profile velocity 0x607F and profile velocity 0x6081 at power-up
+    #: the motor's speed limit: max profile velocity 0x607F at power-up
     max_velocity: float | None = None
-    #: profile acceleration and deceleration (0x6083/0x6084) and quick stop deceleration (0x6085)
+    #: profile velocity 0x6081 at power-up (None: max_velocity)
+    profile_velocity: float | None = None
+    #: profile acceleration and deceleration (0x6083/0x6084); the quick stop deceleration 0x6085 is twice it
     acceleration: float | None = None
     #: following error window 0x6065 (None: off)
     following_error_window: float | None = None
@@ -333,7 +335,8 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     d = defaults or DriveDefaults()
     lowest, highest = -(2**31), 2**31 - 1
     velocity = min(d.counts(d.max_velocity, 0xFFFFFFFF), 0xFFFFFFFF)
-    acceleration = min(d.counts(d.acceleration, 0xFFFFFFFF), 0xFFFFFFFF)
+    profile = min(d.counts(d.profile_velocity, velocity), velocity)
+    acceleration = min(d.counts(d.acceleration, 0x7FFFFFFF), 0x7FFFFFFF)
     window = 0xFFFFFFFF if d.following_error_window is None else max(1, d.counts(d.following_error_window, 0))
     lower = max(lowest, math.floor(d.lower * d.counts_per_unit)) if d.lower is not None else lowest
     upper = min(highest, math.ceil(d.upper * d.counts_per_unit)) if d.upper is not None else highest
@@ -422,10 +425,10 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     limits = [(1, "Min position limit", I32, "rw", lower), (2, "Max position limit", I32, "rw", upper)]
     add(_record("Software position limit", 0x607D, limits))
     add(_variable("Max profile velocity", 0x607F, default=velocity, mappable=True))
-    add(_variable("Profile velocity", 0x6081, default=velocity, mappable=True))
+    add(_variable("Profile velocity", 0x6081, default=profile, mappable=True))
     add(_variable("Profile acceleration", 0x6083, default=acceleration, mappable=True))
     add(_variable("Profile deceleration", 0x6084, default=acceleration, mappable=True))
-    add(_variable("Quick stop deceleration", 0x6085, default=acceleration))
+    add(_variable("Quick stop deceleration", 0x6085, default=2 * acceleration))
     period = [(1, "Interpolation time period value", U8, "rw", 1), (2, "Interpolation time index", I8, "rw", -3)]
     add(_record("Interpolation time period", 0x60C2, period))
     add(_variable("Following error actual value", 0x60F4, data_type=I32, access="ro", mappable=True))

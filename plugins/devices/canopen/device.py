@@ -191,6 +191,8 @@ class Cia402Device(Device):
                     lower=float(model.lower[j]),
                     upper=float(model.upper[j]),
                     following_error_window=float(window[j]),
+                    profile_velocity=float(velocity[j]),
+                    profile_acceleration=float(acceleration[j]),
                 )
             )
         return config, hardware

@@ -114,6 +114,10 @@ class AxisHardware:
     upper: float | None = None
     #: following error window at power-up (units; None: off)
     following_error_window: float | None = None
+    #: profile velocity and acceleration at power-up (units/s, units/s^2; None: the motor's limits, a third
+    #: of its current limit); the quick stop decelerates at twice the profile acceleration
+    profile_velocity: float | None = None
+    profile_acceleration: float | None = None
 
     def defaults(self, device: str = "", sync_watchdog: float = 0.05) -> cia402.DriveDefaults:
         """The power-on values of this axis' drive (its object dictionary's defaults, its EDS)."""
@@ -125,7 +129,10 @@ class AxisHardware:
             lower=self.lower,
             upper=self.upper,
             max_velocity=self.max_velocity,
-            acceleration=self.peak_acceleration,
+            profile_velocity=self.profile_velocity if self.profile_velocity is not None else self.max_velocity,
+            acceleration=(
+                self.profile_acceleration if self.profile_acceleration is not None else self.peak_acceleration / 3
+            ),
             following_error_window=self.following_error_window,
             sync_watchdog=sync_watchdog,
         )
@@ -618,10 +625,8 @@ class DriveSimulator:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
                 self._advance_locked(now)
                 self._switch_mode(i, int(value), now)
-            elif index == 0x607A:
-                if self.mode[i] == cia402.PP:
-                    self.target[i] = value / self.cpu[i]  # taken with the next new set-point
-                elif self.mode[i] == cia402.CSP and self.state[i] == OE:
+            elif index == 0x607A:  # pp: taken with the next new set-point; csp: now (at SYNC by RPDO)
+                if self.mode[i] == cia402.CSP and self.state[i] == OE:
                     self._advance_locked(now)
                     self._latch_position(i, int(value), now)
             elif index == 0x60FF:
