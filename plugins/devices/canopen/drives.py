@@ -620,6 +620,8 @@ class DriveSimulator:
             if index == 0x6040:
                 self._advance_locked(now)
                 self._controlword(i, int(value), now)
+                if self._event_time is None:
+                    self._event_tpdos(i, now)  # a new statusword goes at once in an event-driven TPDO
             elif index == 0x6060:
                 if value not in cia402.SUPPORTED_MODES:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
