@@ -41,6 +41,7 @@ from surgiplan.plugins.devices.kinematics.model import KinematicModel
 
 from . import cia402
 from .bus import ArmedFaults, BusError, MonitoredBus, open_bus, worst_case_bits
+from .certify import Certificate
 from .clock import RealTimeClock, SimulatedClock
 from .control import Controller, ExecutionLog, Supervision
 from .drives import AxisHardware, DriveSimulator, MotorModel
@@ -102,6 +103,11 @@ class Cia402Device(Device):
         raise NotImplementedError
 
     def approach_is_clear(self, q_from: np.ndarray, q_to: np.ndarray, trajectory: Trajectory) -> bool:
+        raise NotImplementedError
+
+    def certify_motion(self, q: np.ndarray, trajectory: Trajectory, margin: float) -> list[Certificate]:
+        """Certified clearance of each of the device's bodies along the timed joint samples ``q`` as the drives
+        interpolate them (linearly, one sample per control period): :func:`.certify.certify`."""
         raise NotImplementedError
 
     # ------------------------------------------------------------------ settings
@@ -332,11 +338,33 @@ class Cia402Device(Device):
         self.controller.start_holding()
 
     # ------------------------------------------------------------------ execution
-    def _refused(self, reason: str) -> ExecutionReport:
-        return ExecutionReport(
-            "stopped",
-            {"cycles": 0, "refused": True, "faults": []},
-            message=f"refused before any motion: {reason}",
+    def _refused(self, reason: str, metrics: dict[str, Any] | None = None) -> ExecutionReport:
+        # the execute stage's metric names stay the same whatever happened: nothing tracked, no fault
+        out = {**(metrics or {}), "cycles": 0, "refused": True, "faults": []}
+        out |= {"tracking_error_max_m": None, "tracking_error_rms_m": None}
+        return ExecutionReport("stopped", out, message=f"refused before any motion: {reason}")
+
+    def _certified(self, planned, trajectory: Trajectory, metrics: dict[str, Any]) -> str | None:
+        """Certify the timed motion's clearance (every body, between the samples too); the reason to refuse it
+        if some body comes closer than the safety margin, else None. Adds the certified clearances to metrics."""
+        margin = float(self.settings.safety_margin)
+        certificates = self.certify_motion(planned.q, trajectory, margin)
+        for certificate in certificates:
+            metrics[f"certified_{certificate.body}_min_clearance_m"] = certificate.lowest
+        worst = min(certificates, key=lambda c: c.lowest)
+        metrics["certified_min_clearance_m"] = worst.lowest
+        metrics["safety_margin_m"] = margin
+        if worst.lowest >= margin:
+            return None
+        k, fraction = worst.segment, worst.fraction
+        q = planned.q[k] + fraction * (planned.q[min(k + 1, len(planned.q) - 1)] - planned.q[k])
+        tip = self.model.tip_positions(q[None])[0]
+        what = "a collision" if worst.lowest < 0 else f"closer than the safety margin {margin * 1000:g} mm"
+        return (
+            f"the timed motion's certified {worst.body} clearance is {worst.lowest * 1000:.2f} mm "
+            f"({worst.lowest:.6f} m), {what}, at t = {(k + fraction) * planned.period:.3f} s of "
+            f"{planned.duration:.3f} s with the tip at {np.round(tip * 1000, 1).tolist()} mm (certified along the "
+            "whole motion the drives would interpolate, between the samples too)"
         )
 
     def _check_path(self, q: np.ndarray, trajectory: Trajectory) -> None:
@@ -408,6 +436,9 @@ class Cia402Device(Device):
             np.max(np.abs(planned.acceleration()) / acceleration, initial=0.0)
         )
         metrics["path_deviation_max_m"] = self._path_deviation(planned)
+        refusal = self._certified(planned, trajectory, metrics)
+        if refusal is not None:
+            return self._refused(refusal, metrics)
 
         def arm(t0: float) -> None:
             # injected faults happen once, timed from the first trajectory's start: a rehearsal of
@@ -478,6 +509,9 @@ class Cia402Device(Device):
             if np.any(commanded):
                 reference_tips[commanded] = model.tip_positions(log.reference[commanded])
             metrics.update(tracking_metrics(tips, reference_tips, log, model.joint_names))
+        # stable names: a run that tracked nothing (stopped at once) says so with None
+        metrics.setdefault("tracking_error_max_m", None)
+        metrics.setdefault("tracking_error_rms_m", None)
         simulator = self.simulator
         droppers = (self.bus.dropper, getattr(simulator, "frame_drop", None), getattr(simulator, "sync_drop", None))
         metrics.update(bus_metrics(self.bus, log, s.bus.bitrate, droppers))
