@@ -87,6 +87,7 @@ class Cia402Device(Device):
         self.placed = False
         #: the last execution's log (times, measured and commanded joints, faults): what the drives did
         self.last_log: ExecutionLog | None = None
+        self._source: str | None = None
         self.channel = ""
 
     # ------------------------------------------------------------------ for subclasses
@@ -390,6 +391,7 @@ class Cia402Device(Device):
 
     def run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings
+        self._source = trajectory.source
         states = self.drive_states()
         stopped = {name: state for name, state in states.items() if state != cia402.OPERATION_ENABLED}
         if stopped or self.controller.pending_faults:
@@ -545,6 +547,14 @@ class Cia402Device(Device):
                     "told from a silent node within the time-out, so the device stopped safely"
                 )
 
+    def _plan_threshold(self) -> float | None:
+        """The clearance threshold of the plan stage this execution's path came from, if it had one."""
+        if self.context is None or self._source is None:
+            return None
+        plan = self.context.previous.get(self._source)
+        threshold = getattr(plan, "clearance_threshold", None)
+        return float(threshold) if threshold is not None else None
+
     def _write_outputs(self, log, tips, reference_tips, clearance, message: str) -> list[str]:
         name = self.context.name
         out = Path(self.context.output_dir)
@@ -559,10 +569,11 @@ class Cia402Device(Device):
             title,
             log,
             model.joint_names,
-            model.lower,
-            model.upper,
+            model.prismatic,
             error,
             clearance,
             self.clearance_label,
+            float(self.settings.safety_margin),
+            self._plan_threshold(),
         )
         return [f"{name}.png", f"{name}-execution.csv"]
