@@ -140,6 +140,8 @@ SW_FOLLOWING_COMMAND = 1 << 12  # csp/csv: the drive follows the target value
 SW_FOLLOWING_ERROR = 1 << 13  # pp/csp: following error
 
 _STATE_MASKS = [(name, mask, value) for name, (mask, value) in State402.SW_MASK.items()]
+#: (mask, value) of the statusword in OPERATION ENABLED
+OPERATION_ENABLED_MASK = State402.SW_MASK[OPERATION_ENABLED]
 
 
 def state_of(statusword: int) -> str:

@@ -60,13 +60,15 @@ from __future__ import annotations
 
 import functools
 import logging
+import struct
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 import canopen
 import numpy as np
+from canopen import objectdictionary as od_types
 from canopen.emcy import EmcyProducer
 from canopen.nmt import NmtSlave
 from canopen.sdo import SdoAbortedError, SdoServer
@@ -250,6 +252,22 @@ class _Pdo:
     last: bytes | None = None
     sent_at: float = -np.inf
     pending: bytes | None = None
+    #: the entries with the controlword last (RPDO)
+    ordered: list = field(default_factory=list)
+    #: TPDO of objects the simulator serves: packed in one go
+    packer: struct.Struct | None = None
+    getters: list = field(default_factory=list)
+
+
+#: the objects a TPDO packs straight from the simulator's state, and the struct codes of their sizes
+_TPDO_GETTERS = {
+    0x6041: lambda sim, i: sim.statusword(i),
+    0x6064: lambda sim, i: round(sim.pos[i] * sim.cpu[i]),
+    0x606C: lambda sim, i: round(sim.vel[i] * sim.cpu[i]),
+    0x6061: lambda sim, i: int(sim.mode[i]),
+    0x603F: lambda sim, i: next(iter(reversed(sim.errors[i])), 0),
+}
+_FORMATS = {1: "B", 2: "H", 4: "L"}
 
 
 class DriveNode(canopen.LocalNode):
@@ -314,23 +332,42 @@ class DriveNode(canopen.LocalNode):
             offset += bits // 8
         inhibit = 0.0 if receive else int(self.value(comm, 3)) * 1e-4
         event = 0.0 if receive else int(self.value(comm, 5)) * 1e-3
-        return _Pdo(receive, n, cob & 0x7FF, not cob & cia402.PDO_INVALID, int(self.value(comm, 2)), inhibit,
-                    event, entries, offset)  # fmt: skip
+        pdo = _Pdo(receive, n, cob & 0x7FF, not cob & cia402.PDO_INVALID, int(self.value(comm, 2)), inhibit,
+                   event, entries, offset)  # fmt: skip
+        pdo.ordered = sorted(entries, key=lambda entry: entry[0] == 0x6040)
+        served = [index in _TPDO_GETTERS and size in _FORMATS for index, *_, size in entries]
+        if not receive and entries and all(served):
+            codes = ""
+            for _, _, obj, _, size in entries:
+                signed = obj.data_type in (od_types.INTEGER8, od_types.INTEGER16, od_types.INTEGER32)
+                codes += _FORMATS[size].lower() if signed else _FORMATS[size]
+            pdo.packer = struct.Struct("<" + codes)
+            pdo.getters = [_TPDO_GETTERS[index] for index, *_ in entries]
+        return pdo
 
     def tpdo_data(self, pdo: _Pdo) -> bytes:
-        return b"".join(self.get_data(index, subindex) for index, subindex, *_ in pdo.entries)
+        """A TPDO's data now: the mapped objects' values, packed in one go where the simulator serves them
+        (the cyclic statusword and position), else each object's value as an SDO read would give it."""
+        if pdo.packer is None:
+            return b"".join(self.get_data(index, subindex) for index, subindex, *_ in pdo.entries)
+        simulator, axis = self.simulator, self.axis
+        return pdo.packer.pack(*[getter(simulator, axis) for getter in pdo.getters])
 
     def write_rpdo(self, pdo: _Pdo, data: bytes) -> None:
         """Write the mapped objects from an RPDO's data (as if by SDO), the controlword last: a drive acts on
         the whole PDO (a profile position set-point and its new target in one frame)."""
         if len(data) < pdo.length:
             return  # CiA 301: a PDO shorter than its mapping is not processed
-        entries = sorted(pdo.entries, key=lambda entry: entry[0] == 0x6040)
-        for index, subindex, _obj, offset, size in entries:
+        store = self.data_store
+        for index, subindex, obj, offset, size in pdo.ordered:
+            value = data[offset : offset + size]
             try:
-                self.set_data(index, subindex, data[offset : offset + size])
+                # as LocalNode.set_data, without its look-ups (the mapping was checked when it was written)
+                self.simulator._write(self.axis, index, subindex, obj, value)
             except SdoAbortedError as exc:  # a value the drive refuses by PDO: ignored, as by SDO
                 log.info("node %d: RPDO%d value for 0x%04X refused (0x%08X)", self.id, pdo.n, index, exc.code)
+                continue
+            store.setdefault(index, {})[subindex] = value
 
 
 # ----------------------------------------------------------------------------- the motion reference
@@ -369,6 +406,17 @@ class _Reference:
         tau = np.maximum(t - self.t[cols, k], 0.0)
         a, v = self.a[cols, k], self.v[cols, k]
         return self.p[cols, k] + v * tau + 0.5 * a * tau * tau, v + a * tau
+
+    def at_axis(self, i: int, t: float) -> tuple[float, float]:
+        """Position and velocity of axis ``i`` at time ``t`` (scalar arithmetic: one axis, cheaply)."""
+        starts = self.t[i]
+        k = 0
+        for j in range(1, self.K):
+            if starts[j] <= t:
+                k = j
+        tau = max(t - float(starts[k]), 0.0)
+        a, v = float(self.a[i, k]), float(self.v[i, k])
+        return float(self.p[i, k]) + v * tau + 0.5 * a * tau * tau, v + a * tau
 
     def end(self, i: int) -> float:
         """Start of the axis' last segment: from then on the reference is constant velocity (or still)."""
@@ -1083,13 +1131,13 @@ class DriveSimulator:
     # ------------------------------------------------------------------ modes: references
     def _latch_position(self, i: int, target_counts: int, now: float) -> None:
         """CSP: from the command now to the target over one interpolation period, then hold."""
-        command, _ = self.reference.at(now)
+        command, _ = self.reference.at_axis(i, now)
         target = target_counts / self.cpu[i]
         clamped = min(max(target, self.limit_lo[i]), self.limit_hi[i])
         self.limit_active[i] = clamped != target
         period = self.period[i]
-        rate = (clamped - command[i]) / period
-        self.reference.set(i, [(now, command[i], rate, 0.0), (now + period, clamped, 0.0, 0.0)])
+        rate = (clamped - command) / period
+        self.reference.set(i, [(now, command, rate, 0.0), (now + period, clamped, 0.0, 0.0)])
 
     def _latch_velocity(self, i: int, now: float) -> None:
         """CSV: ramp to the target velocity over one interpolation period, then keep it."""
@@ -1204,7 +1252,8 @@ class DriveSimulator:
         steps = max(1, int(np.ceil(span / m.substep - 1e-9)))
         dt = span / steps
         powered = powered_mask.astype(float)
-        monitored = (state == OE) & self.alive & np.isin(self.mode, cia402.POSITION_MODES)
+        mode = self.mode
+        monitored = (state == OE) & self.alive & ((mode == cia402.PP) | (mode == cia402.CSP))
         # the commands of every substep at once; the integration itself is sequential
         # the loop compares the position at the start of each step with the command there
         if steps == 1:
@@ -1239,6 +1288,9 @@ class DriveSimulator:
 
     def _windows(self, t: float) -> None:
         """Target-reached windows (pp: position, pv: velocity), quick stop ramps that end in SWITCH ON DISABLED."""
+        mode, state = self.mode, self.state
+        if not (((mode == cia402.PP) | (mode == cia402.PV)) & (state == OE)).any() and not (state == QS).any():
+            return
         for i in np.flatnonzero(self.state == OE):
             mode = self.mode[i]
             if mode == cia402.PP:
