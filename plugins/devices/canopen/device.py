@@ -15,14 +15,17 @@ Lifecycle (ros2_control's, :class:`surgiplan.Device`):
   where the device stands is not clear, or the drives are stopped from an
   earlier fault (:meth:`Cia402Device.reset_faults` first: a stopped device
   never restarts by itself); then time-parameterised at the control rate
-  (:mod:`.timing`) and run (:mod:`.control`); the report
-  (:mod:`.execution_report`) says what the hardware actually did.
+  (:mod:`.timing`), refused if the timed motion's certified clearance
+  (:mod:`.certify`, every body, between samples too) is below
+  ``safety_margin``, and run (:mod:`.control`); the report (:mod:`.report`)
+  says what the hardware actually did.
 * ``deactivate``: drives disabled, brakes hold; ``cleanup``/``shutdown``:
   NMT pre-operational, bus released. A failed transition is the error
   state, with everything released; ``shutdown`` leaves it.
 
-Subclasses say how a path becomes joint waypoints (:meth:`Cia402Device.joint_path`)
-and how clearance is measured (:meth:`Cia402Device.clearance_along`).
+Subclasses say how a path becomes joint waypoints (:meth:`Cia402Device.joint_path`),
+how clearance is measured (:meth:`Cia402Device.clearance_along`) and certified
+(:meth:`Cia402Device.certify_motion`).
 """
 
 from __future__ import annotations
