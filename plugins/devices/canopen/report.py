@@ -147,7 +147,7 @@ def execution_figure(
             clear_ax.fill_between(t, clearance * 1e3, plan_threshold * 1e3, where=below, color="tab:orange", alpha=0.15)
     clear_ax.set_ylabel(f"{clearance_label} (mm)")
     clear_ax.set_xlabel("time since the trajectory start (s)")
-    clear_ax.legend(loc="upper left", fontsize=8, framealpha=0.85)
+    clear_ax.legend(loc="best", fontsize=8, framealpha=0.85)
     all_axes = [*axes, error_ax, clear_ax]
     for fault in log.faults:
         if "t_s" not in fault:
