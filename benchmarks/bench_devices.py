@@ -412,13 +412,55 @@ def simulation_speed(scene) -> dict:
     }
 
 
+def readme_table() -> str:
+    """The README's table, from benchmarks/results/devices.json (so that its numbers are never typed by hand)."""
+    import json
+
+    from common import RESULTS
+
+    data = json.loads((RESULTS / "devices.json").read_text())
+    rows = data["rows"]
+    machine = next(r for r in rows if r["section"] == "machine")
+    lines = [
+        f"{data['notes']} ({machine['date']}, {machine['runs_per_rate']} runs of the gimbal path per rate)",
+        "",
+        "| drives | rate | runs completed | period p50 / p99 / max | missed cycles | master CPU per cycle "
+        "| drives CPU per SYNC | bus load (worst case) | held |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        if r["section"] != "control_loop":
+            continue
+        where = "other process" if r["drives"] == SEPARATE else "thread"
+        drives_cpu = (
+            f"{r['drives_cpu_per_sync_ms']} ms" if r["drives_cpu_per_sync_ms"] is not None else "(same process)"
+        )
+        lines.append(
+            f"| {where} | {r['rate_hz']:g} Hz | {r['runs_completed']} | {r['period_p50_ms']} / {r['period_p99_ms']} / "
+            f"{r['period_max_ms']} ms | {r['missed_cycles']} of {r['cycles']:,} | {r['master_cpu_per_cycle_ms']} ms | "
+            f"{drives_cpu} | {r['bus_load_percent']} % ({r['bus_load_worst_case_percent']} %) | "
+            f"{'yes' if r['held'] else 'no'} |"
+        )
+    lines.append("")
+    for r in rows:
+        if r["section"] == "garbage_collection":
+            lines.append(
+                f"- {r['what']}: " + ", ".join(f"{k} {v}" for k, v in r.items() if k not in ("section", "what"))
+            )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="reduced sizes, to check the script (not saved)")
     parser.add_argument("--runs", type=int, default=10, help="runs of the gimbal path per rate (default 10)")
     parser.add_argument("--rates", type=float, nargs="+", default=[100, 250, 500, 1000])
     parser.add_argument("--no-thread", action="store_true", help="skip the in-process drives")
+    parser.add_argument("--table", action="store_true", help="print the README's table from the saved results")
     args = parser.parse_args()
+    if args.table:
+        print(readme_table())
+        return
     load_start = os.getloadavg()
     print(f"load average at start (1, 5, 15 min): {load_start} on {os.cpu_count()} CPUs", flush=True)
     scene = load_scene(ROOT / "configs" / "scenes" / "block_world.yaml")

@@ -172,6 +172,7 @@ def test_modes_of_operation_through_base_node_402_and_an_unsupported_mode_is_abo
 
 def test_enable_and_cyclic_synchronous_position_motion(network):
     node = fresh(network, 1)
+    node.sdo[0x6065].raw = round(0.05 * 2**17 / (2 * math.pi))  # 50 mrad following window: a loaded machine
     start, _ = operational_csp(network, node)
     assert node.state == "OPERATION ENABLED"
     assert node.tpdo_values[0x6061] == 8
@@ -290,8 +291,8 @@ def test_a_drive_that_loses_its_masters_heartbeat_acts_as_0x6007_says(network, o
     node.nmt.state = "OPERATIONAL"
     network.sync.start(0.01)
     node.sdo[0x6007].raw = option
-    node.sdo[0x1016][1].raw = (MASTER_ID << 16) | 100  # consume our heartbeat, 100 ms
-    beat = network.send_periodic(0x700 + MASTER_ID, b"\x05", 0.02)
+    node.sdo[0x1016][1].raw = (MASTER_ID << 16) | 500  # consume our heartbeat, 500 ms (a loaded machine)
+    beat = network.send_periodic(0x700 + MASTER_ID, b"\x05", 0.05)
     node.op_mode = PP
     node.state = "OPERATION ENABLED"
     time.sleep(0.3)  # the drive has heard the heartbeat (monitoring starts with the first one)
