@@ -70,7 +70,10 @@ from surgiplan.plugins.devices.kinematics.model import DifferentialIK, Kinematic
 
 ROOT = Path(__file__).resolve().parent.parent
 SEPARATE = "separate process (loopback bus)"
+SEPARATE_RT = "separate process (loopback bus), SCHED_FIFO 20"
 THREAD = "in-process thread (virtual bus)"
+#: the SCHED_FIFO priority of the real-time runs (the loop's and the drives' threads)
+PRIORITY = 20
 
 
 def percentile(values, q: float) -> float:
@@ -78,7 +81,7 @@ def percentile(values, q: float) -> float:
 
 
 @contextlib.contextmanager
-def drives_process(initial):
+def drives_process(initial, priority: int | None = None):
     """Four simulated drives in another process on the loopback bus (127.0.0.1); yields the bus settings."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
@@ -86,6 +89,8 @@ def drives_process(initial):
     command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", "cast_gimbal"]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "0.2", "--initial", *map(str, initial)]
+    if priority is not None:
+        command += ["--realtime-priority", str(priority)]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     try:
         if process.stdout.readline().strip() != "ready":
@@ -119,8 +124,10 @@ def loop_settings(rate: float) -> dict:
 def gimbal(mode: str, rate: float, start):
     """An active gimbal at ``rate`` with its drives as ``mode`` says; yields (device, drives' pid or None)."""
     settings = loop_settings(rate)
-    if mode == SEPARATE:
-        context = drives_process(start)
+    if mode in (SEPARATE, SEPARATE_RT):
+        priority = PRIORITY if mode == SEPARATE_RT else None
+        context = drives_process(start, priority)
+        settings["realtime_priority"] = priority
     else:
         context = contextlib.nullcontext((None, None))
         settings |= {"clock": "realtime", "simulation": {"initial": list(map(float, start)), "sync_timeout": 0.2}}
@@ -193,7 +200,7 @@ def control_loop(scene, rates, runs: int, mode: str) -> list[dict]:
             # as the earlier results measured it: the whole execute (inverse kinematics, timing, certification,
             # the report) over the cycles
             "master_cpu_per_cycle_with_preparation_ms": round(execute_cpu / cycles * 1e3, 3) if cycles else None,
-            "drives_cpu_per_sync_ms": round(drives_cpu / syncs * 1e3, 3) if syncs and mode == SEPARATE else None,
+            "drives_cpu_per_sync_ms": round(drives_cpu / syncs * 1e3, 3) if syncs and mode != THREAD else None,
             "error": error,
         }
         row["held"] = bool(completed == runs and missed == 0 and periods and row["period_p99_ms"] <= 1.1 * period * 1e3)
@@ -436,7 +443,9 @@ def readme_table() -> str:
     for r in rows:
         if r["section"] != "control_loop":
             continue
-        where = "other process" if r["drives"] == SEPARATE else "thread"
+        where = {SEPARATE: "other process", SEPARATE_RT: f"other process, SCHED_FIFO {PRIORITY}"}.get(
+            r["drives"], "thread"
+        )
         drives_cpu = (
             f"{r['drives_cpu_per_sync_ms']} ms" if r["drives_cpu_per_sync_ms"] is not None else "(same process)"
         )
@@ -461,6 +470,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=10, help="runs of the gimbal path per rate (default 10)")
     parser.add_argument("--rates", type=float, nargs="+", default=[100, 250, 500, 1000])
     parser.add_argument("--no-thread", action="store_true", help="skip the in-process drives")
+    parser.add_argument("--no-rt", action="store_true", help="skip the runs under SCHED_FIFO")
     parser.add_argument("--table", action="store_true", help="print the README's table from the saved results")
     args = parser.parse_args()
     if args.table:
@@ -474,6 +484,14 @@ def main() -> None:
 
     print("## control loop in real time, 4 drives in another process", flush=True)
     loop = control_loop(scene, rates, runs, SEPARATE)
+    if not args.no_rt:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+            print(f"## the same, the loop's and the drives' threads under SCHED_FIFO {PRIORITY}", flush=True)
+            loop += control_loop(scene, rates, runs, SEPARATE_RT)
+        except OSError as exc:
+            print(f"## no SCHED_FIFO here ({exc}): skipped", flush=True)
     if not args.no_thread:
         print("## control loop in real time, 4 drives in a thread of this process", flush=True)
         loop += control_loop(scene, rates, max(2, runs // 2), THREAD)
@@ -493,8 +511,10 @@ def main() -> None:
     separate = [r for r in loop if r["drives"] == SEPARATE]
     held = [r["rate_hz"] for r in separate if r["held"]]
     cpu = [r["master_cpu_per_cycle_ms"] for r in separate if r["master_cpu_per_cycle_ms"]]
+    held_rt = [r["rate_hz"] for r in loop if r["drives"] == SEPARATE_RT and r["held"]]
     summary = {
         "highest_rate_held_hz_separate_process": max(held) if held else None,
+        "highest_rate_held_hz_separate_process_sched_fifo": max(held_rt) if held_rt else None,
         "master_cpu_per_cycle_ms_median": statistics.median(cpu) if cpu else None,
         # the rate at which the master's loop would need a whole core
         "cpu_bound_rate_hz_master": round(1e3 / statistics.median(cpu)) if cpu else None,

@@ -86,3 +86,43 @@ def test_drives_in_another_process_over_the_loopback_bus_with_the_real_hardware_
         process.terminate()
         process.wait(timeout=10)
     assert process.returncode == 0
+
+
+def test_realtime_priority_the_system_refuses_is_a_clear_error_before_anything_opens(
+    block_world, tmp_path, monkeypatch
+):
+    import os
+
+    from devices_support import context
+    from surgiplan.errors import ConfigError
+
+    def refuse(*_args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", "realtime_priority": 20, "outputs": False}
+    device = CastGimbalDevice(CastGimbalDevice.Settings.model_validate(settings))
+    with pytest.raises(ConfigError, match=r"realtime_priority 20: .*SCHED_FIFO .*CAP_SYS_NICE"):
+        device.configure(context(block_world, tmp_path))
+    assert device.bus is None and device.simulator is None
+    device.shutdown()
+
+
+def test_realtime_priority_puts_the_loop_and_the_feedback_under_sched_fifo(block_world, tmp_path):
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError as exc:
+        pytest.skip(f"this system does not allow SCHED_FIFO: {exc}")
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "realtime_priority": 5}
+    settings["simulation"] = {"sync_timeout": 0.5}
+    with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+        hold = device.controller._hold_thread.native_id
+        drives = device.simulator._thread.native_id
+        assert os.sched_getscheduler(hold) == os.SCHED_FIFO and os.sched_getparam(hold).sched_priority == 5
+        assert os.sched_getscheduler(drives) == os.SCHED_FIFO
+        receive = [t.native_id for t in device.master.network.notifier._readers]
+        assert receive and all(os.sched_getscheduler(tid) == os.SCHED_FIFO for tid in receive)
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the caller's thread only while a trajectory runs

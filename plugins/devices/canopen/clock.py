@@ -15,9 +15,29 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import os
 import threading
 import time
 from collections.abc import Callable
+
+
+def set_realtime_priority(priority: int | None, thread_id: int = 0) -> tuple[int, int] | None:
+    """Run a thread (``thread_id``: its native id; 0: the calling thread) under SCHED_FIFO at ``priority``
+    (1-99), as a controller with real-time scheduling runs its control loop (Linux; needs CAP_SYS_NICE).
+
+    Returns the previous (policy, priority) to restore with :func:`restore_priority`; None when
+    ``priority`` is None. Raises PermissionError or OSError where it is not allowed.
+    """
+    if priority is None:
+        return None
+    previous = (os.sched_getscheduler(thread_id), os.sched_getparam(thread_id).sched_priority)
+    os.sched_setscheduler(thread_id, os.SCHED_FIFO, os.sched_param(priority))
+    return previous
+
+
+def restore_priority(previous: tuple[int, int] | None, thread_id: int = 0) -> None:
+    if previous is not None:
+        os.sched_setscheduler(thread_id, previous[0], os.sched_param(previous[1]))
 
 
 class Timer:

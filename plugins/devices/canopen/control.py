@@ -43,7 +43,7 @@ import numpy as np
 
 from . import cia402
 from .bus import BusError
-from .clock import Clock
+from .clock import Clock, restore_priority, set_realtime_priority
 from .master import NMT_OPERATIONAL, DriveMaster, emcy_description
 
 
@@ -89,8 +89,12 @@ class ExecutionLog:
 class Controller:
     """Runs cycles on a :class:`DriveMaster` (see the module docstring)."""
 
-    def __init__(self, master: DriveMaster, clock: Clock, supervision: Supervision) -> None:
+    def __init__(
+        self, master: DriveMaster, clock: Clock, supervision: Supervision, priority: int | None = None
+    ) -> None:
         self.master = master
+        #: SCHED_FIFO priority of the loop's threads (real time), None: ordinary scheduling
+        self.priority = priority
         self.clock = clock
         self.period = master.period
         self.supervision = supervision
@@ -257,6 +261,7 @@ class Controller:
         self._hold_stop.clear()
         self._hold_thread = threading.Thread(target=self._holding, name="surgiplan-hold", daemon=True)
         self._hold_thread.start()
+        set_realtime_priority(self.priority, self._hold_thread.native_id)
 
     def stop_holding(self) -> None:
         if self._hold_thread is not None:
@@ -298,8 +303,10 @@ class Controller:
         """
         self.stop_holding()
         collecting = gc.isenabled()
+        previous = None
         if self.clock.realtime:
             self.clock.precise()
+            previous = set_realtime_priority(self.priority)
             if not collect_garbage:
                 gc.disable()
         cpu = time.process_time()
@@ -308,6 +315,7 @@ class Controller:
         finally:
             if collecting:
                 gc.enable()
+            restore_priority(previous)
         log.cpu_s = time.process_time() - cpu
         return log
 

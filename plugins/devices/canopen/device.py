@@ -46,7 +46,7 @@ from surgiplan.plugins.devices.kinematics.model import KinematicModel
 from . import cia402
 from .bus import ArmedFaults, BusError, MonitoredBus, open_bus, worst_case_bits
 from .certify import Certificate
-from .clock import RealTimeClock, SimulatedClock
+from .clock import RealTimeClock, SimulatedClock, restore_priority, set_realtime_priority
 from .control import Controller, ExecutionLog, Supervision
 from .drives import AxisHardware, DriveSimulator, MotorModel
 from .master import AxisConfig, DriveMaster
@@ -232,6 +232,14 @@ class Cia402Device(Device):
                 f"clock: simulated needs the simulated bus; interface '{s.bus.interface}' is real hardware"
             )
         period = 1.0 / s.control_rate
+        if s.realtime_priority is not None and realtime:
+            try:  # refuse before anything is opened if the system does not allow it
+                restore_priority(set_realtime_priority(s.realtime_priority))
+            except (OSError, AttributeError) as exc:
+                raise ConfigError(
+                    f"realtime_priority {s.realtime_priority}: this system does not let the process run under "
+                    f"SCHED_FIFO ({exc}); it needs Linux and CAP_SYS_NICE (or root), or leave the setting out"
+                ) from None
         try:
             cia402.interpolation_period(period)
         except ValueError as exc:
@@ -262,7 +270,7 @@ class Cia402Device(Device):
                     drives_bus, hardware, model, self.clock, self.faults, link, device=self.urdf_name
                 )
                 if realtime:
-                    self.simulator.start()
+                    self.simulator.start(s.realtime_priority)
             self.master = DriveMaster(
                 self.bus,
                 config,
@@ -275,12 +283,14 @@ class Cia402Device(Device):
                 description=description,
                 master_node_id=s.master_node_id,
                 boot_timeout=s.boot_timeout,
+                priority=s.realtime_priority if realtime else None,
             )
             self.master.start()
             self.controller = Controller(
                 self.master,
                 self.clock,
                 Supervision(1.5 * s.heartbeat_period, s.pdo_timeout_cycles, s.stop_timeout, s.settle_time),
+                s.realtime_priority if realtime else None,
             )
             self.placed = s.simulation.initial is not None or not s.bus.simulated
         except BaseException:

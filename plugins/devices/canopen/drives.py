@@ -75,7 +75,7 @@ from canopen.sdo import SdoAbortedError, SdoServer
 
 from . import cia402
 from .bus import ArmedFaults
-from .clock import Clock, Scheduler
+from .clock import Clock, Scheduler, set_realtime_priority
 from .network import PumpedNetwork, SimulationLink
 
 log = logging.getLogger(__name__)
@@ -1367,12 +1367,18 @@ class DriveSimulator:
         self.vel[i] = 0.0
 
     # ------------------------------------------------------------------ real time
-    def start(self) -> None:
-        """Real-time mode: receive and run timers in a thread until :meth:`stop`."""
+    def start(self, priority: int | None = None) -> None:
+        """Real-time mode: receive and run timers in a thread until :meth:`stop` (under SCHED_FIFO at
+        ``priority``, with the loopback hub's thread if this bus hosts it)."""
         self._thread = threading.Thread(target=self._loop, name="surgiplan-simulated-drives", daemon=True)
         self._thread.start()
+        set_realtime_priority(priority, self._thread.native_id)
+        hub = getattr(self.network.bus, "_hub", None)
+        if hub is not None:
+            set_realtime_priority(priority, hub.thread.native_id)
 
     def _loop(self) -> None:
+        self.clock.precise()
         while not self._stop.is_set():
             due = self.scheduler.next_due()
             wait = 0.005 if due is None else min(0.005, max(0.0, due - self.clock.now()))

@@ -47,7 +47,7 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from . import cia402
 from .bus import BusError, MonitoredBus
-from .clock import Clock, Scheduler
+from .clock import Clock, Scheduler, set_realtime_priority
 from .network import PumpedNetwork, SimulationLink
 
 NMT_OPERATIONAL = 5
@@ -117,6 +117,7 @@ class DriveMaster:
         description: str,
         master_node_id: int = 127,
         boot_timeout: float = 1.0,
+        priority: int | None = None,
     ) -> None:
         self.bus = bus
         self.axes = axes
@@ -128,6 +129,7 @@ class DriveMaster:
         self.description = description
         self.master_node_id = master_node_id
         self.boot_timeout = boot_timeout
+        self.priority = priority
         if link is not None:
             # the simulated clock's scheduler sends the master's heartbeats, in time order with the drives'
             scheduler = getattr(clock, "scheduler", None) or Scheduler()
@@ -198,6 +200,9 @@ class DriveMaster:
         """The standard start-up (see the module docstring). Raises :class:`BusError`."""
         if not isinstance(self.network, PumpedNetwork):
             self.network.connect()  # the bus is open already: this starts the receive thread
+            for reader in self.network.notifier._readers:  # the feedback's path: as urgent as the loop
+                if isinstance(reader, threading.Thread):
+                    set_realtime_priority(self.priority, reader.native_id)
         for i, axis in enumerate(self.axes):
             try:
                 dictionary = cia402.cia402_object_dictionary(axis.node_id) if axis.eds is None else str(axis.eds)

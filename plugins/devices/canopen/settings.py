@@ -54,6 +54,9 @@ class Cia402DeviceSettings(BaseModel):
     clock: Literal["auto", "simulated", "realtime"] = "auto"
     #: SYNC rate (Hz); its period must be a whole number of 1e-6 s steps (0x60C2)
     control_rate: PositiveFloat = 250.0
+    #: real time: run the control loop's threads (and the simulated drives') under SCHED_FIFO at this priority
+    #: (1-99; Linux, needs CAP_SYS_NICE), as a controller with real-time scheduling does; None: ordinary
+    realtime_priority: int | None = Field(default=None, ge=1, le=99)
     #: CAN node ids per joint (default 1, 2, ...)
     node_ids: list[int] | None = None
     #: heartbeat producer period (s) of the drives and of the master; either side times out after 1.5 periods
