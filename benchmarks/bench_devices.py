@@ -211,6 +211,51 @@ def control_loop(scene, rates, runs: int, mode: str) -> list[dict]:
     return rows
 
 
+def scheduling_floor(seconds: float) -> list[dict]:
+    """What the machine gives any 1 kHz loop: a bare single-thread Python loop sleeping to each 1 ms deadline
+    (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling and under SCHED_FIFO."""
+    from surgiplan.plugins.devices.canopen.clock import RealTimeClock, restore_priority, set_realtime_priority
+
+    rows = []
+    for policy in ("ordinary", f"SCHED_FIFO {PRIORITY}"):
+        try:
+            previous = set_realtime_priority(PRIORITY if policy != "ordinary" else None)
+        except OSError as exc:
+            rows.append({"loop": f"bare 1 kHz sleep loop, {policy}", "error": str(exc)})
+            continue
+        RealTimeClock.precise()
+        wakes, lapses = [], []
+        try:
+            start = time.perf_counter()
+            deadline = start
+            for _ in range(int(seconds * 1000)):
+                deadline += 0.001
+                remaining = deadline - time.perf_counter()
+                if remaining > 0:
+                    time.sleep(remaining)
+                woke = time.perf_counter()
+                if woke - deadline > 0.001:  # more than a period late: a missed cycle, skipped as the loop does
+                    lapses.append(round((woke - deadline) * 1e3, 1))
+                    deadline = woke
+                wakes.append(woke)
+        finally:
+            restore_priority(previous)
+        periods = np.diff(wakes) * 1e3
+        rows.append(
+            {
+                "loop": f"bare 1 kHz sleep loop, {policy}",
+                "seconds": seconds,
+                "period_p50_ms": round(percentile(periods, 50), 3),
+                "period_p99_ms": round(percentile(periods, 99), 3),
+                "period_max_ms": round(float(periods.max()), 2),
+                "lapses_over_1_ms": len(lapses),
+                "lapses_ms": sorted(lapses, reverse=True)[:12],
+            }
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
 def garbage_collection(scene, runs: int) -> list[dict]:
     """The 250 Hz missed cycles: a full collection of the master's heap, forced in mid-trajectory."""
     rows = []
@@ -457,7 +502,7 @@ def readme_table() -> str:
         )
     lines.append("")
     for r in rows:
-        if r["section"] == "garbage_collection":
+        if r["section"] in ("scheduling_floor", "garbage_collection"):
             lines.append(
                 f"- {r['what']}: " + ", ".join(f"{k} {v}" for k, v in r.items() if k not in ("section", "what"))
             )
@@ -467,10 +512,15 @@ def readme_table() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="reduced sizes, to check the script (not saved)")
-    parser.add_argument("--runs", type=int, default=10, help="runs of the gimbal path per rate (default 10)")
-    parser.add_argument("--rates", type=float, nargs="+", default=[100, 250, 500, 1000])
-    parser.add_argument("--no-thread", action="store_true", help="skip the in-process drives")
-    parser.add_argument("--no-rt", action="store_true", help="skip the runs under SCHED_FIFO")
+    parser.add_argument("--runs", type=int, help="runs of the gimbal path per rate (default 10)")
+    parser.add_argument("--rates", type=float, nargs="+", help="control rates (default 100 250 500 1000)")
+    parser.add_argument(
+        "--modes",
+        nargs="+",
+        choices=["separate", "fifo", "thread"],
+        default=["separate", "fifo", "thread"],
+        help="drives in another process, the same under SCHED_FIFO, drives in a thread of this process",
+    )
     parser.add_argument("--table", action="store_true", help="print the README's table from the saved results")
     args = parser.parse_args()
     if args.table:
@@ -479,12 +529,12 @@ def main() -> None:
     load_start = os.getloadavg()
     print(f"load average at start (1, 5, 15 min): {load_start} on {os.cpu_count()} CPUs", flush=True)
     scene = load_scene(ROOT / "configs" / "scenes" / "block_world.yaml")
-    rates = [250, 1000] if args.quick else args.rates
-    runs = 2 if args.quick else args.runs
+    rates = args.rates or ([250, 1000] if args.quick else [100, 250, 500, 1000])
+    runs = args.runs or (2 if args.quick else 10)
 
     print("## control loop in real time, 4 drives in another process", flush=True)
-    loop = control_loop(scene, rates, runs, SEPARATE)
-    if not args.no_rt:
+    loop = control_loop(scene, rates, runs, SEPARATE) if "separate" in args.modes else []
+    if "fifo" in args.modes:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
@@ -492,9 +542,11 @@ def main() -> None:
             loop += control_loop(scene, rates, runs, SEPARATE_RT)
         except OSError as exc:
             print(f"## no SCHED_FIFO here ({exc}): skipped", flush=True)
-    if not args.no_thread:
+    if "thread" in args.modes:
         print("## control loop in real time, 4 drives in a thread of this process", flush=True)
         loop += control_loop(scene, rates, max(2, runs // 2), THREAD)
+    print("\n## the machine's own floor: a bare 1 kHz loop", flush=True)
+    floor = scheduling_floor(5.0 if args.quick else 20.0)
     print("\n## garbage collection and missed cycles", flush=True)
     collection = garbage_collection(scene, 2 if args.quick else 4)
     print("\n## the bus at 1 Mbit/s", flush=True)
@@ -547,6 +599,7 @@ def main() -> None:
             }
         ]
         + [{"section": "control_loop", **r} for r in loop]
+        + [{"section": "scheduling_floor", **r} for r in floor]
         + [{"section": "garbage_collection", **r} for r in collection]
         + [{"section": "bus_ceiling", **r} for r in ceiling]
         + [{"section": "inverse_kinematics", **r} for r in ik]

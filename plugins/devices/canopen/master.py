@@ -223,6 +223,11 @@ class DriveMaster:
                 self, "_heartbeat", self.network.send_periodic(0x700 + self.master_node_id, beat, self.heartbeat_period)
             ),
         )
+        # python-can sends it from a thread of its own: at the loop's priority too, or, holding the GIL while
+        # preempted by an ordinary process, it would make the real-time loop wait for it (priority inversion)
+        thread = getattr(getattr(self._heartbeat, "_task", None), "thread", None)
+        if thread is not None:
+            set_realtime_priority(self.priority, thread.native_id)
         # 2. reset communication, every node, and wait for every boot-up
         self.booted[:] = np.nan
         self._boot_event.clear()
