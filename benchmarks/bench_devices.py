@@ -503,9 +503,9 @@ def readme_table() -> str:
     lines.append("")
     for r in rows:
         if r["section"] in ("scheduling_floor", "garbage_collection"):
-            lines.append(
-                f"- {r['what']}: " + ", ".join(f"{k} {v}" for k, v in r.items() if k not in ("section", "what"))
-            )
+            title = r.get("what") or r.get("loop")
+            details = ", ".join(f"{k} {v}" for k, v in r.items() if k not in ("section", "what", "loop"))
+            lines.append(f"- {title}: {details}")
     return "\n".join(lines)
 
 
