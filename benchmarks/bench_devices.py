@@ -502,10 +502,32 @@ def readme_table() -> str:
         )
     lines.append("")
     for r in rows:
-        if r["section"] in ("scheduling_floor", "garbage_collection"):
-            title = r.get("what") or r.get("loop")
-            details = ", ".join(f"{k} {v}" for k, v in r.items() if k not in ("section", "what", "loop"))
-            lines.append(f"- {title}: {details}")
+        if r["section"] == "scheduling_floor" and "error" not in r:
+            lapses = ", ".join(f"{x:g}" for x in r["lapses_ms"])
+            lines.append(
+                f"- {r['loop']} (the machine's own floor), {r['seconds']:g} s: period p99 {r['period_p99_ms']} ms, "
+                f"max {r['period_max_ms']} ms, {r['lapses_over_1_ms']} wake-ups more than a period late"
+                + (f" ({lapses} ms)" if lapses else "")
+            )
+        elif r["section"] == "garbage_collection" and "pause_ms" in r:
+            lines.append(
+                f"- a full garbage collection of the benchmark's heap ({r['objects']:,} objects): {r['pause_ms']} ms, "
+                f"{r['cycles_at_250_hz']} cycles at 250 Hz"
+            )
+        elif r["section"] == "garbage_collection":
+            lines.append(
+                f"- {r['what']}: {r['missed_cycles']} missed cycles of {r['cycles']:,} in {r['runs']} runs "
+                f"(the collection's pause, median: {r['full_collection_pause_ms_median']} ms)"
+            )
+    ceiling = [r for r in rows if r["section"] == "bus_ceiling" and "drives" in r]
+    if ceiling:
+        rates = ", ".join(f"{r['max_rate_hz_worst_case']:,} Hz for {r['drives']} drives" for r in ceiling)
+        lines.append(
+            f"- the bus at 1 Mbit/s (SYNC + an RPDO and a TPDO per drive, worst-case stuffing) fills at {rates}"
+        )
+    if any(r["section"] == "inverse_kinematics" for r in rows):
+        parts = [f"{r['ik']} {r['per_waypoint_us']} µs" for r in rows if r["section"] == "inverse_kinematics"]
+        lines.append("- inverse kinematics per waypoint: " + "; ".join(parts))
     return "\n".join(lines)
 
 
