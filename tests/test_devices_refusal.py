@@ -189,3 +189,15 @@ def test_a_motion_clear_at_both_ends_through_a_block_is_caught_between_the_sampl
     assert truth == pytest.approx(-0.0045, abs=1e-4)  # 2 mm inside B1 at x = 78 mm
     assert truth - 5e-5 - 1e-5 <= result.lowest <= truth + 1e-9
     assert result.segment == 0 and 0.3 < result.fraction < 0.7
+
+
+def test_gripper6_refuses_a_path_5_mm_into_a_block(block_world, tmp_path):
+    scene = block_world.with_bounds([0, 0, 0], [0.15, 0.1, 0.1])
+    space = R3Space(scene)
+    report, truth = refused_execution(Gripper6Device, {"base": ARM_BASE}, INTO_A_BLOCK, space, block_world, tmp_path)
+    assert_no_motion(report, truth)
+    # the jaws (a 4 mm sphere) at the waypoint 5 mm inside B1: -5 - 4 mm, measured with coal
+    waypoint = np.array(INTO_A_BLOCK[1:2])
+    jaws = coal_scene_segment_distance(block_world, waypoint, waypoint, 0.004)[0]
+    assert jaws == pytest.approx(-0.009, abs=1e-6)
+    assert jaws - 1e-5 - 5e-6 <= clearance_in(report.message, "jaws") <= jaws + 5e-6
