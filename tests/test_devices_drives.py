@@ -55,6 +55,23 @@ def test_master_configures_every_drive_by_sdo_and_starts_them(gimbal):
         assert node.sdo[0x1400][2].raw == 1 and node.sdo[0x1800][2].raw == 1
     # NMT start (command 0x01 to all or each node) went over the bus
     assert any(data[:1] == b"\x01" for _, _, data in frames(gimbal, 0x000))
+    # the standard start-up, in order on the wire: reset communication, boot-up, SDO configuration, start
+    log = [(i, d) for _, i, d in gimbal.bus.frames]
+    for axis in gimbal.master.axes:
+        n = axis.node_id
+        reset = log.index((0x000, bytes([0x82, n])))
+        boot = log.index((0x700 + n, b"\x00"), reset)
+        sdo = next(k for k, (i, _) in enumerate(log) if i == 0x600 + n)
+        start = log.index((0x000, bytes([0x01, n])))
+        assert reset < boot < sdo < start
+        # the drive consumes the master's heartbeat (node 127) with 1.5 x its period
+        assert gimbal.simulator.nodes[n].sdo[0x1016][1].raw == (127 << 16) | 150
+    # the master's own heartbeat (node 127, operational) every heartbeat period
+    start = gimbal.clock.now()
+    gimbal.clock.sleep_until(start + 0.35)
+    beats = frames(gimbal, 0x77F, start)
+    assert len(beats) == 3 and all(data == b"\x05" for _, _, data in beats)
+    np.testing.assert_allclose(np.diff([t for t, _, _ in beats]), 0.1, atol=1e-9)
 
 
 def test_each_drive_produces_heartbeats_at_its_period(gimbal):

@@ -229,15 +229,35 @@ class MonitoredBus(can.BusABC):
         with self.log_lock:
             self.frames.append((self.now(), msg.arbitration_id, bytes(msg.data)))
 
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+    def _check_bus_off(self) -> None:
         if self.bus_off is not None:
             if self.bus_off.at_s is None:
                 raise can.CanOperationError("CAN controller is bus-off (injected fault, from power-up)")
             elapsed = self.faults.elapsed()
             if elapsed is not None and elapsed >= self.bus_off.at_s:
                 raise can.CanOperationError("CAN controller is bus-off (injected fault)")
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._check_bus_off()
         self.inner.send(msg, timeout)
         self._log(msg)
+
+    @property
+    def send_batch(self):
+        """Send frames in order with one write, where the interface can (``LoopbackBus.send_batch``); None
+        otherwise (then send them one by one)."""
+        inner = getattr(self.inner, "send_batch", None)
+        if inner is None:
+            return None
+
+        def send_batch(messages: list[can.Message]) -> None:
+            self._check_bus_off()
+            inner(messages)
+            now = self.now()
+            with self.log_lock:
+                self.frames.extend((now, m.arbitration_id, bytes(m.data)) for m in messages)
+
+        return send_batch
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         while True:

@@ -1,34 +1,102 @@
-"""CiA 402 (the CANopen drive profile): object dictionary, statusword, controlword.
+"""CiA 301 / CiA 402 (the CANopen drive profile): object dictionary, statusword, controlword, modes.
 
 Shared by the master (:mod:`.master`) and the simulated drives
-(:mod:`.drives`). The object dictionary is built in code (no EDS file to
-ship): the CiA 301 communication objects and the CiA 402 objects a drive in
-cyclic synchronous position mode (CSP, mode 8) needs, at their standard
-indices, so the master works with any drive that implements them.
+(:mod:`.drives`). The simulated drive's object dictionary is built here, in
+code (:func:`drive_object_dictionary`), and that one dictionary is both what
+the simulator serves and what its EDS files say (:mod:`.eds` exports it; a
+test checks that the shipped files are that export). The objects are at
+their standard indices, with the standard types and access, so a master that
+speaks CiA 402 (ours, canopen's ``BaseNode402``, a PLC) works with it.
 
-Process data, one frame each way per axis per SYNC (the predefined
-connection set's COB-IDs):
+Communication (CiA 301): device type, error register, pre-defined error
+field, SYNC and EMCY COB-IDs, communication cycle period, heartbeat consumer
+and producer, identity, four RPDOs and four TPDOs (the predefined connection
+set's COB-IDs: RPDO n at 0x100 + 0x100 n + node, TPDO n at 0x080 + 0x100 n +
+node). Profile (CiA 402): controlword, statusword, modes of operation and
+display, supported drive modes (0x6502: profile position 1, profile velocity
+3, cyclic synchronous position 8 and velocity 9), position, velocity and
+following-error objects, software position limits, profile velocity,
+acceleration and deceleration, quick stop, the interpolation period, the
+abort connection and quick stop option codes. Manufacturer-specific: 0x2000,
+the SYNC watchdog time (ms) of the cyclic synchronous modes.
 
-* RPDO1 (0x200 + node): controlword 0x6040 (16 bit) + target position 0x607A
-  (32 bit), transmission type 1: applied at the next SYNC;
-* TPDO1 (0x180 + node): statusword 0x6041 (16 bit) + position actual value
-  0x6064 (32 bit), transmission type 1: sent on every SYNC.
+Units: positions in encoder counts, velocities in counts/s, accelerations in
+counts/s² (no factor group: the position factor is 1); times in ms unless the
+object says otherwise.
+
+Power-on process data: RPDO1 (0x200 + node) controlword 0x6040 + target
+position 0x607A, transmission type 255 (acted on at reception); TPDO1 (0x180
++ node) statusword 0x6041 + position actual value 0x6064, type 1 (every
+SYNC); PDOs 2-4 invalid, mapped as CiA 402 recommends. Our master maps, one
+frame each way per axis per SYNC: RPDO1 controlword + target position and
+TPDO1 statusword + position actual value, both transmission type 1 (the
+RPDO applied at the next SYNC).
 
 State names and statusword masks are canopen's (``canopen.profiles.p402``).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 from canopen import objectdictionary as od
 from canopen.profiles.p402 import OperationMode, State402
 
 #: device type 0x1000: profile 402, servo drive (bit 17)
 DEVICE_TYPE = 0x00020192
-#: EMCY error codes (CiA 402)
-EMCY_FOLLOWING_ERROR = 0x8611
-EMCY_SYNC_LOST = 0x8730  # communication: SYNC / lifeguard timeout
-CSP = OperationMode.CYCLIC_SYNCHRONOUS_POSITION
+#: identity 0x1018 of the simulated drive (vendor 0: not a CiA-registered vendor)
+VENDOR_ID = 0x00000000
+PRODUCT_CODE = 0x53500402
+REVISION = 0x00020000
 
+# ----------------------------------------------------------------------------- EMCY and errors
+#: EMCY error codes (CiA 301 and CiA 402)
+EMCY_NO_ERROR = 0x0000
+EMCY_FOLLOWING_ERROR = 0x8611  # CiA 402: following error
+EMCY_SYNC_LOST = 0x8730  # the drive's SYNC watchdog (manufacturer's choice in the monitoring range)
+EMCY_HEARTBEAT_LOST = 0x8130  # CiA 301: life guard error or heartbeat error
+#: error register 0x1001 bits
+ERR_GENERIC = 0x01
+ERR_CURRENT = 0x02
+ERR_COMMUNICATION = 0x10
+ERR_PROFILE = 0x20
+#: the error register bits each error code sets (bit 0, generic, with every error)
+ERROR_REGISTER = {
+    EMCY_FOLLOWING_ERROR: ERR_GENERIC | ERR_PROFILE,
+    EMCY_SYNC_LOST: ERR_GENERIC | ERR_COMMUNICATION,
+    EMCY_HEARTBEAT_LOST: ERR_GENERIC | ERR_COMMUNICATION,
+}
+
+# ----------------------------------------------------------------------------- SDO abort codes (CiA 301)
+ABORT_UNSUPPORTED_ACCESS = 0x06010000
+ABORT_CANNOT_MAP = 0x06040041
+ABORT_PDO_TOO_LONG = 0x06040042
+ABORT_INCOMPATIBLE = 0x06040043
+ABORT_VALUE_RANGE = 0x06090030
+ABORT_VALUE_TOO_HIGH = 0x06090031
+ABORT_VALUE_TOO_LOW = 0x06090032
+ABORT_DEVICE_STATE = 0x08000022
+
+# ----------------------------------------------------------------------------- modes of operation
+NO_MODE = OperationMode.NO_MODE
+PP = OperationMode.PROFILED_POSITION  # 1
+PV = OperationMode.PROFILED_VELOCITY  # 3
+CSP = OperationMode.CYCLIC_SYNCHRONOUS_POSITION  # 8
+CSV = OperationMode.CYCLIC_SYNCHRONOUS_VELOCITY  # 9
+SUPPORTED_MODES = (PP, PV, CSP, CSV)
+#: 0x6502: bit 0 pp, bit 2 pv, bit 7 csp, bit 8 csv (CiA 402-2 §6.2.2)
+SUPPORTED_DRIVE_MODES = 0x0001 | 0x0004 | 0x0080 | 0x0100
+POSITION_MODES = (PP, CSP)
+VELOCITY_MODES = (PV, CSV)
+CYCLIC_MODES = (CSP, CSV)
+#: 0x6007 abort connection option codes the drive implements
+ABORT_CONNECTION_OPTIONS = (0, 1, 2, 3)
+#: 0x605A quick stop option codes: 0 disable drive; 1/2 slow-down/quick-stop ramp then SWITCH ON
+#: DISABLED; 5/6 slow-down/quick-stop ramp and stay in QUICK STOP ACTIVE
+QUICK_STOP_OPTIONS = (0, 1, 2, 5, 6)
+
+# ----------------------------------------------------------------------------- state machine
 # controlword commands
 CW_DISABLE_VOLTAGE = State402.CW_DISABLE_VOLTAGE  # 0x00
 CW_SHUTDOWN = State402.CW_SHUTDOWN  # 0x06
@@ -36,6 +104,11 @@ CW_SWITCH_ON = State402.CW_SWITCH_ON  # 0x07 (also "disable operation")
 CW_ENABLE_OPERATION = State402.CW_OPERATION_ENABLED  # 0x0F
 CW_QUICK_STOP = State402.CW_QUICK_STOP  # 0x02
 CW_FAULT_RESET = 0x80
+#: operation mode specific bits
+CW_NEW_SET_POINT = 1 << 4  # pp: new set-point (rising edge)
+CW_CHANGE_IMMEDIATELY = 1 << 5  # pp
+CW_RELATIVE = 1 << 6  # pp
+CW_HALT = 1 << 8
 
 NOT_READY = "NOT READY TO SWITCH ON"
 SWITCH_ON_DISABLED = "SWITCH ON DISABLED"
@@ -57,15 +130,23 @@ STATUSWORD = {
     FAULT_REACTION_ACTIVE: 0x001F,
     FAULT: 0x0008,
 }
+SW_WARNING = 1 << 7
 SW_REMOTE = 1 << 9
 SW_TARGET_REACHED = 1 << 10
-SW_FOLLOWING_COMMAND = 1 << 12  # CSP: the drive follows the target value
-SW_FOLLOWING_ERROR = 1 << 13  # CSP: following error
+SW_INTERNAL_LIMIT = 1 << 11
+SW_SET_POINT_ACKNOWLEDGE = 1 << 12  # pp: set-point acknowledge
+SW_SPEED_ZERO = 1 << 12  # pv: speed is zero
+SW_FOLLOWING_COMMAND = 1 << 12  # csp/csv: the drive follows the target value
+SW_FOLLOWING_ERROR = 1 << 13  # pp/csp: following error
+
+_STATE_MASKS = [(name, mask, value) for name, (mask, value) in State402.SW_MASK.items()]
+#: (mask, value) of the statusword in OPERATION ENABLED
+OPERATION_ENABLED_MASK = State402.SW_MASK[OPERATION_ENABLED]
 
 
 def state_of(statusword: int) -> str:
     """The CiA 402 state a statusword reports."""
-    for name, (mask, value) in State402.SW_MASK.items():
+    for name, mask, value in _STATE_MASKS:
         if statusword & mask == value:
             return name
     return NOT_READY
@@ -74,9 +155,8 @@ def state_of(statusword: int) -> str:
 def next_state(state: str, controlword: int, previous_controlword: int) -> str:
     """The drive's state after a controlword (CiA 402 state machine, transitions 2-12, 15, 16).
 
-    A fault reset is the rising edge of bit 7; quick stop option code 6 keeps
-    the drive in QUICK STOP ACTIVE, from where "enable operation" (16) or
-    "disable voltage" (12) leave it.
+    A fault reset is the rising edge of bit 7; from QUICK STOP ACTIVE "enable
+    operation" (16) or "disable voltage" (12) leave it.
     """
     if state == FAULT:
         if controlword & CW_FAULT_RESET and not previous_controlword & CW_FAULT_RESET:
@@ -149,94 +229,216 @@ def interpolation_period(period: float) -> tuple[int, int]:
     )
 
 
+# ----------------------------------------------------------------------------- PDOs
+def rpdo_cob_id(n: int, node_id: int) -> int:
+    """The predefined connection set's COB-ID of RPDO n (1-4)."""
+    return 0x100 + 0x100 * n + node_id
+
+
+def tpdo_cob_id(n: int, node_id: int) -> int:
+    """The predefined connection set's COB-ID of TPDO n (1-4)."""
+    return 0x080 + 0x100 * n + node_id
+
+
+PDO_INVALID = 1 << 31
+PDO_NO_RTR = 1 << 30
+#: default mappings (CiA 402's recommendations, RPDO/TPDO 1 as the master uses them); 2-4 invalid at power-up
+DEFAULT_RPDO = {1: [0x60400010, 0x607A0020], 2: [0x60400010, 0x60600008], 3: [0x60400010, 0x607A0020],
+                4: [0x60400010, 0x60FF0020]}  # fmt: skip
+DEFAULT_TPDO = {1: [0x60410010, 0x60640020], 2: [0x60410010, 0x60610008], 3: [0x60410010, 0x60640020],
+                4: [0x60410010, 0x606C0020]}  # fmt: skip
+
+
 # ----------------------------------------------------------------------------- object dictionary
-def _variable(name, index, subindex=0, data_type=od.UNSIGNED32, access="rw", default=0, mappable=False):
+@dataclass(frozen=True)
+class DriveDefaults:
+    """The power-on values of one simulated drive (the defaults its EDS states), in SI joint units.
+
+    Converted to counts with ``counts_per_unit`` for the dictionary.
+    """
+
+    product_name: str = "surgiplan simulated CiA 402 servo drive"
+    counts_per_unit: float = 1.0
+    unit: str = "count"
+    #: the axis' travel: the software position limits at power-up (None: the whole INTEGER32 range)
+    lower: float | None = None
+    upper: float | None = None
+    #: the motor's speed limit: max profile velocity 0x607F at power-up
+    max_velocity: float | None = None
+    #: profile velocity 0x6081 at power-up (None: max_velocity)
+    profile_velocity: float | None = None
+    #: profile acceleration and deceleration (0x6083/0x6084); the quick stop deceleration 0x6085 is twice it
+    acceleration: float | None = None
+    #: following error window 0x6065 (None: off)
+    following_error_window: float | None = None
+    #: the SYNC watchdog of the cyclic synchronous modes, 0x2000 (s; 0: off)
+    sync_watchdog: float = 0.05
+
+    def counts(self, value: float | None, fallback: int) -> int:
+        return fallback if value is None else round(value * self.counts_per_unit)
+
+
+def _variable(name, index, subindex=0, data_type=od.UNSIGNED32, access="rw", default=0, mappable=False, raw=None):
     var = od.ODVariable(name, index, subindex)
     var.data_type = data_type
     var.access_type = access
     var.default = default
     var.pdo_mappable = mappable
+    # the EDS text of the default: exact for negative numbers (canopen writes those as "0x-..."), and
+    # relative to the node id where the standard says so ($NODEID+0x180)
+    if raw is not None:
+        var.default_raw = raw
+    elif data_type in (od.VISIBLE_STRING,):
+        var.default_raw = default
+    elif isinstance(default, int) and default < 0:
+        var.default_raw = str(default)
+    elif isinstance(default, int):
+        var.default_raw = f"0x{default:X}"
     return var
 
 
-def _record(name, index, members):
-    record = od.ODRecord(name, index)
-    record.add_member(_variable("Highest sub-index supported", index, 0, od.UNSIGNED8, "ro", len(members)))
-    for sub, (member, data_type, access, default) in enumerate(members, start=1):
-        record.add_member(_variable(member, index, sub, data_type, access, default))
+def _record(name, index, members, array=False):
+    record = (od.ODArray if array else od.ODRecord)(name, index)
+    top = max(sub for sub, *_ in members)
+    record.add_member(_variable("Highest sub-index supported", index, 0, od.UNSIGNED8, "const", top))
+    for sub, member, data_type, access, default, *raw in members:
+        record.add_member(_variable(member, index, sub, data_type, access, default, raw=raw[0] if raw else None))
     return record
 
 
-def _pdo(comm_index, map_index, cob_id, mapping, direction):
-    comm = _record(
-        f"{direction}PDO1 communication parameter",
-        comm_index,
-        [("COB-ID", od.UNSIGNED32, "rw", cob_id), ("Transmission type", od.UNSIGNED8, "rw", 1)],
-    )
-    entries = [
-        (f"Mapping entry {i}", od.UNSIGNED32, "rw", mapping[i - 1] if i <= len(mapping) else 0) for i in range(1, 9)
+def _pdo(direction: str, n: int, node_id: int):
+    receive = direction == "R"
+    comm_index = (0x1400 if receive else 0x1800) + n - 1
+    map_index = (0x1600 if receive else 0x1A00) + n - 1
+    base = (0x100 if receive else 0x080) + 0x100 * n
+    cob_id = base + node_id if n == 1 else (base + node_id) | PDO_INVALID
+    cob_raw = f"$NODEID+0x{base:X}" if n == 1 else f"$NODEID+0x{base | PDO_INVALID:X}"
+    members = [
+        (1, "COB-ID used by PDO", od.UNSIGNED32, "rw", cob_id, cob_raw),
+        (2, "Transmission type", od.UNSIGNED8, "rw", 255 if receive else 1),
     ]
-    mapping_record = od.ODRecord(f"{direction}PDO1 mapping parameter", map_index)
-    mapping_record.add_member(_variable("Number of mapped objects", map_index, 0, od.UNSIGNED8, "rw", len(mapping)))
-    for sub, (member, data_type, access, default) in enumerate(entries, start=1):
-        mapping_record.add_member(_variable(member, map_index, sub, data_type, access, default))
-    return comm, mapping_record
+    if not receive:
+        members += [
+            (3, "Inhibit time", od.UNSIGNED16, "rw", 0),
+            (5, "Event timer", od.UNSIGNED16, "rw", 0),
+        ]
+    comm = _record(f"{direction}PDO{n} communication parameter", comm_index, members)
+    mapping = (DEFAULT_RPDO if receive else DEFAULT_TPDO)[n]
+    record = od.ODRecord(f"{direction}PDO{n} mapping parameter", map_index)
+    record.add_member(_variable("Number of mapped objects", map_index, 0, od.UNSIGNED8, "rw", len(mapping)))
+    for sub in range(1, 9):
+        entry = mapping[sub - 1] if sub <= len(mapping) else 0
+        record.add_member(_variable(f"Mapped object {sub}", map_index, sub, od.UNSIGNED32, "rw", entry))
+    return comm, record
+
+
+def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None) -> od.ObjectDictionary:
+    """The object dictionary of one simulated CiA 402 axis: what the simulator serves and its EDS states."""
+    d = defaults or DriveDefaults()
+    lowest, highest = -(2**31), 2**31 - 1
+    velocity = min(d.counts(d.max_velocity, 0xFFFFFFFF), 0xFFFFFFFF)
+    profile = min(d.counts(d.profile_velocity, velocity), velocity)
+    acceleration = min(d.counts(d.acceleration, 0x7FFFFFFF), 0x7FFFFFFF)
+    window = 0xFFFFFFFF if d.following_error_window is None else max(1, d.counts(d.following_error_window, 0))
+    lower = max(lowest, math.floor(d.lower * d.counts_per_unit)) if d.lower is not None else lowest
+    upper = min(highest, math.ceil(d.upper * d.counts_per_unit)) if d.upper is not None else highest
+
+    dictionary = od.ObjectDictionary()
+    dictionary.node_id = node_id
+    info = dictionary.device_information
+    info.vendor_name = "surgiplan (simulation)"
+    info.vendor_number = VENDOR_ID
+    info.product_name = d.product_name
+    info.product_number = PRODUCT_CODE
+    info.revision_number = REVISION
+    info.order_code = "surgiplan-sim-drive"
+    info.simple_boot_up_master = False
+    info.simple_boot_up_slave = True
+    info.granularity = 8
+    info.dynamic_channels_supported = False
+    info.group_messaging = False
+    info.nr_of_RXPDO = 4
+    info.nr_of_TXPDO = 4
+    info.LSS_supported = False
+    info.allowed_baudrates = {125_000, 250_000, 500_000, 1_000_000}
+    dictionary.comments = (
+        f"{d.product_name}.\n"
+        f"Positions in encoder counts ({d.counts_per_unit:.9g} counts per {d.unit}), velocities in counts/s,\n"
+        "accelerations in counts/s^2. Generated by surgiplan from the object dictionary its simulated drives serve."
+    )
+    add = dictionary.add_object
+    U8, U16, U32, I8, I16, I32 = od.UNSIGNED8, od.UNSIGNED16, od.UNSIGNED32, od.INTEGER8, od.INTEGER16, od.INTEGER32
+    # ---- communication profile area (CiA 301)
+    add(_variable("Device type", 0x1000, access="ro", default=DEVICE_TYPE))
+    add(_variable("Error register", 0x1001, data_type=U8, access="ro", mappable=True))
+    errors = [(0, "Number of errors", U8, "rw", 0)]
+    errors += [(sub, f"Standard error field {sub}", U32, "ro", 0) for sub in range(1, 9)]
+    field = od.ODArray("Pre-defined error field", 0x1003)
+    for sub, name, data_type, access, default in errors:
+        field.add_member(_variable(name, 0x1003, sub, data_type, access, default))
+    add(field)
+    add(_variable("COB-ID SYNC message", 0x1005, access="ro", default=0x80))
+    add(_variable("Communication cycle period", 0x1006, default=0))
+    add(_variable("Manufacturer device name", 0x1008, data_type=od.VISIBLE_STRING, access="const",
+                  default=d.product_name))  # fmt: skip
+    add(_variable("Manufacturer software version", 0x100A, data_type=od.VISIBLE_STRING, access="const",
+                  default=f"simulator revision {REVISION >> 16}.{REVISION & 0xFFFF}"))  # fmt: skip
+    add(_variable("COB-ID EMCY", 0x1014, access="ro", default=0x80 + node_id, raw="$NODEID+0x80"))
+    consumer = od.ODArray("Consumer heartbeat time", 0x1016)
+    consumer.add_member(_variable("Number of entries", 0x1016, 0, U8, "const", 2))
+    for sub in (1, 2):
+        consumer.add_member(_variable(f"Consumer heartbeat time {sub}", 0x1016, sub, U32, "rw", 0))
+    add(consumer)
+    add(_variable("Producer heartbeat time", 0x1017, data_type=U16))
+    identity = [
+        (1, "Vendor-ID", U32, "ro", VENDOR_ID),
+        (2, "Product code", U32, "ro", PRODUCT_CODE),
+        (3, "Revision number", U32, "ro", REVISION),
+        (4, "Serial number", U32, "ro", node_id, "$NODEID+0"),
+    ]
+    add(_record("Identity object", 0x1018, identity))
+    for n in (1, 2, 3, 4):
+        for obj in _pdo("R", n, node_id):
+            add(obj)
+    for n in (1, 2, 3, 4):
+        for obj in _pdo("T", n, node_id):
+            add(obj)
+    # ---- manufacturer-specific area
+    add(_variable("SYNC watchdog time", 0x2000, data_type=U16, default=round(d.sync_watchdog * 1000)))
+    # ---- device profile area (CiA 402)
+    add(_variable("Error code", 0x603F, data_type=U16, access="ro", mappable=True))
+    add(_variable("Abort connection option code", 0x6007, data_type=I16, default=3))
+    add(_variable("Controlword", 0x6040, data_type=U16, mappable=True))
+    add(_variable("Statusword", 0x6041, data_type=U16, access="ro", mappable=True))
+    add(_variable("Quick stop option code", 0x605A, data_type=I16, default=6))
+    add(_variable("Modes of operation", 0x6060, data_type=I8, default=CSP, mappable=True))
+    add(_variable("Modes of operation display", 0x6061, data_type=I8, access="ro", default=CSP, mappable=True))
+    add(_variable("Position demand value", 0x6062, data_type=I32, access="ro", mappable=True))
+    add(_variable("Position actual value", 0x6064, data_type=I32, access="ro", mappable=True))
+    add(_variable("Following error window", 0x6065, default=window))
+    add(_variable("Following error time out", 0x6066, data_type=U16, default=10))
+    position_window = 10 if d.following_error_window is None else max(1, window // 10)
+    add(_variable("Position window", 0x6067, default=position_window))
+    add(_variable("Position window time", 0x6068, data_type=U16, default=0))
+    add(_variable("Velocity actual value", 0x606C, data_type=I32, access="ro", mappable=True))
+    add(_variable("Velocity window", 0x606D, data_type=U16, default=min(0xFFFF, max(1, velocity // 1000))))
+    add(_variable("Velocity window time", 0x606E, data_type=U16, default=0))
+    add(_variable("Target position", 0x607A, data_type=I32, mappable=True))
+    limits = [(1, "Min position limit", I32, "rw", lower), (2, "Max position limit", I32, "rw", upper)]
+    add(_record("Software position limit", 0x607D, limits))
+    add(_variable("Max profile velocity", 0x607F, default=velocity, mappable=True))
+    add(_variable("Profile velocity", 0x6081, default=profile, mappable=True))
+    add(_variable("Profile acceleration", 0x6083, default=acceleration, mappable=True))
+    add(_variable("Profile deceleration", 0x6084, default=acceleration, mappable=True))
+    add(_variable("Quick stop deceleration", 0x6085, default=2 * acceleration))
+    period = [(1, "Interpolation time period value", U8, "rw", 1), (2, "Interpolation time index", I8, "rw", -3)]
+    add(_record("Interpolation time period", 0x60C2, period))
+    add(_variable("Following error actual value", 0x60F4, data_type=I32, access="ro", mappable=True))
+    add(_variable("Target velocity", 0x60FF, data_type=I32, mappable=True))
+    add(_variable("Supported drive modes", 0x6502, access="ro", default=SUPPORTED_DRIVE_MODES))
+    return dictionary
 
 
 def cia402_object_dictionary(node_id: int) -> od.ObjectDictionary:
-    """The object dictionary of one CiA 402 axis (CSP), for master and simulated drive alike."""
-    d = od.ObjectDictionary()
-    d.node_id = node_id
-    d.add_object(_variable("Device type", 0x1000, access="ro", default=DEVICE_TYPE))
-    d.add_object(_variable("Error register", 0x1001, data_type=od.UNSIGNED8, access="ro"))
-    d.add_object(_variable("Producer heartbeat time", 0x1017, data_type=od.UNSIGNED16))
-    d.add_object(
-        _record(
-            "Identity object",
-            0x1018,
-            [
-                ("Vendor-ID", od.UNSIGNED32, "ro", 0),
-                ("Product code", od.UNSIGNED32, "ro", 0x402),
-                ("Revision number", od.UNSIGNED32, "ro", 1),
-                ("Serial number", od.UNSIGNED32, "ro", node_id),
-            ],
-        )
-    )
-    for obj in _pdo(0x1400, 0x1600, 0x200 + node_id, [0x60400010, 0x607A0020], "R"):
-        d.add_object(obj)
-    for obj in _pdo(0x1800, 0x1A00, 0x180 + node_id, [0x60410010, 0x60640020], "T"):
-        d.add_object(obj)
-    d.add_object(_variable("Error code", 0x603F, data_type=od.UNSIGNED16, access="ro", mappable=True))
-    d.add_object(_variable("Controlword", 0x6040, data_type=od.UNSIGNED16, mappable=True))
-    d.add_object(_variable("Statusword", 0x6041, data_type=od.UNSIGNED16, access="ro", mappable=True))
-    d.add_object(_variable("Abort connection option code", 0x6007, data_type=od.INTEGER16, default=3))
-    d.add_object(_variable("Quick stop option code", 0x605A, data_type=od.INTEGER16, default=6))
-    d.add_object(_variable("Modes of operation", 0x6060, data_type=od.INTEGER8, mappable=True))
-    d.add_object(_variable("Modes of operation display", 0x6061, data_type=od.INTEGER8, access="ro", mappable=True))
-    d.add_object(_variable("Position actual value", 0x6064, data_type=od.INTEGER32, access="ro", mappable=True))
-    d.add_object(_variable("Following error window", 0x6065, default=0xFFFFFFFF))
-    d.add_object(_variable("Following error time out", 0x6066, data_type=od.UNSIGNED16, default=10))
-    d.add_object(_variable("Target position", 0x607A, data_type=od.INTEGER32, mappable=True))
-    d.add_object(
-        _record(
-            "Software position limit",
-            0x607D,
-            [
-                ("Min position limit", od.INTEGER32, "rw", -(2**31)),
-                ("Max position limit", od.INTEGER32, "rw", 2**31 - 1),
-            ],
-        )
-    )
-    d.add_object(_variable("Max profile velocity", 0x607F, default=0xFFFFFFFF))
-    d.add_object(_variable("Quick stop deceleration", 0x6085, default=0xFFFFFFFF))
-    d.add_object(
-        _record(
-            "Interpolation time period",
-            0x60C2,
-            [
-                ("Interpolation time period value", od.UNSIGNED8, "rw", 1),
-                ("Interpolation time index", od.INTEGER8, "rw", -3),
-            ],
-        )
-    )
-    return d
+    """A generic simulated axis' object dictionary (counts as units, no limits)."""
+    return drive_object_dictionary(node_id)

@@ -32,7 +32,9 @@ targets going, supervised, so that the drives' watchdogs stay quiet.
 
 from __future__ import annotations
 
+import gc
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,7 +43,7 @@ import numpy as np
 
 from . import cia402
 from .bus import BusError
-from .clock import Clock
+from .clock import Clock, restore_priority, set_realtime_priority
 from .master import NMT_OPERATIONAL, DriveMaster, emcy_description
 
 
@@ -80,13 +82,19 @@ class ExecutionLog:
     work: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: actual cycle start times (s)
     wakeups: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: process CPU time (s, every thread) the loop used
+    cpu_s: float = 0.0
 
 
 class Controller:
     """Runs cycles on a :class:`DriveMaster` (see the module docstring)."""
 
-    def __init__(self, master: DriveMaster, clock: Clock, supervision: Supervision) -> None:
+    def __init__(
+        self, master: DriveMaster, clock: Clock, supervision: Supervision, priority: int | None = None
+    ) -> None:
         self.master = master
+        #: SCHED_FIFO priority of the loop's threads (real time), None: ordinary scheduling
+        self.priority = priority
         self.clock = clock
         self.period = master.period
         self.supervision = supervision
@@ -96,6 +104,8 @@ class Controller:
         self._next = None  # clock time of the next cycle
         #: real time: cycles skipped because the loop woke more than a period late
         self.missed_cycles = 0
+        #: real time: (clock time the cycle was due, how late the loop woke (s), cycles skipped), per lapse
+        self.missed_log: list[tuple[float, float, int]] = []
         self.controlword = np.zeros(self.n, dtype=np.int64)
         self.hold = np.zeros(self.n, dtype=np.int64)  # counts
         self._emcy_seen = 0
@@ -116,6 +126,7 @@ class Controller:
                 # trajectories): skip the missed cycles instead of sending a burst of SYNCs the
                 # drives cannot answer in between
                 missed = int(late // self.period)
+                self.missed_log.append((self._next, late, missed))
                 self._next += missed * self.period
                 self.missed_cycles += missed
         self.clock.sleep_until(self._next)
@@ -179,12 +190,11 @@ class Controller:
                 }
             )
         if check_states:
-            states = feedback.states
-            for i in np.flatnonzero(feedback.fresh):
-                if states[i] != cia402.OPERATION_ENABLED:
-                    found.append(
-                        {"kind": "drive_state", "node": self.axes[i].node_id, "t_s": now - origin, "detail": states[i]}
-                    )
+            mask, value = cia402.OPERATION_ENABLED_MASK
+            for i in np.flatnonzero(feedback.fresh & ((feedback.statusword & mask) != value)):
+                state = cia402.state_of(int(feedback.statusword[i]))
+                node = self.axes[i].node_id
+                found.append({"kind": "drive_state", "node": node, "t_s": now - origin, "detail": state})
         return found
 
     # ------------------------------------------------------------------ enabling
@@ -251,6 +261,7 @@ class Controller:
         self._hold_stop.clear()
         self._hold_thread = threading.Thread(target=self._holding, name="surgiplan-hold", daemon=True)
         self._hold_thread.start()
+        set_realtime_priority(self.priority, self._hold_thread.native_id)
 
     def stop_holding(self) -> None:
         if self._hold_thread is not None:
@@ -259,6 +270,7 @@ class Controller:
             self._hold_thread = None
 
     def _holding(self) -> None:
+        self.clock.precise()
         while not self._hold_stop.is_set():
             now = self._wait()
             feedback = self.master.feedback()
@@ -279,12 +291,35 @@ class Controller:
                 return
 
     # ------------------------------------------------------------------ a trajectory
-    def run(self, trajectory: np.ndarray, on_start=None) -> ExecutionLog:
+    def run(self, trajectory: np.ndarray, on_start=None, collect_garbage: bool = False) -> ExecutionLog:
         """Execute joint samples (m, nq) (units, one per period) from the current hold position.
 
         ``on_start(t0)`` is called with the clock time of the first cycle (arms injected faults).
+        In real time Python's cyclic garbage collector is off during the loop (``collect_garbage``
+        False): a full collection of a large heap stops every thread for tens of milliseconds, which
+        is a run of missed cycles (see benchmarks/bench_devices.py); the loop's own garbage is freed by
+        reference counting, the rest is collected after it. The process CPU time the loop used (all
+        threads) is in ``ExecutionLog.cpu_s``.
         """
         self.stop_holding()
+        collecting = gc.isenabled()
+        previous = None
+        if self.clock.realtime:
+            self.clock.precise()
+            previous = set_realtime_priority(self.priority)
+            if not collect_garbage:
+                gc.disable()
+        cpu = time.process_time()
+        try:
+            log = self._run(trajectory, on_start)
+        finally:
+            if collecting:
+                gc.enable()
+            restore_priority(previous)
+        log.cpu_s = time.process_time() - cpu
+        return log
+
+    def _run(self, trajectory: np.ndarray, on_start) -> ExecutionLog:
         if self.clock.realtime:
             # the first cycle is now: the hold loop's schedule may have lapsed while the trajectory was
             # timed and the axes placed, which skips no cycle of the trajectory (missed_cycles counts those)

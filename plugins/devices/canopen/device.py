@@ -15,18 +15,23 @@ Lifecycle (ros2_control's, :class:`surgiplan.Device`):
   where the device stands is not clear, or the drives are stopped from an
   earlier fault (:meth:`Cia402Device.reset_faults` first: a stopped device
   never restarts by itself); then time-parameterised at the control rate
-  (:mod:`.timing`) and run (:mod:`.control`); the report
-  (:mod:`.execution_report`) says what the hardware actually did.
+  (:mod:`.timing`), refused if the timed motion's certified clearance
+  (:mod:`.certify`, every body, between samples too) is below
+  ``safety_margin``, and run (:mod:`.control`); the report (:mod:`.report`)
+  says what the hardware actually did.
 * ``deactivate``: drives disabled, brakes hold; ``cleanup``/``shutdown``:
   NMT pre-operational, bus released. A failed transition is the error
   state, with everything released; ``shutdown`` leaves it.
 
-Subclasses say how a path becomes joint waypoints (:meth:`Cia402Device.joint_path`)
-and how clearance is measured (:meth:`Cia402Device.clearance_along`).
+Subclasses say how a path becomes joint waypoints (:meth:`Cia402Device.joint_path`),
+how clearance is measured (:meth:`Cia402Device.clearance_along`) and certified
+(:meth:`Cia402Device.certify_motion`).
 """
 
 from __future__ import annotations
 
+import gc
+import importlib.resources
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +45,8 @@ from surgiplan.plugins.devices.kinematics.model import KinematicModel
 
 from . import cia402
 from .bus import ArmedFaults, BusError, MonitoredBus, open_bus, worst_case_bits
-from .clock import RealTimeClock, SimulatedClock
+from .certify import Certificate
+from .clock import RealTimeClock, SimulatedClock, restore_priority, set_realtime_priority
 from .control import Controller, ExecutionLog, Supervision
 from .drives import AxisHardware, DriveSimulator, MotorModel
 from .master import AxisConfig, DriveMaster
@@ -85,6 +91,8 @@ class Cia402Device(Device):
         self.placed = False
         #: the last execution's log (times, measured and commanded joints, faults): what the drives did
         self.last_log: ExecutionLog | None = None
+        self._source: str | None = None
+        self._frozen = False
         self.channel = ""
 
     # ------------------------------------------------------------------ for subclasses
@@ -103,6 +111,11 @@ class Cia402Device(Device):
     def approach_is_clear(self, q_from: np.ndarray, q_to: np.ndarray, trajectory: Trajectory) -> bool:
         raise NotImplementedError
 
+    def certify_motion(self, q: np.ndarray, trajectory: Trajectory, margin: float) -> list[Certificate]:
+        """Certified clearance of each of the device's bodies along the timed joint samples ``q`` as the drives
+        interpolate them (linearly, one sample per control period): :func:`.certify.certify`."""
+        raise NotImplementedError
+
     # ------------------------------------------------------------------ settings
     def _per_joint(self, values, default, what: str) -> np.ndarray:
         nq = self.model.nq
@@ -119,6 +132,29 @@ class Cia402Device(Device):
         acceleration = self._per_joint(s.acceleration_limits, self.default_acceleration, "acceleration_limits")
         return velocity, acceleration
 
+    @classmethod
+    def eds_folder(cls) -> Path:
+        """Where the device package ships its simulated drives' EDS files (``<package>/eds``)."""
+        package = cls.__module__.rpartition(".")[0]
+        return Path(str(importlib.resources.files(package))) / "eds"
+
+    def eds_files(self) -> list[Path]:
+        """Each joint's drive's EDS: the ``eds`` setting, else the shipped simulated drive's."""
+        s = self.settings
+        names = self.model.joint_names
+        if s.eds is None:
+            files = [self.eds_folder() / f"{self.urdf_name}_{name}.eds" for name in names]
+        else:
+            given = s.eds if isinstance(s.eds, list) else [s.eds] * len(names)
+            if len(given) != len(names):
+                raise ConfigError(f"eds: give one file for all joints or {len(names)}, one per joint {names}")
+            base = Path(self.context.base_dir) if self.context is not None else Path.cwd()
+            files = [path if path.is_absolute() else base / path for path in given]
+        for name, path in zip(names, files, strict=True):
+            if not path.is_file():
+                raise ConfigError(f"eds: the EDS file of joint '{name}' does not exist: {path}")
+        return files
+
     def _axes(self) -> tuple[list[AxisConfig], list[AxisHardware]]:
         s = self.settings
         model = self.model
@@ -126,6 +162,8 @@ class Cia402Device(Device):
         ids = s.node_ids or list(range(1, nq + 1))
         if len(ids) != nq or len(set(ids)) != nq or not all(1 <= i <= 127 for i in ids):
             raise ConfigError(f"node_ids: give {nq} distinct CAN node ids (1-127), one per joint {model.joint_names}")
+        if s.master_node_id in ids:
+            raise ConfigError(f"master_node_id {s.master_node_id} is also a drive's node id (node_ids: {ids})")
         cpu = self._per_joint(
             s.counts_per_unit, np.where(model.prismatic, PRISMATIC_COUNTS, REVOLUTE_COUNTS), "counts_per_unit"
         )
@@ -160,6 +198,13 @@ class Cia402Device(Device):
                     float(acceleration[j] * s.simulation.peak_acceleration_factor),
                     float(model.velocity_limit[j] * s.simulation.velocity_factor),
                     float(start[j]),
+                    name=model.joint_names[j],
+                    unit="m" if model.prismatic[j] else "rad",
+                    lower=float(model.lower[j]),
+                    upper=float(model.upper[j]),
+                    following_error_window=float(window[j]),
+                    profile_velocity=float(velocity[j]),
+                    profile_acceleration=float(acceleration[j]),
                 )
             )
         return config, hardware
@@ -187,6 +232,14 @@ class Cia402Device(Device):
                 f"clock: simulated needs the simulated bus; interface '{s.bus.interface}' is real hardware"
             )
         period = 1.0 / s.control_rate
+        if s.realtime_priority is not None and realtime:
+            try:  # refuse before anything is opened if the system does not allow it
+                restore_priority(set_realtime_priority(s.realtime_priority))
+            except (OSError, AttributeError) as exc:
+                raise ConfigError(
+                    f"realtime_priority {s.realtime_priority}: this system does not let the process run under "
+                    f"SCHED_FIFO ({exc}); it needs Linux and CAP_SYS_NICE (or root), or leave the setting out"
+                ) from None
         try:
             cia402.interpolation_period(period)
         except ValueError as exc:
@@ -198,6 +251,8 @@ class Cia402Device(Device):
             )
         self.model = self.build_model()
         config, hardware = self._axes()
+        for axis, eds in zip(config, self.eds_files(), strict=True):
+            axis.eds = eds
         self._check_bus_load(config)
         self.clock = RealTimeClock() if realtime else SimulatedClock()
         self.faults = ArmedFaults(s.bus.faults, self.clock.now)
@@ -211,9 +266,11 @@ class Cia402Device(Device):
                     s.simulation.position_gain, s.simulation.velocity_gain, sync_timeout=s.simulation.sync_timeout
                 )
                 drives_bus = can.Bus(interface="virtual", channel=self.channel)
-                self.simulator = DriveSimulator(drives_bus, hardware, model, self.clock, self.faults, link)
+                self.simulator = DriveSimulator(
+                    drives_bus, hardware, model, self.clock, self.faults, link, device=self.urdf_name
+                )
                 if realtime:
-                    self.simulator.start()
+                    self.simulator.start(s.realtime_priority)
             self.master = DriveMaster(
                 self.bus,
                 config,
@@ -224,12 +281,16 @@ class Cia402Device(Device):
                 sdo_timeout=s.sdo_timeout,
                 link=link,
                 description=description,
+                master_node_id=s.master_node_id,
+                boot_timeout=s.boot_timeout,
+                priority=s.realtime_priority if realtime else None,
             )
             self.master.start()
             self.controller = Controller(
                 self.master,
                 self.clock,
                 Supervision(1.5 * s.heartbeat_period, s.pdo_timeout_cycles, s.stop_timeout, s.settle_time),
+                s.realtime_priority if realtime else None,
             )
             self.placed = s.simulation.initial is not None or not s.bus.simulated
         except BaseException:
@@ -237,6 +298,14 @@ class Cia402Device(Device):
             raise
 
     def on_activate(self) -> None:
+        if self.clock.realtime and not self._frozen:
+            # what exists now (models, dictionaries, imported modules) is never garbage: out of the cyclic
+            # collector's sight, so that a full collection while holding or between trajectories scans only
+            # what is new (a full collection of the whole heap was measured at 150 ms: a SYNC gap that trips
+            # the drives' watchdogs); trajectories run with the collector off (Controller.run)
+            gc.collect()
+            gc.freeze()
+            self._frozen = True
         self.controller.enable(self.settings.enable_timeout)
         self.controller.start_holding()
 
@@ -255,6 +324,9 @@ class Cia402Device(Device):
         self._release()
 
     def _release(self) -> None:
+        if self._frozen:
+            gc.unfreeze()
+            self._frozen = False
         if self.controller is not None:
             self.controller.stop_holding()
         if self.master is not None:
@@ -293,11 +365,33 @@ class Cia402Device(Device):
         self.controller.start_holding()
 
     # ------------------------------------------------------------------ execution
-    def _refused(self, reason: str) -> ExecutionReport:
-        return ExecutionReport(
-            "stopped",
-            {"cycles": 0, "refused": True, "faults": []},
-            message=f"refused before any motion: {reason}",
+    def _refused(self, reason: str, metrics: dict[str, Any] | None = None) -> ExecutionReport:
+        # the execute stage's metric names stay the same whatever happened: nothing tracked, no fault
+        out = {**(metrics or {}), "cycles": 0, "refused": True, "faults": []}
+        out |= {"tracking_error_max_m": None, "tracking_error_rms_m": None}
+        return ExecutionReport("stopped", out, message=f"refused before any motion: {reason}")
+
+    def _certified(self, planned, trajectory: Trajectory, metrics: dict[str, Any]) -> str | None:
+        """Certify the timed motion's clearance (every body, between the samples too); the reason to refuse it
+        if some body comes closer than the safety margin, else None. Adds the certified clearances to metrics."""
+        margin = float(self.settings.safety_margin)
+        certificates = self.certify_motion(planned.q, trajectory, margin)
+        for certificate in certificates:
+            metrics[f"certified_{certificate.body}_min_clearance_m"] = certificate.lowest
+        worst = min(certificates, key=lambda c: c.lowest)
+        metrics["certified_min_clearance_m"] = worst.lowest
+        metrics["safety_margin_m"] = margin
+        if worst.lowest >= margin:
+            return None
+        k, fraction = worst.segment, worst.fraction
+        q = planned.q[k] + fraction * (planned.q[min(k + 1, len(planned.q) - 1)] - planned.q[k])
+        tip = self.model.tip_positions(q[None])[0]
+        what = "a collision" if worst.lowest < 0 else f"closer than the safety margin {margin * 1000:g} mm"
+        return (
+            f"the timed motion's certified {worst.body} clearance is {worst.lowest * 1000:.2f} mm "
+            f"({worst.lowest:.6f} m), {what}, at t = {(k + fraction) * planned.period:.3f} s of "
+            f"{planned.duration:.3f} s with the tip at {np.round(tip * 1000, 1).tolist()} mm (certified along the "
+            "whole motion the drives would interpolate, between the samples too)"
         )
 
     def _check_path(self, q: np.ndarray, trajectory: Trajectory) -> None:
@@ -323,6 +417,7 @@ class Cia402Device(Device):
 
     def run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings
+        self._source = trajectory.source
         states = self.drive_states()
         stopped = {name: state for name, state in states.items() if state != cia402.OPERATION_ENABLED}
         if stopped or self.controller.pending_faults:
@@ -369,6 +464,9 @@ class Cia402Device(Device):
             np.max(np.abs(planned.acceleration()) / acceleration, initial=0.0)
         )
         metrics["path_deviation_max_m"] = self._path_deviation(planned)
+        refusal = self._certified(planned, trajectory, metrics)
+        if refusal is not None:
+            return self._refused(refusal, metrics)
 
         def arm(t0: float) -> None:
             # injected faults happen once, timed from the first trajectory's start: a rehearsal of
@@ -439,6 +537,9 @@ class Cia402Device(Device):
             if np.any(commanded):
                 reference_tips[commanded] = model.tip_positions(log.reference[commanded])
             metrics.update(tracking_metrics(tips, reference_tips, log, model.joint_names))
+        # stable names: a run that tracked nothing (stopped at once) says so with None
+        metrics.setdefault("tracking_error_max_m", None)
+        metrics.setdefault("tracking_error_rms_m", None)
         simulator = self.simulator
         droppers = (self.bus.dropper, getattr(simulator, "frame_drop", None), getattr(simulator, "sync_drop", None))
         metrics.update(bus_metrics(self.bus, log, s.bus.bitrate, droppers))
@@ -472,6 +573,14 @@ class Cia402Device(Device):
                     "told from a silent node within the time-out, so the device stopped safely"
                 )
 
+    def _plan_threshold(self) -> float | None:
+        """The clearance threshold of the plan stage this execution's path came from, if it had one."""
+        if self.context is None or self._source is None:
+            return None
+        plan = self.context.previous.get(self._source)
+        threshold = getattr(plan, "clearance_threshold", None)
+        return float(threshold) if threshold is not None else None
+
     def _write_outputs(self, log, tips, reference_tips, clearance, message: str) -> list[str]:
         name = self.context.name
         out = Path(self.context.output_dir)
@@ -486,10 +595,11 @@ class Cia402Device(Device):
             title,
             log,
             model.joint_names,
-            model.lower,
-            model.upper,
+            model.prismatic,
             error,
             clearance,
             self.clearance_label,
+            float(self.settings.safety_margin),
+            self._plan_threshold(),
         )
         return [f"{name}.png", f"{name}-execution.csv"]

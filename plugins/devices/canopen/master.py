@@ -1,15 +1,28 @@
-"""The CANopen master: one ``canopen.RemoteNode`` per CiA 402 axis.
+"""The CANopen master: one ``canopen.RemoteNode`` per CiA 402 axis, its dictionary from the drive's EDS.
 
-Start-up (:meth:`DriveMaster.start`), per node, everything by SDO before any
-motion: read the device type 0x1000 (a node that does not answer is a
-:class:`~.bus.BusError` naming it; one that is no CiA 402 drive too), NMT
-pre-operational, heartbeat producer time 0x1017, mode of operation CSP
-(0x6060 = 8), interpolation period 0x60C2 (the control period),
-following-error window and time-out (0x6065/0x6066), quick-stop deceleration
-and option code (0x6085/0x605A), maximum velocity 0x607F, software position
-limits 0x607D (the joint limits), and the PDO mappings (RPDO1: controlword +
-target position, TPDO1: statusword + position actual value, both
-synchronous) through canopen's ``PdoMap.save``; then NMT start.
+Start-up (:meth:`DriveMaster.start`), the standard sequence (CiA 301/302),
+everything before any motion:
+
+1. the master's own heartbeat producer starts (node ``master_node_id``, the
+   drives consume it: a drive that loses its master performs 0x6007);
+2. NMT *reset communication* to every node, then wait for each node's boot-up
+   message; a node that sends none within ``boot_timeout`` is a
+   :class:`~.bus.BusError` naming it and its joint;
+3. per node, by SDO: device type 0x1000 (a CiA 402 drive?) and identity
+   0x1018 against the EDS; supported drive modes 0x6502 (CSP?); then the
+   configuration, written as a DCF would (the EDS's variables with their
+   values set, downloaded in order): heartbeat producer 0x1017 and consumer
+   0x1016, communication cycle period 0x1006, abort connection option 0x6007
+   (quick stop), mode of operation CSP 0x6060, interpolation period 0x60C2,
+   following-error window and time-out 0x6065/0x6066, quick-stop deceleration
+   and option code 0x6085/0x605A, maximum velocity 0x607F, software position
+   limits 0x607D; a value the drive refuses is an error naming node, object
+   and abort code;
+4. PDO mapping with CiA 301's procedure (canopen's ``PdoMap.save``): RPDO1
+   controlword + target position, TPDO1 statusword + position actual value,
+   both synchronous; the node's other PDOs invalidated;
+5. NMT start (OPERATIONAL); enabling through the 402 state machine is the
+   controller's (:meth:`.control.Controller.enable`).
 
 Cyclic exchange (:meth:`DriveMaster.exchange`): SYNC, then one RPDO per axis.
 The drives answer each SYNC with their TPDO; :meth:`DriveMaster.feedback`
@@ -24,6 +37,7 @@ import logging
 import struct
 import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 import can
 import canopen
@@ -33,10 +47,16 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from . import cia402
 from .bus import BusError, MonitoredBus
-from .clock import Clock, Scheduler
+from .clock import Clock, Scheduler, set_realtime_priority
 from .network import PumpedNetwork, SimulationLink
 
 NMT_OPERATIONAL = 5
+#: RPDO1 (controlword, target position) and TPDO1 (statusword, position actual value)
+_RPDO1 = struct.Struct("<Hl")
+_TPDO1 = struct.Struct("<Hl")
+#: NMT command specifiers (CiA 301)
+NMT_START, NMT_RESET_COMMUNICATION = 0x01, 0x82
+PDO_INVALID = 1 << 31
 
 
 @dataclass
@@ -51,6 +71,8 @@ class AxisConfig:
     following_error_window: float
     max_velocity: float
     quick_stop_deceleration: float
+    #: the drive's EDS (None: the generic dictionary of a simulated drive)
+    eds: Path | None = None
 
     def counts(self, value) -> np.ndarray:
         return np.round(np.asarray(value, dtype=float) * self.counts_per_unit).astype(np.int64)
@@ -93,6 +115,9 @@ class DriveMaster:
         sdo_timeout: float,
         link: SimulationLink | None,
         description: str,
+        master_node_id: int = 127,
+        boot_timeout: float = 1.0,
+        priority: int | None = None,
     ) -> None:
         self.bus = bus
         self.axes = axes
@@ -102,12 +127,19 @@ class DriveMaster:
         self.following_error_timeout = following_error_timeout
         self.sdo_timeout = sdo_timeout
         self.description = description
+        self.master_node_id = master_node_id
+        self.boot_timeout = boot_timeout
+        self.priority = priority
         if link is not None:
-            self.network: canopen.Network = PumpedNetwork(bus, Scheduler(), clock.now, link)
+            # the simulated clock's scheduler sends the master's heartbeats, in time order with the drives'
+            scheduler = getattr(clock, "scheduler", None) or Scheduler()
+            self.network: canopen.Network = PumpedNetwork(bus, scheduler, clock.now, link)
         else:
             self.network = canopen.Network(bus)
             self.network.NOTIFIER_CYCLE = 0.02  # a prompt shutdown of the receive thread
-        bus.own_ids = {0x000, 0x080} | {base + a.node_id for a in axes for base in (0x200, 0x600)}
+        bus.own_ids = {0x000, 0x080, 0x700 + master_node_id} | {
+            base + a.node_id for a in axes for base in (0x200, 0x600)
+        }
         n = len(axes)
         self._lock = threading.Lock()
         self._statusword = np.zeros(n, dtype=np.int64)
@@ -118,11 +150,19 @@ class DriveMaster:
         self._answered = np.full(n, -1, dtype=np.int64)
         self.last_heartbeat = np.full(n, -np.inf)
         self.heartbeat_state = np.zeros(n, dtype=np.int64)
+        #: clock time of each node's boot-up message after the reset (nan: none yet)
+        self.booted = np.full(n, np.nan)
+        self._boot_event = threading.Event()
         #: (time s, node id, EMCY code, error register)
         self.emcy: list[tuple[float, int, int, int]] = []
         self.nodes: list[canopen.RemoteNode] = []
-        self._rpdo: list = []
+        #: per axis: RPDO1's COB-ID and the prepared frame (SYNC first)
+        self._sync = can.Message(arbitration_id=0x080, data=b"", is_extended_id=False)
+        self._rpdo_ids: list[int] = []
+        self._heartbeat = None
         self.started = False
+        #: what start() configured on each node: (node id, object, value) in the order written
+        self.configuration: list[tuple[int, str, int]] = []
 
     # ------------------------------------------------------------------ start-up
     def _where(self, i: int) -> str:
@@ -150,77 +190,178 @@ class DriveMaster:
         finally:
             client_log.setLevel(level)
 
+    def _send(self, what: str, action) -> None:
+        try:
+            action()
+        except can.CanError as exc:
+            raise BusError(f"CAN bus error on {self.description} while {what}: {exc}") from None
+
     def start(self) -> None:
-        """Configure every node by SDO and start them (NMT operational). Raises :class:`BusError`."""
-        if isinstance(self.network, PumpedNetwork):
-            pass  # frames are delivered by the simulation link
-        else:
+        """The standard start-up (see the module docstring). Raises :class:`BusError`."""
+        if not isinstance(self.network, PumpedNetwork):
             self.network.connect()  # the bus is open already: this starts the receive thread
-        value, index = cia402.interpolation_period(self.period)
+            for reader in self.network.notifier._readers:  # the feedback's path: as urgent as the loop
+                if isinstance(reader, threading.Thread):
+                    set_realtime_priority(self.priority, reader.native_id)
         for i, axis in enumerate(self.axes):
-            node = canopen.RemoteNode(axis.node_id, cia402.cia402_object_dictionary(axis.node_id))
+            try:
+                dictionary = cia402.cia402_object_dictionary(axis.node_id) if axis.eds is None else str(axis.eds)
+                node = canopen.RemoteNode(axis.node_id, dictionary)
+            except Exception as exc:  # a malformed EDS: name it
+                raise BusError(f"cannot load the EDS '{axis.eds}' of {self._where(i)}: {exc}") from None
             node.sdo.RESPONSE_TIMEOUT = self.sdo_timeout
             node.sdo.MAX_RETRIES = self.SDO_ATTEMPTS  # a lost frame costs a retry, not the run
             self.network.add_node(node)
             self.nodes.append(node)
-            device_type = self._sdo(i, "reading the device type 0x1000", lambda n=node: n.sdo[0x1000].raw)
-            if device_type & 0xFFFF != 402:
-                raise BusError(
-                    f"{self._where(i)} is not a CiA 402 drive: "
-                    f"device type 0x{device_type:08X} (profile {device_type & 0xFFFF})"
-                )
-            node.nmt.state = "PRE-OPERATIONAL"
-            cpu = axis.counts_per_unit
-            writes = [
-                ("the heartbeat time 0x1017", (0x1017,), round(self.heartbeat_period * 1000)),
-                ("mode of operation CSP 0x6060", (0x6060,), cia402.CSP),
-                ("the interpolation period 0x60C2", (0x60C2, 1), value),
-                ("the interpolation period 0x60C2", (0x60C2, 2), index),
-                ("the following error window 0x6065", (0x6065,), max(1, round(axis.following_error_window * cpu))),
-                ("the following error time-out 0x6066", (0x6066,), round(self.following_error_timeout * 1000)),
-                ("the quick stop deceleration 0x6085", (0x6085,), round(axis.quick_stop_deceleration * cpu)),
-                ("the quick stop option code 0x605A", (0x605A,), 6),
-                ("the maximum velocity 0x607F", (0x607F,), round(axis.max_velocity * cpu)),
-                ("the software position limits 0x607D", (0x607D, 1), int(np.floor(axis.lower * cpu))),
-                ("the software position limits 0x607D", (0x607D, 2), int(np.ceil(axis.upper * cpu))),
-            ]
-            for what, key, raw in writes:
-                obj = node.sdo[key[0]] if len(key) == 1 else node.sdo[key[0]][key[1]]
-                self._sdo(i, f"writing {what}", lambda obj=obj, raw=raw: setattr(obj, "raw", raw))
-            self._sdo(i, "configuring the PDOs", lambda n=node: self._map_pdos(n))
-            rpdo = node.rpdo[1]
-            self._rpdo.append((rpdo, rpdo[0x6040], rpdo[0x607A]))
-            node.tpdo[1].add_callback(lambda pdo, i=i: self._on_tpdo(i, pdo))
             node.nmt.add_heartbeat_callback(lambda state, i=i: self._on_heartbeat(i, state))
             node.emcy.add_callback(lambda entry, i=i: self._on_emcy(i, entry))
+        # 1. our heartbeat, which the drives will consume
+        beat = bytes([NMT_OPERATIONAL])
+        self._send(
+            "starting the master's heartbeat",
+            lambda: setattr(
+                self, "_heartbeat", self.network.send_periodic(0x700 + self.master_node_id, beat, self.heartbeat_period)
+            ),
+        )
+        # python-can sends it from a thread of its own: at the loop's priority too, or, holding the GIL while
+        # preempted by an ordinary process, it would make the real-time loop wait for it (priority inversion)
+        thread = getattr(getattr(self._heartbeat, "_task", None), "thread", None)
+        if thread is not None:
+            set_realtime_priority(self.priority, thread.native_id)
+        # 2. reset communication, every node, and wait for every boot-up
+        self.booted[:] = np.nan
+        self._boot_event.clear()
+        for axis in self.axes:
+            self._send(
+                f"resetting the communication of node {axis.node_id}",
+                lambda a=axis: self.network.send_message(0x000, bytes([NMT_RESET_COMMUNICATION, a.node_id])),
+            )
+        self._wait_for_boot_up()
+        # 3. 4. identity, configuration, PDOs; 5. start
+        for i in range(len(self.axes)):
+            self._configure(i)
         positions, statuswords = self.read_state()
         with self._lock:
             self._position[:] = positions
             self._statusword[:] = statuswords
-        for node in self.nodes:
-            node.nmt.state = "OPERATIONAL"
+        for i, axis in enumerate(self.axes):
+            self._send(
+                f"starting node {axis.node_id}",
+                lambda a=axis: self.network.send_message(0x000, bytes([NMT_START, a.node_id])),
+            )
+            self.nodes[i].nmt._state = NMT_OPERATIONAL
         self.last_heartbeat[:] = self.clock.now()  # a full timeout of grace from here
         self.heartbeat_state[:] = NMT_OPERATIONAL
         self.started = True
 
-    @staticmethod
-    def _map_pdos(node: canopen.RemoteNode) -> None:
-        node.rpdo.read()
-        rpdo = node.rpdo[1]
-        rpdo.clear()
-        rpdo.add_variable(0x6040)
-        rpdo.add_variable(0x607A)
-        rpdo.trans_type = 1
-        rpdo.enabled = True
-        node.rpdo.save()
-        node.tpdo.read()
+    def _wait_for_boot_up(self) -> None:
+        deadline = self.clock.now() + self.boot_timeout
+        step = 0.01
+        for _ in range(int(np.ceil(self.boot_timeout / step)) + 2):  # bounded: boot_timeout at most
+            if not np.any(np.isnan(self.booted)):
+                return
+            now = self.clock.now()
+            if now >= deadline:
+                break
+            if self.clock.realtime:
+                self._boot_event.wait(min(step, deadline - now))
+                self._boot_event.clear()
+            else:
+                self.clock.sleep_until(min(deadline, now + step))
+        missing = [i for i in range(len(self.axes)) if np.isnan(self.booted[i])]
+        if missing:
+            names = "; ".join(self._where(i) for i in missing)
+            raise BusError(
+                f"{names} does not answer: no boot-up message within {self.boot_timeout:g} s of the NMT reset "
+                "communication; is it powered, wired and set to this node id and bit rate?"
+            )
+
+    def _configure(self, i: int) -> None:
+        """Identity against the EDS, the configuration (a DCF's values, in order), the PDO mapping."""
+        node, axis = self.nodes[i], self.axes[i]
+        od = node.object_dictionary
+        eds = f"the EDS {axis.eds}" if axis.eds is not None else "its dictionary"
+        device_type = self._sdo(i, "reading the device type 0x1000", lambda: node.sdo[0x1000].raw)
+        if device_type & 0xFFFF != 402:
+            raise BusError(
+                f"{self._where(i)} is not a CiA 402 drive: "
+                f"device type 0x{device_type:08X} (profile {device_type & 0xFFFF})"
+            )
+        if 0x1018 in od:
+            for sub, what in ((1, "vendor-ID"), (2, "product code")):
+                if sub not in od[0x1018]:
+                    continue
+                expected = od[0x1018][sub].default
+                found = self._sdo(i, f"reading its {what} 0x1018:{sub}", lambda s=sub: node.sdo[0x1018][s].raw)
+                if expected is not None and found != expected:
+                    raise BusError(
+                        f"{self._where(i)} reports {what} 0x{found:08X}, {eds} describes 0x{expected:08X}: "
+                        "give the drive's own EDS in the device's 'eds' setting"
+                    )
+        if 0x6502 in od:
+            modes = self._sdo(i, "reading the supported drive modes 0x6502", lambda: node.sdo[0x6502].raw)
+            if not modes & (1 << (cia402.CSP - 1)):
+                raise BusError(
+                    f"{self._where(i)} does not support cyclic synchronous position (0x6502 = 0x{modes:08X})"
+                )
+        cpu = axis.counts_per_unit
+        value, index = cia402.interpolation_period(self.period)
+        heartbeat = round(self.heartbeat_period * 1000)
+        # (object, sub-index, value, required): what a DCF for this drive holds, in the order it is written
+        writes = [
+            (0x1017, None, heartbeat, True),
+            (0x1016, 1, (self.master_node_id << 16) | min(0xFFFF, round(1.5 * heartbeat)), False),
+            (0x1006, None, round(self.period * 1e6), False),
+            (0x6007, None, 3, False),
+            (0x6060, None, cia402.CSP, True),
+            (0x60C2, 1, value, True),
+            (0x60C2, 2, index, True),
+            (0x6065, None, max(1, round(axis.following_error_window * cpu)), True),
+            (0x6066, None, round(self.following_error_timeout * 1000), True),
+            (0x6085, None, round(axis.quick_stop_deceleration * cpu), True),
+            (0x605A, None, 6, False),
+            (0x607F, None, round(axis.max_velocity * cpu), True),
+            (0x607D, 1, int(np.floor(axis.lower * cpu)), True),
+            (0x607D, 2, int(np.ceil(axis.upper * cpu)), True),
+        ]
+        for index_, sub, raw, required in writes:
+            where = f"0x{index_:04X}" + (f":{sub}" if sub is not None else "")
+            try:
+                variable = od[index_] if sub is None else od[index_][sub]
+            except KeyError:
+                if required:
+                    raise BusError(f"{self._where(i)}: {eds} has no object {where}, which the master needs") from None
+                continue
+            variable.value = raw  # the DCF value
+            name = f"{variable.name} {where}"
+            target = node.sdo[index_] if sub is None else node.sdo[index_][sub]
+            self._sdo(i, f"writing {name} = {raw}", lambda t=target, r=raw: setattr(t, "raw", r))
+            self.configuration.append((axis.node_id, name, raw))
+        self._sdo(i, "configuring the PDOs", lambda: self._map_pdos(i, node))
+
+    def _map_pdos(self, i: int, node: canopen.RemoteNode) -> None:
+        """RPDO1 controlword + target position, TPDO1 statusword + position, synchronous; the others invalid."""
+        for maps, number, entries in ((node.rpdo, 1, (0x6040, 0x607A)), (node.tpdo, 1, (0x6041, 0x6064))):
+            pdo = maps[number]
+            pdo.read()
+            pdo.clear()
+            for index in entries:
+                pdo.add_variable(index)
+            pdo.trans_type = 1
+            pdo.enabled = True
+            pdo.save()
+            for other in maps.map.values():
+                if other is pdo:
+                    continue
+                cob = other.com_record[1].raw
+                if not cob & PDO_INVALID:
+                    other.com_record[1].raw = cob | PDO_INVALID
         tpdo = node.tpdo[1]
-        tpdo.clear()
-        tpdo.add_variable(0x6041)
-        tpdo.add_variable(0x6064)
-        tpdo.trans_type = 1
-        tpdo.enabled = True
-        node.tpdo.save()
+        self._rpdo_ids.append(node.rpdo[1].cob_id)
+        # the cyclic frames bypass canopen's PdoMap (its per-frame bookkeeping costs what a 1 kHz loop cannot
+        # spare): TPDO1 straight to our callback, RPDO1 packed here
+        self.network.unsubscribe(tpdo.cob_id, tpdo.on_message)
+        self.network.subscribe(tpdo.cob_id, lambda can_id, data, timestamp, i=i: self._on_tpdo(i, data))
 
     def read_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Positions (counts) and statuswords of every axis, read by SDO (no SYNC needed)."""
@@ -232,11 +373,10 @@ class DriveMaster:
         return positions, statuswords
 
     # ------------------------------------------------------------------ consumers
-    def _on_tpdo(self, i: int, pdo) -> None:
-        data = bytes(pdo.data)
+    def _on_tpdo(self, i: int, data) -> None:
         if len(data) < 6:
             return
-        statusword, position = struct.unpack_from("<Hl", data)
+        statusword, position = _TPDO1.unpack_from(data)
         with self._lock:
             self._statusword[i] = statusword
             self._position[i] = position
@@ -244,7 +384,13 @@ class DriveMaster:
             self._answered[i] = self.syncs_sent
 
     def _on_heartbeat(self, i: int, state: int) -> None:
-        self.last_heartbeat[i] = self.clock.now()
+        now = self.clock.now()
+        if state == 0:  # the boot-up message
+            if np.isnan(self.booted[i]):
+                self.booted[i] = now
+                self._boot_event.set()
+            return
+        self.last_heartbeat[i] = now
         self.heartbeat_state[i] = state
 
     def _on_emcy(self, i: int, entry: EmcyError) -> None:
@@ -268,25 +414,44 @@ class DriveMaster:
         with self._lock:
             # counted before sending: in real time the answers may arrive before transmit returns
             self.syncs_sent += 1
-        self.network.sync.transmit()
-        for (rpdo, controlword, target), cw, tp in zip(self._rpdo, controlwords, targets, strict=True):
-            controlword.raw = int(cw)
-            target.raw = int(tp)
-            rpdo.transmit()
+        pack = _RPDO1.pack
+        frames = [pack(int(cw), int(tp)) for cw, tp in zip(controlwords, targets, strict=True)]
+        send_batch = getattr(self.bus, "send_batch", None)
+        if send_batch is not None and not isinstance(self.network, PumpedNetwork):
+            # one write for the cycle's frames where the interface can (loopback): SYNC first, in order
+            messages = [self._sync]
+            messages += [
+                can.Message(arbitration_id=cob, data=data, is_extended_id=False)
+                for cob, data in zip(self._rpdo_ids, frames, strict=True)
+            ]
+            send_batch(messages)
+            return
+        self.network.send_message(0x080, b"")
+        for cob, data in zip(self._rpdo_ids, frames, strict=True):
+            self.network.send_message(cob, data)
 
     def emcy_since(self, count: int) -> list[tuple[float, int, int, int]]:
         with self._lock:
             return list(self.emcy[count:])
 
     def close(self) -> None:
-        """NMT pre-operational (PDOs stop) where possible, then release the bus."""
+        """NMT pre-operational (PDOs stop) and the drives' heartbeat consumer off where possible, then our
+        heartbeat stops and the bus is released."""
         if self.started:
-            for node in self.nodes:
+            now = self.clock.now()
+            for i, node in enumerate(self.nodes):
+                if now - self.last_heartbeat[i] > 1.5 * self.heartbeat_period:
+                    continue  # silent (dead, or its heartbeat lost): do not wait for its SDO time-outs
                 try:
-                    node.nmt.state = "PRE-OPERATIONAL"
-                except (can.CanError, RuntimeError):
+                    node.nmt.send_command(0x80)
+                    if 0x1016 in node.object_dictionary:
+                        node.sdo[0x1016][1].raw = 0
+                except (can.CanError, RuntimeError, SdoCommunicationError, SdoAbortedError):
                     break
             self.started = False
+        if self._heartbeat is not None:
+            self._heartbeat.stop()
+            self._heartbeat = None
         for node in self.nodes:
             for pdo in list(node.tpdo.map.values()) + list(node.rpdo.map.values()):
                 pdo.stop()

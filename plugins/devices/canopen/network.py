@@ -90,7 +90,13 @@ class PumpedNetwork(canopen.Network):
             self.link.settle()
 
     def send_periodic(self, can_id: int, data, period: float, remote: bool = False) -> PeriodicFrame:
-        frame = PeriodicFrame(
-            self.scheduler, self.now() + period, period, lambda payload: self.send_message(can_id, payload), data
-        )
+        frame = None
+
+        def send(payload: bytes) -> None:
+            try:
+                self.send_message(can_id, payload)
+            except can.CanError:  # as python-can's cyclic tasks: a task that cannot send stops
+                frame.stop()
+
+        frame = PeriodicFrame(self.scheduler, self.now() + period, period, send, data)
         return self.scheduler.add(frame)

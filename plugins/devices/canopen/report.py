@@ -84,54 +84,80 @@ def execution_figure(
     title: str,
     log: ExecutionLog,
     names: list[str],
-    lower: np.ndarray,
-    upper: np.ndarray,
+    prismatic: np.ndarray,
     tip_error: np.ndarray,
     clearance: np.ndarray,
     clearance_label: str = "executed clearance",
+    safety_margin: float = 0.0,
+    plan_threshold: float | None = None,
 ) -> None:
-    """Joints, tip tracking error and executed clearance over time, faults marked; PNG, atomically."""
-    fig, axes = plt.subplots(3, 1, figsize=(9, 8.5), sharex=True, constrained_layout=True)
+    """One panel per joint (measured solid, commanded dashed on top, in degrees or mm), the tip tracking error,
+    and the executed clearance against the device's safety margin and the plan's threshold; faults marked.
+    Written atomically (PNG)."""
+    nq = len(names)
+    columns = 2 if nq > 1 else 1
+    rows = int(np.ceil(nq / columns))
+    fig = plt.figure(figsize=(10, 2.1 * rows + 5.4), constrained_layout=True)
+    grid = fig.add_gridspec(rows + 2, columns, height_ratios=[1.0] * rows + [1.15, 1.35])
     t = log.t
-    span = np.where(upper > lower, upper - lower, 1.0)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    ax = axes[0]
+    axes = []
     for j, name in enumerate(names):
+        ax = fig.add_subplot(grid[j // columns, j % columns], sharex=axes[0] if axes else None)
+        scale, unit = (1000.0, "mm") if prismatic[j] else (180.0 / np.pi, "deg")
         colour = colours[j % len(colours)]
-        ax.plot(t, (log.reference[:, j] - lower[j]) / span[j], "--", color=colour, lw=1.0)
-        ax.plot(t, (log.measured[:, j] - lower[j]) / span[j], "-", color=colour, lw=1.4, label=name)
-    ax.set_ylabel("joint position\n(fraction of its range)")
-    ax.legend(
-        loc="lower left",
-        fontsize=8,
-        ncol=min(len(names), 6),
-        title="solid: measured, dashed: commanded",
-        title_fontsize=8,
-        framealpha=0.8,
-    )
-    ax.set_ylim(-0.05, 1.05)
-
-    ax = axes[1]
+        ax.plot(t, log.measured[:, j] * scale, "-", color=colour, lw=3.0, alpha=0.55, label="measured")
+        ax.plot(t, log.reference[:, j] * scale, "--", color="black", lw=1.0, dashes=(4, 3), label="commanded")
+        ax.set_ylabel(f"{name} ({unit})")
+        span = np.nanmax(log.measured[:, j] * scale) - np.nanmin(log.measured[:, j] * scale) if len(t) else 0.0
+        if span < 1e-3:  # a joint that does not move: show a small band around it, not float noise
+            centre = float(np.nanmean(log.measured[:, j] * scale)) if len(t) else 0.0
+            ax.set_ylim(centre - 1.0, centre + 1.0)
+        if j == 0:
+            ax.legend(loc="best", fontsize=8, framealpha=0.85)
+        axes.append(ax)
+    error_ax = fig.add_subplot(grid[rows, :], sharex=axes[0])
     tracked = log.tracking
-    ax.plot(t[tracked], tip_error[tracked] * 1e6, ".", ms=2.5, color="tab:blue")
-    ax.set_ylabel("tip tracking error (µm)")
-    ax.set_ylim(bottom=0)
-
-    ax = axes[2]
-    ax.plot(t, clearance * 1e3, "-", color="tab:green", lw=1.4)
-    ax.axhline(0.0, color="black", lw=0.8)
-    ax.set_ylabel(f"{clearance_label} (mm)")
-    ax.set_xlabel("time since the trajectory start (s)")
-
+    error_ax.plot(
+        t[tracked], tip_error[tracked] * 1e6, ".", ms=2.5, color="tab:blue", label="tip: measured - commanded"
+    )
+    if np.any(tracked):
+        rms = float(np.sqrt(np.mean(tip_error[tracked] ** 2)))
+        error_ax.axhline(rms * 1e6, color="tab:blue", lw=1.0, ls=":", label=f"rms {rms * 1e6:.2f} µm")
+        error_ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
+    error_ax.set_ylabel("tip tracking error (µm)")
+    error_ax.set_ylim(bottom=0)
+    clear_ax = fig.add_subplot(grid[rows + 1, :], sharex=axes[0])
+    clear_ax.plot(t, clearance * 1e3, "-", color="tab:green", lw=1.6, label=clearance_label)
+    contact = "contact (0 mm): the safety margin, refused below" if safety_margin <= 0 else "contact (0 mm)"
+    clear_ax.axhline(0.0, color="black", lw=0.8, label=contact)
+    if safety_margin > 0:
+        label = f"safety margin {safety_margin * 1e3:g} mm (refused below)"
+        clear_ax.axhline(safety_margin * 1e3, color="tab:red", lw=1.3, label=label)
+    if plan_threshold is not None:
+        clear_ax.axhline(
+            plan_threshold * 1e3,
+            color="tab:orange",
+            lw=1.3,
+            ls="--",
+            label=f"plan's threshold {plan_threshold * 1e3:g} mm",
+        )
+        below = clearance < plan_threshold
+        if np.any(below):
+            clear_ax.fill_between(t, clearance * 1e3, plan_threshold * 1e3, where=below, color="tab:orange", alpha=0.15)
+    clear_ax.set_ylabel(f"{clearance_label} (mm)")
+    clear_ax.set_xlabel("time since the trajectory start (s)")
+    clear_ax.legend(loc="best", fontsize=8, framealpha=0.85)
+    all_axes = [*axes, error_ax, clear_ax]
     for fault in log.faults:
         if "t_s" not in fault:
             continue
         label = fault["kind"].replace("_", " ")
         if fault.get("node") is not None:
             label += f" (node {fault['node']})"
-        for a in axes:
+        for a in all_axes:
             a.axvline(fault["t_s"], color="tab:red", lw=1.0, alpha=0.7)
-        axes[2].annotate(
+        clear_ax.annotate(
             label,
             (fault["t_s"], 0.03),
             xycoords=("data", "axes fraction"),
@@ -141,8 +167,10 @@ def execution_figure(
             fontsize=8,
             color="tab:red",
         )
-    for a in axes:
+    for a in all_axes:
         a.grid(alpha=0.3)
+    for a in axes[:-columns]:
+        a.tick_params(labelbottom=False)
     fig.suptitle(title, fontsize=10)
     try:
         with atomic_write(path, "wb") as handle:

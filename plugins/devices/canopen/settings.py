@@ -7,10 +7,11 @@ Per-joint lists are in SI joint units (rad or m); lengths accept the pipeline's
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
-from surgiplan.units import PositiveLength
+from surgiplan.units import Length, PositiveLength
 
 from .bus import BusSettings
 
@@ -53,10 +54,24 @@ class Cia402DeviceSettings(BaseModel):
     clock: Literal["auto", "simulated", "realtime"] = "auto"
     #: SYNC rate (Hz); its period must be a whole number of 1e-6 s steps (0x60C2)
     control_rate: PositiveFloat = 250.0
+    #: real time: run the control loop's threads (and the simulated drives') under SCHED_FIFO at this priority
+    #: (1-99; Linux, needs CAP_SYS_NICE), as a controller with real-time scheduling does; None: ordinary
+    realtime_priority: int | None = Field(default=None, ge=1, le=99)
     #: CAN node ids per joint (default 1, 2, ...)
     node_ids: list[int] | None = None
-    #: heartbeat producer period (s); the master times out after 1.5 periods
+    #: heartbeat producer period (s) of the drives and of the master; either side times out after 1.5 periods
     heartbeat_period: PositiveFloat = 0.1
+    #: the master's own node id: its heartbeat (0x700 + id) is what the drives consume (0x1016)
+    master_node_id: int = Field(default=127, ge=1, le=127)
+    #: after the NMT reset communication, how long to wait for every node's boot-up message (s)
+    boot_timeout: PositiveFloat = 1.0
+    #: each joint's drive's EDS file (one file for all, or one per joint); default: the EDS of the simulated
+    #: drives shipped with the device. Real drives: give their vendor's EDS (identity and objects are checked);
+    #: relative paths are relative to the pipeline file
+    eds: Path | list[Path] | None = None
+    #: a trajectory whose certified clearance (over the whole timed motion) is below this is refused before
+    #: any motion (m; 0: refuse only collisions)
+    safety_margin: Length = 0.0
     #: fraction of the URDF velocity limits the trajectories use
     velocity_scale: float = Field(default=1.0, gt=0.0, le=1.0)
     #: per joint (rad/s^2 or m/s^2); default: the device's

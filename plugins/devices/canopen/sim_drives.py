@@ -83,7 +83,7 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
     model = MotorModel(simulation.position_gain, simulation.velocity_gain, sync_timeout=simulation.sync_timeout)
     bus, _ = open_bus(BusSettings.model_validate(settings["bus"]))
     clock = RealTimeClock()
-    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None)
+    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None, device=args.device)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -97,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--node-ids", type=int, nargs="+")
     parser.add_argument("--initial", type=float, nargs="+", help="joint positions at power-up (SI)")
     parser.add_argument("--sync-timeout", type=float, help="s without SYNC before an enabled drive quick-stops")
+    parser.add_argument(
+        "--realtime-priority", type=int, help="run the drives' threads under SCHED_FIFO at this priority (1-99)"
+    )
     args = parser.parse_args(argv)
     try:
         simulator = build_simulator(args)
@@ -106,7 +109,12 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.set())
-    simulator.start()
+    try:
+        simulator.start(args.realtime_priority)
+    except OSError as exc:
+        print(f"error: --realtime-priority {args.realtime_priority}: {exc}", file=sys.stderr)
+        simulator.close()
+        return 2
     print("ready", flush=True)
     try:
         stop.wait()

@@ -30,6 +30,7 @@ from pydantic import Field
 from surgiplan.devices import Trajectory
 from surgiplan.geometry.transforms import Pose
 from surgiplan.models import PoseModel
+from surgiplan.plugins.devices.canopen.certify import Certificate, certify
 from surgiplan.plugins.devices.canopen.device import Cia402Device, JointPath, Refusal
 from surgiplan.plugins.devices.canopen.settings import Cia402DeviceSettings
 from surgiplan.plugins.devices.kinematics.model import DifferentialIK, KinematicModel, urdf_path
@@ -145,6 +146,20 @@ class CastGimbalDevice(Cia402Device):
                 "ik_iterations_mean": float(result.iterations.mean()),
             },
         )
+
+    def certify_motion(self, q: np.ndarray, trajectory: Trajectory, margin: float) -> list[Certificate]:
+        """The whole shaft (a capsule from the fulcrum to the tip, the tip's end included) along the joint-space
+        polyline the drives interpolate; for an r3 plan whose tip sphere is wider than the shaft, the tip too."""
+        space = self.space
+        out = [certify("shaft", space.clearance, space.motion_speed_bound, q, margin)]
+        plan = trajectory.space
+        if plan.kind == "r3" and plan.tip_radius > space.shaft_radius:
+            radius = float(plan.tip_radius)
+            scene = plan.scene
+            out.append(
+                certify("tip", lambda c: scene.clearance(space.tip(c), radius), space.motion_speed_bound, q, margin)
+            )
+        return out
 
     def approach_is_clear(self, q_from, q_to, trajectory: Trajectory) -> bool:
         return bool(self.space.motion_is_clear(q_from[None], q_to[None], 0.0)[0])

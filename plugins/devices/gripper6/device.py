@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from surgiplan.devices import Trajectory
 from surgiplan.geometry.transforms import canonical_quaternion, quaternion_angle, slerp
 from surgiplan.models import PoseModel
+from surgiplan.plugins.devices.canopen.certify import Certificate, certify
 from surgiplan.plugins.devices.canopen.device import Cia402Device, JointPath, Refusal
 from surgiplan.plugins.devices.canopen.settings import Cia402DeviceSettings
 from surgiplan.plugins.devices.kinematics.model import DifferentialIK, KinematicModel, urdf_path
@@ -177,6 +178,67 @@ class Gripper6Device(Cia402Device):
         if len(poses) >= 2:
             return float(np.min(space.scene.motion_clearance(poses[:-1, :3], poses[1:, :3], radius))), at_samples
         return float(at_samples.min()), at_samples
+
+    def _reach_per_joint(self, beyond_jaws: float, to_jaws: bool) -> np.ndarray:
+        """Per joint j, a bound (m) on the distance from joint j's origin (on its axis) to any point moved by
+        it: the chain's link lengths from j on (configuration-independent), to the last joint or on to the jaws
+        and ``beyond_jaws`` further. A revolute joint turning by dq moves such a point at most R_j |dq|."""
+        q0 = self.model.neutral()[None]
+        origins = self.model.joint_origins(q0)[0]
+        links = np.linalg.norm(np.diff(origins, axis=0), axis=1)
+        tail = float(np.linalg.norm(self.model.tip_positions(q0)[0] - origins[-1])) + beyond_jaws if to_jaws else 0.0
+        reach = np.array([links[j:].sum() + tail for j in range(len(origins))])
+        return np.where(self.model.prismatic, 1.0, reach)
+
+    def _body_at(self, q: np.ndarray, trajectory: Trajectory) -> np.ndarray:
+        """The jaws body's clearance (m) at each joint sample (exact)."""
+        poses = self.model.tip_poses(q)
+        space = trajectory.space
+        if space.kind == "se3":
+            return space.clearance(self.planned_from_jaws(poses))
+        return space.scene.clearance(poses[:, :3], float(self.settings.tool_radius))
+
+    def _links_at(self, q: np.ndarray, trajectory: Trajectory) -> np.ndarray:
+        origins = self.model.joint_origins(q)
+        a = origins[:, :-1].reshape(-1, 3)
+        b = origins[:, 1:].reshape(-1, 3)
+        distance = trajectory.space.scene.segment_distance(a, b)[0] - float(self.settings.link_radius)
+        return distance.reshape(len(q), -1).min(axis=1)
+
+    def certify_motion(self, q: np.ndarray, trajectory: Trajectory, margin: float) -> list[Certificate]:
+        """The jaws (the se3 plan's body, or a sphere of ``tool_radius``) and, with ``link_radius``, the links,
+        along the joint-space polyline the drives interpolate (certified between the samples)."""
+        space = trajectory.space
+        if space.kind == "se3":
+            extent = float(np.linalg.norm(self.settings.tool_frame.to_pose().translation)) + space.reach
+        else:
+            extent = 0.0  # a sphere about the jaws origin: only its centre's motion matters
+        jaws_reach = self._reach_per_joint(extent, to_jaws=True)
+
+        def jaws_speed(a, b):
+            return np.abs(b - a) @ jaws_reach
+
+        out = [certify("jaws", lambda c: self._body_at(c, trajectory), jaws_speed, q, margin)]
+        if space.kind == "r3" and space.tip_radius > self.settings.tool_radius:
+            radius = float(space.tip_radius)
+            tip = self._reach_per_joint(0.0, to_jaws=True)
+            out.append(
+                certify(
+                    "tip",
+                    lambda c: space.scene.clearance(self.model.tip_positions(c), radius),
+                    lambda a, b: np.abs(b - a) @ tip,
+                    q,
+                    margin,
+                )
+            )
+        if self.settings.link_radius > 0:
+            link_reach = self._reach_per_joint(0.0, to_jaws=False)
+            out.append(
+                certify(
+                    "links", lambda c: self._links_at(c, trajectory), lambda a, b: np.abs(b - a) @ link_reach, q, margin
+                )
+            )
+        return out
 
     def approach_is_clear(self, q_from, q_to, trajectory: Trajectory) -> bool:
         # sampled every 0.01 rad of the largest joint: not certified (the arm's motion is not a space's)
