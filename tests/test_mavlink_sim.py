@@ -227,6 +227,31 @@ def test_stream_sends_every_grid_time_once_in_order_whatever_the_pumps():
     assert len(station.sent) == before + 1 and station.sent[-1].time_boot_ms == stamps[-1]
 
 
+def test_stream_samples_the_profile_the_same_whenever_it_starts():
+    """The setpoints are the timed path at its own time since the start, counted in whole grid periods:
+    bit for bit the same payloads whatever vehicle time the profile starts at. (Computed as the difference
+    of two absolute times, 7.7 s + 0.5 s - 7.7 s is 0.49999999999999956 s: the climb's acceleration phase,
+    which ends at exactly 0.5 s, was sampled on its wrong side at some start times and the vehicle
+    extrapolated a = 1 m/s^2 over the next 50 ms, a different flight: the flaky test below.)"""
+    profile = TimedPath.along(np.array([[0.0, 0, 0], [0, 0, -1.5], [4, 0, -1.5]]), 2.0, 1.0, 0.05, vertical_speed=0.5)
+    assert profile.knot_time[1] == pytest.approx(3.0318549, abs=1e-6) and profile.accelerate[0] == 0.5
+    payloads = []
+    for report in (7.45, 7.25, 123.45, 3.05):  # 7.45 s: the profile starts at 7.7 s
+        station = _Station()
+        stream = SetpointStream(station, profile, hold=[0.0, 0.0, 0.0])
+        station.vehicle.vehicle_time = report
+        start = stream.begin()
+        for _ in range(80):
+            station.vehicle.vehicle_time += 0.05
+            stream([], now=0.0)
+        sent = [m for m in station.sent if m.time_boot_ms >= round(start * 1000)]
+        payloads.append([(m.time_boot_ms - round(start * 1000), m.x, m.y, m.z, m.vz, m.afz) for m in sent])
+    assert all(p == payloads[0] for p in payloads[1:])
+    # the end of the climb's acceleration (0.5 s) is the cruise's first setpoint: a = 0 from there on
+    at = dict((row[0], row) for row in payloads[0])
+    assert at[450][5] == pytest.approx(-1.0) and at[500][5] == 0.0 and at[500][4] == pytest.approx(-0.5)
+
+
 def _offboard_flight(stall: float, **sim):
     """A short offboard flight (take-off, an L through a corner, landing) at 20x real time, the ground
     station stalling up to ``stall`` s (wall) at random in each pump; returns the simulator's states
@@ -270,7 +295,7 @@ def test_offboard_flight_is_the_same_however_the_ground_station_is_scheduled():
     steps = round(calm[-1, 0] / sim.step)
     k = np.arange(steps)
     h = (k % 5) * sim.step  # 5 steps of 10 ms per grid time
-    p, v, a = log.profile.sample(k * sim.step - h)
+    p, v, a = log.profile.sample((k // 5) * 50 / 1000)  # the grid time since the start, exactly as the stream
     reference = (p + v * h[:, None] + 0.5 * a * h[:, None] ** 2, v + a * h[:, None], a)
     replay = [model.p.copy()]
     for i in k:
