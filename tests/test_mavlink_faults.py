@@ -63,7 +63,7 @@ def stage_of(outcome):
 
 
 def flight_log(outcome) -> np.ndarray:
-    return np.loadtxt(outcome.output_dir / "flight-flight.csv", delimiter=",", skiprows=1)
+    return np.loadtxt(outcome.output_dir / "flight.csv", delimiter=",", skiprows=1)
 
 
 # ----------------------------------------------------------------------------- a poor link

@@ -222,7 +222,7 @@ def test_vehicle_refusing_an_item_keeps_its_previous_mission():
     transfer(MissionUpload(items(3), *VEHICLE), receiver, wire)
     unsupported = MissionItem(mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_FRAME_BODY_FRD, 1, 2, 3)
 
-    def validate(item, seq):
+    def validate(item, seq, mission_type, int_form):
         return mavlink.MAV_MISSION_UNSUPPORTED_FRAME if item.frame == mavlink.MAV_FRAME_BODY_FRD else None
 
     receiver.validate = validate

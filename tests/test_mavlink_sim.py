@@ -52,12 +52,14 @@ def test_vehicle_identifies_as_a_px4_quadrotor_and_reports_its_origin():
 def test_refusals_come_with_their_result_and_the_vehicles_reason():
     with station(refuse_arming="battery too low") as (gcs, vehicle):
         gcs.step = "arming"
-        with pytest.raises(VehicleError, match=r"arming: .*MAV_RESULT_DENIED.*vehicle says: Arming denied: battery"):
+        # PX4's commander: a refused arming or mode change is MAV_RESULT_TEMPORARILY_REJECTED, the reason a STATUSTEXT
+        rejected = r"MAV_RESULT_TEMPORARILY_REJECTED.*vehicle says: "
+        with pytest.raises(VehicleError, match=r"arming: .*" + rejected + "Arming denied: battery"):
             gcs.arm()
         gcs.step = "mode change"
-        with pytest.raises(VehicleError, match=r"MAV_RESULT_DENIED.*Offboard denied: no setpoints"):
+        with pytest.raises(VehicleError, match=rejected + "Offboard denied: no setpoints"):
             gcs.set_mode("offboard")
-        with pytest.raises(VehicleError, match=r"MAV_RESULT_DENIED.*Mission denied: no mission"):
+        with pytest.raises(VehicleError, match=rejected + "Mission denied: no mission"):
             gcs.set_mode("mission")
         with pytest.raises(VehicleError, match=r"MAV_CMD_DO_FLIGHTTERMINATION with MAV_RESULT_UNSUPPORTED"):
             gcs.command(mavlink.MAV_CMD_DO_FLIGHTTERMINATION, [1])
@@ -70,23 +72,24 @@ def test_commands_are_acknowledged_once_even_when_repeated():
         assert vehicle.mode == "hold"
         for _ in range(2):  # arming an armed vehicle is accepted and changes nothing
             gcs.arm()
-        assert vehicle.armed and [text for _, text in vehicle.events].count("armed") == 1
+        assert vehicle.armed and [text for _, text in vehicle.events].count("Armed by external command") == 1
 
 
 def test_global_mission_items_land_on_the_local_points_they_were_made_from():
-    """mission_frame: global_relative_alt: the device converts with the vehicle's own origin and home."""
+    """mission_frame: global_relative_alt (the default): the device converts with the vehicle's own origin and
+    home, and the vehicle, as PX4, projects latitude/longitude about its EKF origin."""
     origin = (47.397742, 8.545594, 488.0)
     home = (1.5, -2.0, -0.4)  # the vehicle stands 0.4 m above the EKF origin's height
     with station(origin=origin, home=home) as (gcs, vehicle):
         got = gcs.request_message("GPS_GLOBAL_ORIGIN", mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, 5)
         position = gcs.request_message("HOME_POSITION", mavlink.MAVLINK_MSG_ID_HOME_POSITION, 5)
-        geo = (MapProjection(got.latitude * 1e-7, got.longitude * 1e-7), float(position.z))
+        geo = (MapProjection(got.latitude * 1e-7, got.longitude * 1e-7), float(position.z), got.altitude * 1e-3)
         frame = LocalFrame((2.0, 6.0, 0.0))
         scene = np.array([[3.5, 4.0, 0.4], [3.5, 4.0, 1.9], [40.0, 30.0, 1.9], [-20.0, 90.0, 2.5], [-20.0, 90.0, 0.4]])
         route = Route(scene, 1, 3, takeoff=True, land=True)
         flight = Flight(gcs, MavlinkVehicleSettings(), frame, route, NullProgress(), geo)
         items, first, last = flight.mission_items()
-        assert {i.frame for i in items[1:]} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
+        assert {i.frame for i in items[1:]} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT}  # the current frame, 3
         assert (first, last) == (1, 3)
         gcs.upload(items)
         local = np.array([vehicle._item_position(item) for item in vehicle.mission[1:]])
@@ -124,10 +127,11 @@ def test_command_line_reports_bad_settings(capsys):
 def test_mission_completes_in_gusts_even_with_a_tight_acceptance_radius():
     """Gusts can keep a hovering vehicle outside a 2 cm radius for ever; it settles and goes on."""
     with station(speed=20.0, wind={"mean": [0.3, 0.6, 0.0], "gust": 1.0}, seed=4) as (gcs, vehicle):
+        lat, lon = vehicle.projection.reproject(5.0, 0.0)
         items = [
-            MissionItem(mavlink.MAV_CMD_NAV_TAKEOFF, z=-1.5),
-            MissionItem(mavlink.MAV_CMD_NAV_WAYPOINT, x=5.0, y=0.0, z=-1.5, param2=0.02),
-            MissionItem(mavlink.MAV_CMD_NAV_LAND, x=5.0, y=0.0),
+            MissionItem(mavlink.MAV_CMD_NAV_TAKEOFF, x=math.nan, y=math.nan, z=1.5),
+            MissionItem(mavlink.MAV_CMD_NAV_WAYPOINT, x=float(lat), y=float(lon), z=1.5, param2=0.02),
+            MissionItem(mavlink.MAV_CMD_NAV_LAND, x=float(lat), y=float(lon)),
         ]
         gcs.upload(items)
         gcs.set_mode("hold")

@@ -91,7 +91,7 @@ def fly(tmp_path: Path, roadmap: Path, settings: dict):
     outcome = run_pipeline(load_pipeline(hall_pipeline(tmp_path, roadmap, settings)))
     document = json.loads((outcome.output_dir / "result.json").read_text())
     stage = document["stages"][1]
-    log = outcome.output_dir / "flight-flight.csv"
+    log = outcome.output_dir / "flight.csv"
     table = np.loadtxt(log, delimiter=",", skiprows=1) if log.exists() else None
     return outcome, document, stage, table
 
@@ -200,7 +200,9 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
     assert commands[:2] == [mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_TAKEOFF]
     assert commands[-1] == mavlink.MAV_CMD_NAV_LAND
     waypoints = vehicle.mission[1:-1]
-    scene_points = LocalFrame(ORIGIN).from_ned([[i.x, i.y, i.z] for i in waypoints])
+    # in the current global frame (3, not the deprecated 6), latitude/longitude about the EKF origin
+    assert {i.frame for i in vehicle.mission[1:]} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT}
+    scene_points = LocalFrame(ORIGIN).from_ned([vehicle._item_position(i) for i in waypoints])
     distance, _ = cKDTree(dense(planned_path(document))).query(scene_points)
     assert distance.max() <= 0.02 + 1e-4  # the waypoint tolerance
     # safe_prm's promise, kept in flight: outside the door the margin holds up to the tracking error
@@ -215,7 +217,7 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
     assert truth[0] == pytest.approx([2, 6, 0], abs=1e-6)
     assert truth[-1] == pytest.approx([22, 6, 0], abs=0.15)
     assert not vehicle.armed
-    assert {"flight-flight.csv", "flight.png"} <= set(document["files"])
+    assert {"flight.csv", "flight.png"} <= set(document["files"])
     assert metrics["upload_retransmissions"] == 0 and metrics["signed"] is False
 
 
@@ -294,7 +296,7 @@ def test_the_hall_pipeline_file_flies_its_mission(tmp_path, roadmap):
     assert metrics["flown_min_clearance_m"] > 0.2
     assert metrics["flown_min_clearance_outside_critical_m"] >= 0.5 - metrics["tracking_error_max_m"]
     assert (outcome.output_dir / "flight-mission.png").stat().st_size > 10_000
-    assert {"route.png", "flight-mission.png", "flight-flight-mission.csv", "scene.glb"} <= set(document["files"])
+    assert {"route.png", "flight-mission.png", "flight-mission.csv", "scene.glb"} <= set(document["files"])
 
 
 # ----------------------------------------------------------------------------- signing

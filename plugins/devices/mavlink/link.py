@@ -59,6 +59,8 @@ class VehicleError(SurgiplanError):
 
     def __init__(self, message: str, *, step: str = "", **kwargs) -> None:
         self.step = step
+        #: the message without the step
+        self.detail = message
         super().__init__(f"{step}: {message}" if step else message, **kwargs)
 
 
@@ -236,6 +238,16 @@ class Endpoint:
             self.stats.received[kind] += 1
             out.append(message)
         return out
+
+    @property
+    def lost_in(self) -> int:
+        """Messages of the peer that never arrived, by the gaps in its MAVLink sequence numbers (pymavlink)."""
+        return int(getattr(self.conn, "mav_loss", 0))
+
+    @property
+    def counted_in(self) -> int:
+        """Messages that arrived and were counted for :attr:`lost_in`."""
+        return int(getattr(self.conn, "mav_count", 0))
 
     @property
     def signature_rejections(self) -> int:
