@@ -17,7 +17,8 @@ Lifecycle (:class:`surgiplan.Device`, ros2_control's):
   AUTOPILOT_VERSION says which protocols it honours (a mission needs
   MISSION_ITEM_INT or at least MISSION_ITEM, offboard needs
   SET_POSITION_TARGET_LOCAL_NED: refused otherwise, naming the bit);
-  telemetry rates are requested; the EKF origin and home are read
+  telemetry rates are requested (LOCAL_POSITION_NED at ``telemetry_rate``,
+  the high-rate streams it does not read off); the EKF origin and home are read
   (GPS_GLOBAL_ORIGIN, HOME_POSITION) for the global mission frames; the PX4
   parameters the flight relies on are read (:data:`RELIED_ON`);
 * ``activate``: the vehicle must report a local position;
@@ -78,6 +79,12 @@ RELIED_ON = (
     "COM_OBL_RC_ACT",  # offboard loss action: set to the failsafe (offboard)
     "RTL_RETURN_ALT",  # a return climbs to this first: not above the route (failsafe return)
 )
+#: streams PX4 sends a ground station by default that this device does not read: switched off
+UNUSED_STREAMS = (
+    mavlink.MAVLINK_MSG_ID_ATTITUDE,  # 15 Hz
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,  # 5 Hz (LOCAL_POSITION_NED is what it flies by)
+    mavlink.MAVLINK_MSG_ID_VFR_HUD,  # 4 Hz
+)
 #: COM_OBL_RC_ACT for each failsafe
 OFFBOARD_LOSS_ACTION = {"land": 4, "return": 3, "hold": 5}
 #: the offboard stream keeps the vehicle fed at 20 Hz of wall clock; a COM_OF_LOSS_T below this is too tight
@@ -116,6 +123,9 @@ class Timeouts(_Strict):
     command_retries: int = Field(default=5, ge=0)
     mission: PositiveFloat = 1.5
     mission_retries: int = Field(default=5, ge=0)
+    #: a download's wait for each item, a parameter's for its value, before asking again (the vehicle
+    #: answers these at once; MAVSDK's default 0.5 s)
+    mission_item: PositiveFloat = 0.5
     #: whole transfers tried when a mission upload is cancelled or times out
     upload_attempts: int = Field(default=3, ge=1)
     #: waiting for a mode or arming to show in the vehicle's HEARTBEAT
@@ -321,6 +331,7 @@ class MavlinkVehicle(Device):
                 command_retries=t.command_retries,
                 mission_timeout=t.mission,
                 mission_retries=t.mission_retries,
+                item_timeout=t.mission_item,
                 upload_attempts=t.upload_attempts,
             )
             vehicle = self.gcs.connect(t.connect, s.system_id)
@@ -333,6 +344,8 @@ class MavlinkVehicle(Device):
             self._check_capabilities()
             self.gcs.step = "telemetry setup"
             self.gcs.set_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, s.telemetry_rate)
+            for message_id in UNUSED_STREAMS:  # bandwidth a radio link needs for the rest
+                self.gcs.stop_message(message_id)
             self.gcs.step = "reading the EKF origin"
             origin = self.gcs.request_message("GPS_GLOBAL_ORIGIN", mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, t.mode)
             home = self.gcs.request_message("HOME_POSITION", mavlink.MAVLINK_MSG_ID_HOME_POSITION, t.mode)
@@ -343,7 +356,7 @@ class MavlinkVehicle(Device):
                 origin.altitude * 1e-3,
             )
             self.gcs.step = "reading parameters"
-            self.vehicle_params = {name: self.gcs.read_param(name)[0] for name in RELIED_ON}
+            self.vehicle_params = {name: value for name, (value, _) in self.gcs.read_params(RELIED_ON).items()}
         except BaseException:
             self._release()
             raise

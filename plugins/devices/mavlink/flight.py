@@ -230,13 +230,14 @@ class Flight:
         uploaded = time.monotonic() - started
         gcs.step = "mission verify"
         held = gcs.download(legacy=self.legacy_missions)
-        difference = compare_missions(items, held)
+        difference = compare_missions(items, held, self.legacy_missions)
         if difference is not None:
             raise VehicleError(
                 f"the mission downloaded back differs from the one uploaded: {difference}", step=gcs.step
             )
         log.metrics.update(
             mission_verified=True,
+            mission_message="MISSION_ITEM" if self.legacy_missions else "MISSION_ITEM_INT",
             mission_frame=enum_name("MAV_FRAME", items[-1].frame),
             download_s=time.monotonic() - started - uploaded,
             mission_items=len(items),

@@ -280,6 +280,7 @@ class GroundStation:
         command_retries: int = 5,
         mission_timeout: float = 1.5,
         mission_retries: int = 5,
+        item_timeout: float = 0.5,
         upload_attempts: int = 3,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -290,6 +291,9 @@ class GroundStation:
         self.command_retries = command_retries
         self.mission_timeout = mission_timeout
         self.mission_retries = mission_retries
+        #: how long a download waits for each item, and a parameter read or set for its PARAM_VALUE, before
+        #: asking again: the vehicle answers these at once (MAVSDK's default timeout, 0.5 s)
+        self.item_timeout = item_timeout
         self.upload_attempts = upload_attempts
         self.clock = clock
         self.vehicle = VehicleState()
@@ -485,9 +489,17 @@ class GroundStation:
         return transaction.result
 
     def set_message_interval(self, message_id: int, rate: float) -> bool:
-        """Ask for a message at ``rate`` Hz; False when the vehicle does not support it."""
-        result = self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, [message_id, 1e6 / rate], accept_unsupported=True)
+        """Ask for a message at ``rate`` Hz (0: not at all); False when the vehicle does not support it."""
+        interval = 1e6 / rate if rate > 0 else -1
+        result = self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, [message_id, interval], accept_unsupported=True)
         return result == RESULT_ACCEPTED
+
+    def stop_message(self, message_id: int) -> bool:
+        """Ask the vehicle not to stream a message (any refusal is fine: it is only bandwidth)."""
+        try:
+            return self.set_message_interval(message_id, 0)
+        except VehicleError:
+            return False
 
     def request_message(self, message_type: str, message_id: int, timeout: float):
         """MAV_CMD_REQUEST_MESSAGE, then wait for the message itself.
@@ -581,7 +593,7 @@ class GroundStation:
         for attempt in range(1, self.upload_attempts + 1):
             download = MissionDownload(
                 *self.target, timeout=self.mission_timeout, retries=self.mission_retries, mission_type=mission_type,
-                legacy=legacy,
+                legacy=legacy, item_timeout=self.item_timeout,
             )  # fmt: skip
             try:
                 return self._exchange(download, "mission download").items
@@ -621,26 +633,41 @@ class GroundStation:
 
     def read_param(self, name: str) -> tuple[float | int, int]:
         """A parameter's value and MAV_PARAM_TYPE; :class:`VehicleError` when the vehicle does not answer."""
-        read = self._param(
+        return self.read_params([name])[name]
+
+    def read_params(self, names: Sequence[str]) -> dict[str, tuple[float | int, int]]:
+        """Several parameters at once (their requests and retries in parallel): name -> (value, MAV_PARAM_TYPE)."""
+        reads = [
             ParamTransaction(
-                name, self.target, bytewise=self.bytewise_params, timeout=self.command_timeout,
+                name, self.target, bytewise=self.bytewise_params, timeout=self.item_timeout,
                 retries=self.command_retries,
             )
-        )  # fmt: skip
-        if read.timed_out:
-            raise VehicleError(
-                f"the vehicle did not send parameter {name} after {read.attempts + 1} requests "
-                f"({self.command_timeout:g} s apart): it has no such parameter",
-                step=self.step,
-            )
-        return read.result, read.result_kind
+            for name in names
+        ]  # fmt: skip
+        self._transactions.extend(reads)
+        try:
+            for read in reads:
+                self.send(read.start(self.clock()))
+            while not all(read.finished for read in reads):
+                self.pump(0.1)
+        finally:
+            for read in reads:
+                self._transactions.remove(read)
+        for read in reads:
+            if read.timed_out:
+                raise VehicleError(
+                    f"the vehicle did not send parameter {read.name} after {read.attempts + 1} requests "
+                    f"({self.item_timeout:g} s apart): it has no such parameter",
+                    step=self.step,
+                )
+        return {read.name: (read.result, read.result_kind) for read in reads}
 
     def set_param(self, name: str, value: float | int, kind: int = mavlink.MAV_PARAM_TYPE_REAL32) -> float | int:
         """Set a parameter and check the vehicle's PARAM_VALUE says it took the value; returns it."""
         write = self._param(
             ParamTransaction(
                 name, self.target, value=value, kind=kind, bytewise=self.bytewise_params,
-                timeout=self.command_timeout, retries=self.command_retries,
+                timeout=self.item_timeout, retries=self.command_retries,
             )
         )  # fmt: skip
         if write.timed_out:

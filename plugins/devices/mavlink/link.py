@@ -160,6 +160,7 @@ class Endpoint:
         except (OSError, ValueError) as exc:
             raise VehicleError(f"cannot open MAVLink connection '{connection}': {exc}", step="connect") from None
         self.mav = self.conn.mav
+        self._bind_loopback(connection)
         self._enlarge_receive_buffer()
         self.stats = LinkStatistics(Counter(), Counter())
         self.loss = float(loss)
@@ -170,6 +171,20 @@ class Endpoint:
         if key is not None:
             # no allow_unsigned_callback: an unsigned frame or a wrong signature is rejected
             self.conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
+
+    def _bind_loopback(self, connection: str) -> None:
+        """``udpout`` to a loopback address: bind the socket to loopback too.
+
+        pymavlink leaves a ``udpout`` socket unbound, and the kernel binds it to the wildcard address
+        (every interface) at the first send; bound to 127.0.0.1 (or ::1) the link is loopback at both ends.
+        """
+        kind, _, rest = connection.partition(":")
+        host = rest.rpartition(":")[0].strip("[]")
+        sock = getattr(self.conn, "port", None)
+        if kind != "udpout" or not isinstance(sock, socket.socket) or host not in ("127.0.0.1", "localhost", "::1"):
+            return
+        with contextlib.suppress(OSError):
+            sock.bind(("::1" if host == "::1" else "127.0.0.1", 0))
 
     def _enlarge_receive_buffer(self) -> None:
         """Ask for a 4 MB socket receive buffer (the kernel caps it at net.core.rmem_max).

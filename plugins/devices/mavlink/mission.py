@@ -214,7 +214,7 @@ class MissionItem:
         others = np.array([other.z, *other.params], np.float32)
         return mine == theirs and bool(np.all((floats == others) | (np.isnan(floats) & np.isnan(others))))
 
-    def difference(self, other: MissionItem) -> str | None:
+    def difference(self, other: MissionItem, legacy: bool = False) -> str | None:
         """What differs between the item sent (self) and the one a vehicle sent back on download, or None.
 
         Compared as a vehicle keeps them: the deprecated ``_INT`` frames as the current frame they stand
@@ -231,7 +231,8 @@ class MissionItem:
             return f"autocontinue {int(self.autocontinue)} came back as {int(other.autocontinue)}"
         k = int_scale(self.frame)
         for name, a, b in (("x", self.x, other.x), ("y", self.y, other.y)):
-            if _to_int(a, k) != _to_int(b, k):
+            same = _same_float(a, b) if legacy else _to_int(a, k) == _to_int(b, k)  # legacy: float32 on the wire
+            if not same:
                 return f"{name} {a!r} came back as {b!r}"
         if not _same_float(self.z, other.z):
             return f"z {self.z!r} came back as {other.z!r}"
@@ -263,12 +264,14 @@ def _same_float(a: float, b: float) -> bool:
     return bool(a32 == b32 or (np.isnan(a32) and np.isnan(b32)))
 
 
-def compare_missions(sent: Sequence[MissionItem], received: Sequence[MissionItem]) -> str | None:
-    """The first difference between a mission sent and the one downloaded back, in words; None if equal."""
+def compare_missions(sent: Sequence[MissionItem], received: Sequence[MissionItem], legacy: bool = False) -> str | None:
+    """The first difference between a mission sent and the one downloaded back, in words; None if equal.
+
+    ``legacy``: both ways as MISSION_ITEM (positions compared as the float32 they travelled as)."""
     if len(sent) != len(received):
         return f"{len(sent)} items were uploaded, the vehicle holds {len(received)}"
     for seq, (a, b) in enumerate(zip(sent, received, strict=True)):
-        why = a.difference(b)
+        why = a.difference(b, legacy)
         if why is not None:
             return f"item {seq} ({enum_name('MAV_CMD', a.command)}): {why}"
     return None
@@ -462,8 +465,11 @@ class _Exchange:
             )
         self._attempts += 1
         self.retransmissions += 1
-        self.deadline = now + self.timeout
+        self.deadline = now + self._timeout_now()
         return [self._last]
+
+    def _timeout_now(self) -> float:
+        return self.timeout
 
     def _mine(self, message) -> bool:
         return int(getattr(message, "mission_type", MISSION)) == self.mission_type
@@ -484,9 +490,12 @@ class MissionDownload(_Exchange):
         retries: int = 5,
         mission_type: int = MISSION,
         legacy: bool = False,
+        item_timeout: float | None = None,
     ) -> None:
         super().__init__((target_system, target_component), timeout, retries, mission_type)
         self.legacy = legacy
+        #: how long to wait for each item before requesting it again (the vehicle answers at once)
+        self.item_timeout = timeout if item_timeout is None else float(item_timeout)
         self.count: int | None = None
         self.received: dict[int, MissionItem] = {}
         #: the deprecated frames (5, 6) the vehicle used on download, counted (PX4 answers in them)
@@ -504,10 +513,15 @@ class MissionDownload(_Exchange):
     def _request(self, seq: int, now: float) -> list:
         kind = mavlink.MAVLink_mission_request_message if self.legacy else mavlink.MAVLink_mission_request_int_message
         request = kind(*self.target, seq, self.mission_type)
-        return self._send(request, now, f"{'MISSION_ITEM' if self.legacy else 'MISSION_ITEM_INT'} {seq}")
+        sent = self._send(request, now, f"{'MISSION_ITEM' if self.legacy else 'MISSION_ITEM_INT'} {seq}")
+        self.deadline = now + self.item_timeout
+        return sent
 
     def _progress(self) -> str:
         return "" if self.count is None else f"{len(self.received)} of {self.count} items had arrived"
+
+    def _timeout_now(self) -> float:
+        return self.timeout if self.count is None else self.item_timeout
 
     def on_message(self, message, now: float) -> list:
         if self.state != "busy" or not self._mine(message):
@@ -636,7 +650,10 @@ class MissionReceiver:
         on_accept: Callable[[list[MissionItem], int], None] | None = None,
         faults: ReceiverFaults | None = None,
         types: Sequence[int] = (MISSION,),
+        int_requests: bool = True,
     ) -> None:
+        #: request items with MISSION_REQUEST_INT (False: MISSION_REQUEST, a vehicle without MISSION_INT)
+        self.int_requests = int_requests
         self.ids = (system_id, component_id)
         self.capacity = capacity
         self.timeout = timeout
@@ -699,7 +716,7 @@ class MissionReceiver:
             self._accept(source, [], mission_type, None)
             return [self._ack(source, ACCEPTED, mission_type)]
         order = list(self._rng.permutation(count)) if self.faults.shuffle else list(range(count))
-        self.transfer = _Transfer(source, count, [int(i) for i in order], mission_type)
+        self.transfer = _Transfer(source, count, [int(i) for i in order], mission_type, int_mode=self.int_requests)
         return self._request(self.transfer, now)
 
     def _on_item(

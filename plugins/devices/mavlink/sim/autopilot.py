@@ -223,6 +223,7 @@ class Autopilot:
         return np.where(np.isnan(xyz), p, xyz)
 
     def _mission_accepted(self, items: list[MissionItem], mission_type: int = 0) -> None:
+        self.uploads.append((mission_type, list(items)))
         if mission_type != mavlink.MAV_MISSION_TYPE_MISSION:
             self.events.append((self.t, f"{len(items)} items stored (mission type {mission_type})"))
             return

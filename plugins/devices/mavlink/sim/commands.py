@@ -53,6 +53,11 @@ FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 magic number
 PILOT_MODES = {"manual", "altctl", "stabilized", "acro", "rattitude", "followme", "rtgs"}
 
 
+def _lround(x: float) -> int:
+    """C's lroundf (halves away from zero), as PX4 reads integer parameters of commands."""
+    return int(math.copysign(math.floor(abs(x) + 0.5), x))
+
+
 class Commands:
     """The command protocol of the simulated vehicle (a mix-in: see the module's docstring)."""
 
@@ -110,8 +115,8 @@ class Commands:
 
     # ------------------------------------------------------------------ arming and modes
     def _cmd_arm(self, params) -> int:
-        action = round(params[0]) if math.isfinite(params[0]) else -1
-        forced = math.isfinite(params[1]) and round(params[1]) == FORCE_DISARM
+        action = _lround(params[0]) if math.isfinite(params[0]) else -1
+        forced = math.isfinite(params[1]) and _lround(params[1]) == FORCE_DISARM
         if action == 1:
             return self._arm("external command")
         if action != 0:

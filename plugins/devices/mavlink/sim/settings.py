@@ -23,7 +23,7 @@ from __future__ import annotations
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, field_validator, model_validator
-from surgiplan.plugins.devices.mavlink.link import enum_value, signing_key
+from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_key
 
 
 class _Strict(BaseModel):
@@ -149,8 +149,12 @@ class SimSettings(_Strict):
     reject_at_item: int | None = Field(default=None, ge=0)
     heartbeat_loss: HeartbeatLoss | None = None
     mission_requests: MissionRequests = Field(default_factory=MissionRequests)
-    #: refuse arming with this reason (a STATUSTEXT and MAV_RESULT_DENIED)
+    #: refuse arming with this reason (a STATUSTEXT and MAV_RESULT_TEMPORARILY_REJECTED)
     refuse_arming: str | None = None
+    #: behave as a vehicle without these MAV_PROTOCOL_CAPABILITY bits (names without the prefix): they are
+    #: not announced, and MISSION_INT withheld makes it request items with MISSION_REQUEST (the deprecated
+    #: float items), SET_POSITION_TARGET_LOCAL_NED withheld makes it ignore offboard setpoints
+    capabilities_withheld: list[str] = Field(default_factory=list)
 
     @field_validator("stop_answering", mode="before")
     @classmethod
@@ -183,6 +187,17 @@ class SimSettings(_Strict):
         if unknown:
             raise ValueError(f"unknown message {unknown[0]!r} in rates; the streams are: {', '.join(STREAMS)}")
         return value
+
+    @field_validator("capabilities_withheld")
+    @classmethod
+    def _known_capabilities(cls, value):
+        names = {
+            e.name.removeprefix("MAV_PROTOCOL_CAPABILITY_") for e in mavlink.enums["MAV_PROTOCOL_CAPABILITY"].values()
+        }
+        for name in value:
+            if name.upper().removeprefix("MAV_PROTOCOL_CAPABILITY_") not in names:
+                raise ValueError(f"unknown capability '{name}'; choose among: {', '.join(sorted(names))}")
+        return [name.upper().removeprefix("MAV_PROTOCOL_CAPABILITY_") for name in value]
 
     @field_validator("signing_key")
     @classmethod

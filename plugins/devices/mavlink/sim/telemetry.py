@@ -236,9 +236,17 @@ class Telemetry:
         amsl = self.settings.origin[2] - float(self.model.p[2])
         return mavlink.MAVLink_vfr_hud_message(speed, speed, 0, throttle, amsl, -float(v[2]))
 
+    @property
+    def capabilities(self) -> int:
+        """The capability bits announced: :data:`CAPABILITIES` but those withheld (a rehearsal setting)."""
+        bits = CAPABILITIES
+        for name in self.settings.capabilities_withheld:
+            bits &= ~getattr(mavlink, f"MAV_PROTOCOL_CAPABILITY_{name}")
+        return bits
+
     def _msg_autopilot_version(self):
         return mavlink.MAVLink_autopilot_version_message(
-            CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, list(b"surgipln"), [0] * 8, [0] * 8, 0, 0,
+            self.capabilities, FLIGHT_SW_VERSION, 0, 0, 0, list(b"surgipln"), [0] * 8, [0] * 8, 0, 0,
             0x53555247_49504C4E, [0] * 18,
         )  # fmt: skip
 

@@ -110,6 +110,7 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
             on_accept=self._mission_accepted,
             faults=faults,
             types=(MISSION, FENCE, RALLY),
+            int_requests="MISSION_INT" not in s.capabilities_withheld,
         )
         self.sender = MissionSender(
             lambda mission_type: len(self.receiver.stored.get(mission_type, [])),
@@ -154,6 +155,8 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
         self.events: list[tuple[float, str]] = []
         #: (MAV_CMD, MAV_RESULT) of every command answered, in order (for tests)
         self.commands_answered: list[tuple[int, int]] = []
+        #: every list the vehicle accepted (upload or clear), with its mission type, in order (for tests)
+        self.uploads: list[tuple[int, list[MissionItem]]] = []
         #: messages received by type (for tests: what a client sent)
         self.received: dict[str, int] = {}
         self._thread: threading.Thread | None = None
@@ -383,12 +386,13 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             self._command(message, source)
         elif kind == "SET_POSITION_TARGET_LOCAL_NED":
-            self._setpoint(message, now)
+            if "SET_POSITION_TARGET_LOCAL_NED" not in self.settings.capabilities_withheld:
+                self._setpoint(message, now)
         elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             answers, refusal = self.params.handle(message)
+            self._send(answers)  # the value in force first, then why it is not the one asked for
             if refusal:
                 self._say(f"param: {refusal}", mavlink.MAV_SEVERITY_WARNING)
-            self._send(answers)
         elif kind == "PING":
             self._ping(message, source)
         elif kind == "TIMESYNC":
