@@ -18,7 +18,7 @@ $(VENV)/.run-deps: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl]' -e examples/surgiplan-hello
+	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl,interop]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
 
 run: $(VENV)/.run-deps
