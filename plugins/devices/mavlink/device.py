@@ -592,15 +592,15 @@ class MavlinkVehicle(Device):
 
 def _link_text(metrics: dict) -> str:
     """The link's totals for the figure: losses each way and what the mission upload had to repeat."""
-    lines = [f"vehicle -> us: {metrics['messages_dropped_in']} lost ({100 * metrics['link_loss_in']:.1f} %)"]
+    text = f"lost: {metrics['messages_dropped_in']} of the vehicle's messages ({100 * metrics['link_loss_in']:.1f} %)"
     if metrics.get("messages_dropped_out") is not None:
-        lines.append(f"us -> vehicle: {metrics['messages_dropped_out']} lost ({100 * metrics['link_loss_out']:.1f} %)")
+        text += f", {metrics['messages_dropped_out']} of ours ({100 * metrics['link_loss_out']:.1f} %)"
     if "upload_requests" in metrics:
-        lines.append(
-            f"upload: {metrics['upload_requests']} requests, {metrics['upload_repeated_requests']} repeated, "
-            f"{metrics['upload_retransmissions']} re-sent"
+        text += (
+            f"\nupload: {metrics['upload_requests']} requests for {metrics['mission_items']} items, "
+            f"{metrics['upload_repeated_requests']} repeated, {metrics['upload_retransmissions']} re-sent"
         )
-    return "\n".join(lines)
+    return text
 
 
 def _autopilot(value: int) -> str:

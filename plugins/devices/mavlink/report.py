@@ -270,11 +270,10 @@ def flight_figure(
         total = 100 * (lost[-1] - lost[0]) / max((lost[-1] - lost[0]) + (received[-1] - received[0]), 1)
         link_ax.axhline(total, color="#333333", linestyle="--", linewidth=1, label=f"over the flight: {total:.1f} %")
         link_ax.set_ylabel("link loss (%)")
-        link_ax.set_ylim(0, max(5.0, float(share.max()) * 1.15 if len(share) else 5.0))
-        link_ax.legend(fontsize=7, loc="upper right")
+        link_ax.set_ylim(0, max(5.0, float(share.max()) * 1.5 if len(share) else 5.0))
+        link_ax.legend(fontsize=7, loc="upper right", ncol=2)
         if link_text:
-            link_ax.text(0.01, 0.95, link_text, transform=link_ax.transAxes, fontsize=7, va="top",
-                         bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})  # fmt: skip
+            link_ax.set_title(link_text, fontsize=7, loc="left")
         bottom = link_ax
     bottom.set_xlabel("vehicle time since arming (s)")
     fig.suptitle(title, fontsize=10)
