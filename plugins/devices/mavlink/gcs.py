@@ -621,6 +621,13 @@ class GroundStation:
             self.vehicle.autopilot == mavlink.MAV_AUTOPILOT_PX4
         )
 
+    @property
+    def item_retries(self) -> int:
+        """Retries of the quick exchanges (an item, a parameter): as many as fit a command's patience."""
+        return max(
+            self.command_retries, math.ceil(self.command_timeout * (self.command_retries + 1) / self.item_timeout) - 1
+        )
+
     def _param(self, transaction: ParamTransaction) -> ParamTransaction:
         self._transactions.append(transaction)
         try:
@@ -640,7 +647,7 @@ class GroundStation:
         reads = [
             ParamTransaction(
                 name, self.target, bytewise=self.bytewise_params, timeout=self.item_timeout,
-                retries=self.command_retries,
+                retries=self.item_retries,
             )
             for name in names
         ]  # fmt: skip
@@ -667,7 +674,7 @@ class GroundStation:
         write = self._param(
             ParamTransaction(
                 name, self.target, value=value, kind=kind, bytewise=self.bytewise_params,
-                timeout=self.item_timeout, retries=self.command_retries,
+                timeout=self.item_timeout, retries=self.item_retries,
             )
         )  # fmt: skip
         if write.timed_out:

@@ -456,12 +456,12 @@ class _Exchange:
     def on_timer(self, now: float) -> list:
         if self.state != "busy" or now < self.deadline:
             return []
-        if self._attempts >= self.retries:
+        if self._attempts >= self._retries_now():
             progress = self._progress()
             return self._finish(
                 "failed",
                 f"the vehicle stopped answering: waited for {self._waiting_for} through {self._attempts + 1} "
-                f"attempts, {self.timeout:g} s apart" + (f"; {progress}" if progress else ""),
+                f"attempts, {self._timeout_now():g} s apart" + (f"; {progress}" if progress else ""),
             )
         self._attempts += 1
         self.retransmissions += 1
@@ -470,6 +470,9 @@ class _Exchange:
 
     def _timeout_now(self) -> float:
         return self.timeout
+
+    def _retries_now(self) -> int:
+        return self.retries
 
     def _mine(self, message) -> bool:
         return int(getattr(message, "mission_type", MISSION)) == self.mission_type
@@ -522,6 +525,13 @@ class MissionDownload(_Exchange):
 
     def _timeout_now(self) -> float:
         return self.timeout if self.count is None else self.item_timeout
+
+    def _retries_now(self) -> int:
+        """Items are asked for more often than the list: as many times as fit the list's patience (timeout x
+        (retries + 1)), so that a poor link gets as long for an item as for the MISSION_COUNT."""
+        if self.count is None:
+            return self.retries
+        return max(self.retries, math.ceil(self.timeout * (self.retries + 1) / self.item_timeout) - 1)
 
     def on_message(self, message, now: float) -> list:
         if self.state != "busy" or not self._mine(message):
