@@ -169,7 +169,7 @@ def test_mavlink_vehicle_is_a_registered_device():
 @pytest.mark.parametrize(
     ("settings", "message"),
     [
-        ({"connection": "udpin:0.0.0.0:14550", "sim": {"speed": 2}}, "remove one of them"),
+        ({"connection": "udpin:127.0.0.1:14550", "sim": {"speed": 2}}, "remove one of them"),
         ({"connection": "localhost"}, "not a MAVLink connection string; use udpin:HOST:PORT"),
         ({"cruise_sped": 1.0}, "did you mean 'cruise_speed'"),
         ({"sim": {"reject_mission": "NO_ROOM"}}, "unknown MAV_MISSION_RESULT 'NO_ROOM'; choose one of"),

@@ -3,7 +3,7 @@
 Everything protocol-level (encoding, CRCs, sequence numbers, MAVLink 2
 signing, serial/UDP/TCP transports) is pymavlink's; this module opens a
 ``mavutil`` connection in the form users know from MAVProxy and QGroundControl
-(``udpin:0.0.0.0:14550``, ``udpout:127.0.0.1:14560``, ``tcp:127.0.0.1:5760``,
+(``udpin:127.0.0.1:14550``, ``udpout:127.0.0.1:14560``, ``tcp:127.0.0.1:5760``,
 ``/dev/ttyACM0``), makes sure MAVLink 2 is spoken, and adds what both ends of
 surgiplan's links need: signing set up from a key in the settings, and (for
 the simulated vehicle) packet loss injected in both directions.
