@@ -350,3 +350,12 @@ def test_offboard_loss_holds_the_vehicle_where_the_stream_stopped(lockstep):
     assert np.all(after[:, 3] < -1.0) and np.ptp(after[:, 1:4], axis=0).max() < 0.1
     assert np.linalg.norm(after[-1, 1:4] - at_loss) < 0.5  # braked, not flown on along the leg to x = 6 m
     assert np.linalg.norm(after[-1, 4:7]) < 0.05
+
+
+@pytest.mark.timeout(60)
+def test_offboard_flight_in_lockstep_survives_a_lossy_link():
+    """With 20 % of the messages lost each way, a position report the ground station stamps its setpoints
+    from can be lost while the vehicle waits in lockstep for the next setpoint: the waiting vehicle says
+    where it is again every 0.1 s of wall clock, so the flight goes on (it used to wait for ever)."""
+    _, log, _ = _offboard_flight(stall=0.0, packet_loss=0.2)
+    assert log.status == "completed"

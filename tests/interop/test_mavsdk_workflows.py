@@ -170,10 +170,14 @@ def test_mavsdk_mission_parameters_offboard_and_return():
         stored = next(items for kind, items in vehicle.uploads if kind == 0 and items)
         events = [text for _, text in vehicle.events]
         received = dict(vehicle.received)
+        requested = list(vehicle.messages_requested)
 
     # loopback only: MAVSDK listened on 127.0.0.1, the simulated vehicle's socket is bound to 127.0.0.1
     assert not not_loopback(out["sockets"]) and not not_loopback(out["sockets_after"]), out["sockets_after"]
     assert ("udp", "127.0.0.1", port) in out["sockets"]
+    # AUTOPILOT_VERSION answered: MAVSDK asked for it once (it re-requested it every second, for ever, from a
+    # vehicle that never sent it)
+    assert 1 <= requested.count(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION) <= 2
     # healthy, and the position is the vehicle's home (the EKF origin), on the ground
     lat, lon, rel = out["position"]
     assert ground_distance(lat, lon, *ORIGIN[:2]) < 0.02 and abs(rel) < 0.01

@@ -266,6 +266,7 @@ class Commands:
 
     def _cmd_request(self, params, source) -> int:
         message_id = int(params[0]) if math.isfinite(params[0]) else -1
+        self.messages_requested.append(message_id)
         if message_id == C.MAVLINK_MSG_ID_MESSAGE_INTERVAL:
             self._send([self.interval_message(int(params[1]))])
             return ACCEPTED

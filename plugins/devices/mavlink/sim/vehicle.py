@@ -155,6 +155,8 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
         self.events: list[tuple[float, str]] = []
         #: (MAV_CMD, MAV_RESULT) of every command answered, in order (for tests)
         self.commands_answered: list[tuple[int, int]] = []
+        #: the message ids MAV_CMD_REQUEST_MESSAGE asked for, in order (for tests)
+        self.messages_requested: list[int] = []
         #: every list the vehicle accepted (upload or clear), with its mission type, in order (for tests)
         self.uploads: list[tuple[int, list[MissionItem]]] = []
         #: messages received by type (for tests: what a client sent)
