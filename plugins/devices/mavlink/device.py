@@ -543,6 +543,10 @@ class MavlinkVehicle(Device):
         setpoints = None
         if log.profile is not None and len(t):
             setpoints = self.frame.from_ned(log.profile.sample(t - log.profile_start)[0])
+            # only while the stream flies the profile: before it the vehicle takes off from its pad, after it
+            # it lands (NAV_LAND), and "the setpoint" is then the profile's end, which it leaves on purpose
+            since = t - log.profile_start
+            setpoints[(since < 0) | (since > log.profile.duration)] = np.nan
         metrics, arrays = flight_metrics(
             t, flown, velocity, trajectory.space, planned, log.path_window, threshold, critical, setpoints
         )

@@ -124,8 +124,10 @@ def flight_metrics(
     if setpoints is not None and np.any(in_path):
         error = np.linalg.norm(flown - setpoints, axis=1)
         arrays["setpoint_error"] = error
-        metrics["setpoint_error_max_m"] = float(error[in_path].max())
-        metrics["setpoint_error_rms_m"] = float(np.sqrt(np.mean(error[in_path] ** 2)))
+        during = in_path & np.isfinite(error)
+        if np.any(during):
+            metrics["setpoint_error_max_m"] = float(error[during].max())
+            metrics["setpoint_error_rms_m"] = float(np.sqrt(np.mean(error[during] ** 2)))
     return metrics, arrays
 
 
