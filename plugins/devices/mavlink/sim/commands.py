@@ -165,8 +165,9 @@ class Commands:
 
     def _cmd_mode(self, params) -> int:
         mode = self._mode_asked(params)
-        if mode is None:
-            return ACCEPTED if not math.isfinite(params[0]) else REJECTED  # PX4: base modes only: nothing to do
+        if mode is None:  # base mode flags without MAV_MODE_FLAG_CUSTOM_MODE_ENABLED: not simulated
+            self._say("Only PX4 custom modes are supported", C.MAV_SEVERITY_CRITICAL)
+            return REJECTED
         if mode in PILOT_MODES:
             self._say(f"Switching to {mode} is not possible: no RC", C.MAV_SEVERITY_CRITICAL)
             return REJECTED
