@@ -408,6 +408,12 @@ def markdown(rows: list[dict]) -> str:
                 r = next(r for r in upload if r["items"] == n and r["loss"] == p)
                 cells.append(f"{r['upload_s_median']:.3g} s ({r['predicted_s']:.3g})")
             out.append(f"| {n} items: upload (predicted) | " + " | ".join(cells) + " |")
+        for n in sorted({r["items"] for r in upload}):
+            cells = []
+            for p in losses:
+                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
+                cells.append(f"{r['download_s_median']:.3g} s, {r['verified']}")
+            out.append(f"| {n} items: download back, verified | " + " | ".join(cells) + " |")
         out.append("")
     tracking = [r for r in rows if r["benchmark"] == "tracking"]
     if tracking:
@@ -452,7 +458,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small sizes, for checking the script")
     parser.add_argument("--only", help=f"comma-separated sections of {', '.join(SECTIONS)} (results not saved)")
+    parser.add_argument(
+        "--markdown", action="store_true", help="only rewrite results/mavlink.md from results/mavlink.json"
+    )
     args = parser.parse_args()
+    if args.markdown:
+        from common import RESULTS
+        from surgiplan.storage import write_text_atomic
+
+        rows = json.loads((RESULTS / "mavlink.json").read_text())["rows"]
+        write_text_atomic(RESULTS / "mavlink.md", markdown(rows))
+        print(markdown(rows))
+        return
     only = set(args.only.split(",")) if args.only else set(SECTIONS)
     unknown = only - set(SECTIONS)
     if unknown:
