@@ -39,7 +39,9 @@ Settings (lengths in the pipeline's ``length_unit``; speeds m/s, times s)::
     connection: udpin:127.0.0.1:14550   # default: none, i.e. start the simulated vehicle
     mode: mission                        # or offboard (SET_POSITION_TARGET_LOCAL_NED stream)
     frame: {local_origin: [2, 6, 0], heading: 90 deg}   # the vehicle's NED origin in the scene
+    mission_frame: global_relative_alt   # or global (AMSL altitudes); frame 3 or 0
     cruise_speed: 1.0
+    safety_margin: 0.1                   # the planned path must keep this much (else refused)
     failsafe: land                       # on heartbeat loss: land, return or hold
     signing: {key: 64 hex digits or a passphrase}
     sim: {speed: 4, packet_loss: 0.2}    # the simulated vehicle, faults included
