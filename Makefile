@@ -18,7 +18,7 @@ $(VENV)/.run-deps: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl,browser,pardiso]' -e examples/surgiplan-hello
+	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl,browser,pardiso,interop]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
 
 # The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client

@@ -91,7 +91,7 @@ def fly(tmp_path: Path, roadmap: Path, settings: dict):
     outcome = run_pipeline(load_pipeline(hall_pipeline(tmp_path, roadmap, settings)))
     document = json.loads((outcome.output_dir / "result.json").read_text())
     stage = document["stages"][1]
-    log = outcome.output_dir / "flight-flight.csv"
+    log = outcome.output_dir / "flight.csv"
     table = np.loadtxt(log, delimiter=",", skiprows=1) if log.exists() else None
     return outcome, document, stage, table
 
@@ -169,7 +169,7 @@ def test_mavlink_vehicle_is_a_registered_device():
 @pytest.mark.parametrize(
     ("settings", "message"),
     [
-        ({"connection": "udpin:0.0.0.0:14550", "sim": {"speed": 2}}, "remove one of them"),
+        ({"connection": "udpin:127.0.0.1:14550", "sim": {"speed": 2}}, "remove one of them"),
         ({"connection": "localhost"}, "not a MAVLink connection string; use udpin:HOST:PORT"),
         ({"cruise_sped": 1.0}, "did you mean 'cruise_speed'"),
         ({"sim": {"reject_mission": "NO_ROOM"}}, "unknown MAV_MISSION_RESULT 'NO_ROOM'; choose one of"),
@@ -200,7 +200,9 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
     assert commands[:2] == [mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_TAKEOFF]
     assert commands[-1] == mavlink.MAV_CMD_NAV_LAND
     waypoints = vehicle.mission[1:-1]
-    scene_points = LocalFrame(ORIGIN).from_ned([[i.x, i.y, i.z] for i in waypoints])
+    # in the current global frame (3, not the deprecated 6), latitude/longitude about the EKF origin
+    assert {i.frame for i in vehicle.mission[1:]} == {mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT}
+    scene_points = LocalFrame(ORIGIN).from_ned([vehicle._item_position(i) for i in waypoints])
     distance, _ = cKDTree(dense(planned_path(document))).query(scene_points)
     assert distance.max() <= 0.02 + 1e-4  # the waypoint tolerance
     # safe_prm's promise, kept in flight: outside the door the margin holds up to the tracking error
@@ -215,8 +217,16 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
     assert truth[0] == pytest.approx([2, 6, 0], abs=1e-6)
     assert truth[-1] == pytest.approx([22, 6, 0], abs=0.15)
     assert not vehicle.armed
-    assert {"flight-flight.csv", "flight.png"} <= set(document["files"])
+    assert {"flight.csv", "flight.png"} <= set(document["files"])
     assert metrics["upload_retransmissions"] == 0 and metrics["signed"] is False
+    # the upload was verified by downloading it back (PX4 answers in frame 6; the same mission)
+    assert metrics["mission_verified"] is True and vehicle.sender.completed == 1
+    assert (
+        metrics["mission_frame"] == "MAV_FRAME_GLOBAL_RELATIVE_ALT" and metrics["mission_message"] == "MISSION_ITEM_INT"
+    )
+    assert {"MISSION_INT", "SET_POSITION_TARGET_LOCAL_NED", "MAVLINK2"} <= set(metrics["autopilot_capabilities"])
+    # nothing lost on loopback; what the vehicle received is its own business (not simulated by the device)
+    assert metrics["messages_dropped_in"] == 0 and metrics["messages_dropped_out"] is None
 
 
 def test_offboard_flight_streams_setpoints_on_the_vehicle_clock(tmp_path, roadmap):
@@ -294,7 +304,7 @@ def test_the_hall_pipeline_file_flies_its_mission(tmp_path, roadmap):
     assert metrics["flown_min_clearance_m"] > 0.2
     assert metrics["flown_min_clearance_outside_critical_m"] >= 0.5 - metrics["tracking_error_max_m"]
     assert (outcome.output_dir / "flight-mission.png").stat().st_size > 10_000
-    assert {"route.png", "flight-mission.png", "flight-flight-mission.csv", "scene.glb"} <= set(document["files"])
+    assert {"route.png", "flight-mission.png", "flight-mission.csv", "scene.glb"} <= set(document["files"])
 
 
 # ----------------------------------------------------------------------------- signing
@@ -352,3 +362,126 @@ def test_paths_of_other_spaces_are_refused_with_the_reason():
     gimbal = SimpleNamespace(kind="cast_gimbal")
     with pytest.raises(ConfigError, match=r"flies paths of the r3 space .* plan stage 'plan' planned in 'cast_gimbal'"):
         device.run(Trajectory(np.zeros((2, 4)), gimbal, "plan"))
+
+
+# ----------------------------------------------------------------------------- refusals before any motion, capabilities
+
+
+@contextlib.contextmanager
+def device_on(vehicle: SimulatedVehicle, tmp_path: Path, **settings):
+    """The mavlink_vehicle device, configured and active, on the simulated vehicle (no planner involved)."""
+    from surgiplan.plugins.devices.mavlink.device import MavlinkVehicle
+    from surgiplan.results import StageContext
+
+    device = MavlinkVehicle(MavlinkVehicle.Settings.model_validate(external(vehicle, figure=False, **settings)))
+    try:
+        device.configure(StageContext("flight", load_scene(HALL), tmp_path, tmp_path))
+        device.activate()
+        yield device
+    finally:
+        device.shutdown()
+
+
+def hall_trajectory(points, source="third-party-planner"):
+    from surgiplan.devices import Trajectory
+    from surgiplan.spaces.r3 import R3Space
+
+    return Trajectory(np.asarray(points, float), R3Space(load_scene(HALL), RADIUS), source)
+
+
+#: what a ground station sends while it connects (heartbeats, requests, parameter reads): nothing that moves
+CONNECTING = {"HEARTBEAT", "COMMAND_LONG", "PARAM_REQUEST_READ"}
+
+
+def assert_nothing_but_the_connection(vehicle: SimulatedVehicle) -> None:
+    assert set(vehicle.received) <= CONNECTING, vehicle.received
+    assert {c for c, _ in vehicle.commands_answered} <= {
+        mavlink.MAV_CMD_REQUEST_MESSAGE,
+        mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+    }
+    assert not vehicle.armed and vehicle.uploads == [] and vehicle.params.changes == []
+    truth = np.array(vehicle.trajectory)
+    assert np.all(truth[:, 1:4] == truth[0, 1:4])  # it never moved
+
+
+def test_a_path_through_an_obstacle_is_refused_before_any_motion_whatever_produced_it(tmp_path):
+    """Issue 14: a third-party planner may return a colliding path; the device measures it (the vehicle a
+    sphere of the plan's radius along each segment) and refuses it, naming the segment and the clearance."""
+    path = [[2.0, 6.0, 1.5], [4.0, 5.5, 1.5], [9.0, 4.6, 1.5], [11.0, 4.6, 1.5]]  # segment 1 crosses pillar A1
+    with simulated() as vehicle, device_on(vehicle, tmp_path) as device:
+        report = device.execute(hall_trajectory(path))
+        assert_nothing_but_the_connection(vehicle)
+    assert report.status == "stopped" and report.metrics["refused"] is True
+    scene = load_scene(HALL)
+    a, b = np.array([path[1]]), np.array([path[2]])
+    measured = coal_scene_segment_distance(scene, a, b, RADIUS)[0]
+    assert measured < 0  # coal agrees: segment 1 collides
+    assert report.message.startswith(
+        "refused before any motion: segment 1 of the planned path (waypoints 1 to 2: [4.0, 5.5, 1.5] to "
+        f"[9.0, 4.6, 1.5] m) collides with 'A1': certified clearance {measured:.3f} m for the vehicle's 0.25 m radius"
+    )
+    assert "plan stage 'third-party-planner'" in report.message
+
+
+def test_a_path_below_the_safety_margin_is_refused(tmp_path):
+    """Straight through the door: 0.35 m from its jambs, refused with safety_margin 0.4 m, flown with 0.3 m."""
+    path = [[10.0, 6.0, 1.5], [14.0, 6.0, 1.5]]
+    with simulated() as vehicle, device_on(vehicle, tmp_path, safety_margin=0.4) as device:
+        report = device.execute(hall_trajectory(path))
+        assert_nothing_but_the_connection(vehicle)
+    door = coal_scene_segment_distance(load_scene(HALL), np.array([path[0]]), np.array([path[1]]), RADIUS)[0]
+    assert door == pytest.approx(0.35, abs=1e-9)
+    assert report.status == "stopped" and "segment 0" in report.message
+    assert f"passes 'wall-south': certified clearance {door:.3f} m" in report.message or "passes 'wall-north'" in (
+        report.message
+    )
+    assert "below safety_margin 0.4 m" in report.message
+
+
+def test_vehicle_limits_tighter_than_the_profile_refuse_the_flight_naming_the_parameter(tmp_path):
+    path = [[2.0, 6.0, 1.5], [4.0, 6.0, 1.5]]
+    with simulated(params={"MPC_XY_VEL_MAX": 1.2}) as vehicle, device_on(vehicle, tmp_path) as device:
+        report = device.execute(hall_trajectory(path))
+        assert_nothing_but_the_connection(vehicle)
+    assert report.status == "stopped"
+    assert report.message == (
+        "refused before any motion: the vehicle's MPC_XY_VEL_MAX is 1.2 m/s, below the flight's cruise_speed 2 m/s: "
+        "it cannot fly the profile as planned (lower cruise_speed, or raise MPC_XY_VEL_MAX)"
+    )
+    assert report.metrics["vehicle_parameters"]["MPC_XY_VEL_MAX"] == pytest.approx(1.2)
+    with simulated(params={"MPC_Z_VEL_MAX_DN": 0.3}) as vehicle, device_on(vehicle, tmp_path, mode="offboard") as d:
+        report = d.execute(hall_trajectory(path))
+    assert "the vehicle's MPC_Z_VEL_MAX_DN is 0.3 m/s, below the flight's vertical_speed 0.5 m/s" in report.message
+
+
+def test_offboard_is_refused_by_a_vehicle_without_the_capability_and_missions_fall_back_to_mission_item(tmp_path):
+    with simulated(capabilities_withheld=["SET_POSITION_TARGET_LOCAL_NED"]) as vehicle:
+        lacks = "MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED, which mode offboard needs"
+        with pytest.raises(VehicleError, match=r"capabilities: the vehicle's AUTOPILOT_VERSION lacks " + lacks):
+            with device_on(vehicle, tmp_path, mode="offboard"):
+                pass
+        assert set(vehicle.received) <= CONNECTING
+    # a vehicle without MISSION_INT: the mission goes as the deprecated MISSION_ITEM, verified the same way
+    path = [[2.0, 6.0, 1.5], [5.0, 7.5, 1.5], [8.0, 7.8, 1.6]]
+    with simulated(capabilities_withheld=["MISSION_INT"]) as vehicle, device_on(vehicle, tmp_path) as device:
+        report = device.execute(hall_trajectory(path))
+        received = dict(vehicle.received)
+    assert report.status == "completed", report.message
+    assert report.metrics["mission_message"] == "MISSION_ITEM" and report.metrics["mission_verified"] is True
+    assert received.get("MISSION_ITEM", 0) >= report.metrics["mission_items"] and "MISSION_ITEM_INT" not in received
+    assert "MISSION_INT" not in report.metrics["autopilot_capabilities"]
+
+
+def test_failsafe_parameters_are_set_and_read_back_before_the_flight(tmp_path):
+    """failsafe: return: RTL_RETURN_ALT (60 m on PX4) lowered to the route's top above home, so that a return
+    stays below the hall's ceiling; offboard: COM_OBL_RC_ACT set to the same failsafe (3, return)."""
+    path = [[2.0, 6.0, 1.5], [5.0, 7.5, 1.8], [8.0, 7.8, 1.6]]
+    with simulated() as vehicle, device_on(vehicle, tmp_path, mode="offboard", failsafe="return") as device:
+        report = device.execute(hall_trajectory(path))
+        changes = dict(vehicle.params.changes)
+        settings = vehicle.settings
+    assert report.status == "completed", report.message
+    assert report.metrics["parameters_set"] == {"RTL_RETURN_ALT": pytest.approx(1.8), "COM_OBL_RC_ACT": 3}
+    assert changes == {"RTL_RETURN_ALT": pytest.approx(1.8), "COM_OBL_RC_ACT": 3}
+    assert settings.rtl_return_altitude == pytest.approx(1.8) and settings.offboard_loss_action == 3
+    assert report.metrics["vehicle_parameters"]["MPC_XY_VEL_MAX"] == 5.0

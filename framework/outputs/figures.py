@@ -96,8 +96,28 @@ def _pad(scene: Scene) -> float:
     return 0.04 * float(np.min(scene.extent[:2]))
 
 
+def _inside(mesh, lo: np.ndarray, hi: np.ndarray):
+    """The part of an obstacle's surface inside the workspace box (3D axes do not clip what overflows them);
+    cut open where it crosses the box, which is where the box's own edges are drawn."""
+    for axis in range(3):
+        for bound, sign in ((lo[axis], 1.0), (hi[axis], -1.0)):
+            if np.all(sign * (mesh.vertices[:, axis] - bound) >= 0):
+                continue  # wholly on the inner side of this face
+            normal = np.zeros(3)
+            normal[axis] = sign
+            origin = np.zeros(3)
+            origin[axis] = bound
+            mesh = mesh.slice_plane(origin, normal)
+            if mesh is None or not len(mesh.faces):
+                return None
+    return mesh
+
+
 def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, meshes) -> None:
-    for _, mesh in meshes:
+    for _, whole in meshes:
+        mesh = _inside(whole, scene.bounds_min, scene.bounds_max)
+        if mesh is None:
+            continue
         triangles = mesh.vertices[mesh.faces] * k
         collection = Poly3DCollection(triangles, facecolor=OBSTACLE_COLOUR, edgecolor="none", alpha=0.35)
         ax.add_collection3d(collection)
@@ -121,13 +141,20 @@ def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, m
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(hi - lo)
+    # a thin axis (a 1 m layer of a 24 m hall) is drawn at least a quarter of the longest, so that its tick
+    # labels do not pile up; the label says by how much it is stretched
+    extent = np.maximum(hi - lo, 1e-12)
+    aspect = np.maximum(extent, extent.max() / 4)
+    ax.set_box_aspect(aspect.copy())  # (matplotlib scales the array it is given in place)
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(MaxNLocator(nbins=5))
     # a flat box leaves little room for z ticks: few of them, so the labels never overlap
-    flatness = float((hi - lo)[2] / max((hi - lo)[0], (hi - lo)[1]))
-    ax.zaxis.set_major_locator(MaxNLocator(nbins=int(np.clip(round(8 * flatness), 2, 6))))
-    ax.set_xlabel(f"x ({unit})")
-    ax.set_ylabel(f"y ({unit})")
-    ax.set_zlabel(f"z ({unit})", labelpad=2)
+    flatness = float(aspect[2] / max(aspect[0], aspect[1]))
+    ax.zaxis.set_major_locator(MaxNLocator(nbins=int(np.clip(round(8 * flatness), 2, 5))))
+    stretch = [f", stretched x{a / e:.3g}" if a / e > 1.01 else "" for a, e in zip(aspect, extent, strict=True)]
+    ax.set_xlabel(f"x ({unit}){stretch[0]}")
+    ax.set_ylabel(f"y ({unit}){stretch[1]}")
+    ax.set_zlabel(f"z ({unit}){stretch[2]}", labelpad=2)
     ax.view_init(elev=28, azim=-60)
 
 

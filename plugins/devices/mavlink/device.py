@@ -13,23 +13,35 @@ Lifecycle (:class:`surgiplan.Device`, ros2_control's):
 * ``configure``: the simulated vehicle is started (``surgiplan-sim-vehicle``
   on a free 127.0.0.1 UDP port) unless ``connection`` names a real one; the
   link is opened (MAVLink 2, signed when a key is given); the first
-  HEARTBEAT adopts the vehicle (no heartbeat: a clear error); telemetry
-  rates are requested; for global mission frames the EKF origin and home are
-  read (GPS_GLOBAL_ORIGIN, HOME_POSITION);
+  HEARTBEAT adopts the vehicle (no heartbeat: a clear error); its
+  AUTOPILOT_VERSION says which protocols it honours (a mission needs
+  MISSION_ITEM_INT or at least MISSION_ITEM, offboard needs
+  SET_POSITION_TARGET_LOCAL_NED: refused otherwise, naming the bit);
+  telemetry rates are requested (LOCAL_POSITION_NED at ``telemetry_rate``,
+  the high-rate streams it does not read off); the EKF origin and home are read
+  (GPS_GLOBAL_ORIGIN, HOME_POSITION) for the global mission frames; the PX4
+  parameters the flight relies on are read (:data:`RELIED_ON`);
 * ``activate``: the vehicle must report a local position;
-* ``execute``: :mod:`.mavlink_flight` (route, mission upload or offboard
-  stream, arming and modes with their acknowledgements, the watch with the
-  failsafe), then :mod:`.mavlink_report` (tracking error, flown clearance,
-  ``flight-<stage>.csv`` and ``<stage>.png``);
+* ``execute``: refused before any motion when the planned path's certified
+  clearance (the vehicle a sphere of the plan's ``tip_radius``) is negative
+  or below ``safety_margin`` anywhere, whatever planner produced it, or when
+  the vehicle's limits (its parameters) are tighter than the flight's
+  profile (naming the parameter); then the parameters the failsafe relies on
+  are set (and read back), :mod:`.flight` (route, mission upload verified by
+  download, or offboard stream, arming and modes with their
+  acknowledgements, the watch with the failsafe), then :mod:`.report`
+  (tracking error, flown clearance, ``<stage>.csv`` and ``<stage>.png``, named after the stage);
 * ``cleanup``/``shutdown``: the link is closed, the simulated vehicle
   stopped.
 
 Settings (lengths in the pipeline's ``length_unit``; speeds m/s, times s)::
 
-    connection: udpin:0.0.0.0:14550     # default: none, i.e. start the simulated vehicle
+    connection: udpin:127.0.0.1:14550   # default: none, i.e. start the simulated vehicle
     mode: mission                        # or offboard (SET_POSITION_TARGET_LOCAL_NED stream)
     frame: {local_origin: [2, 6, 0], heading: 90 deg}   # the vehicle's NED origin in the scene
+    mission_frame: global_relative_alt   # or global (AMSL altitudes); frame 3 or 0
     cruise_speed: 1.0
+    safety_margin: 0.1                   # the planned path must keep this much (else refused)
     failsafe: land                       # on heartbeat loss: land, return or hold
     signing: {key: 64 hex digits or a passphrase}
     sim: {speed: 4, packet_loss: 0.2}    # the simulated vehicle, faults included
@@ -54,10 +66,35 @@ from surgiplan.progress import NullProgress
 from surgiplan.units import Angle, Length, PositiveLength, Vec3
 
 from .conventions import LocalFrame, MapProjection
-from .flight import Flight, Refusal, build_route
-from .gcs import GroundStation
+from .flight import Flight, Refusal, build_route, check_path_clearance
+from .gcs import GroundStation, capability_names
 from .link import Endpoint, VehicleError, check_connection_string, enum_name, mavlink, signing_key
 from .report import describe, flight_figure, flight_metrics, write_flight_csv
+
+#: the PX4 parameters the flight relies on (read at configure; see MavlinkVehicle._limits)
+RELIED_ON = (
+    "MPC_XY_VEL_MAX",  # top horizontal speed: not below cruise_speed
+    "MPC_Z_VEL_MAX_UP",  # top climb speed: not below vertical_speed (offboard)
+    "MPC_Z_VEL_MAX_DN",  # top descent speed: likewise
+    "MPC_ACC_HOR_MAX",  # thrust authority: not below acceleration (offboard)
+    "COM_OF_LOSS_T",  # offboard loss timeout: several keep-alive periods at least
+    "COM_OBL_RC_ACT",  # offboard loss action: set to the failsafe (offboard)
+    "RTL_RETURN_ALT",  # a return climbs to this first: not above the route (failsafe return)
+)
+#: streams PX4 sends a ground station by default that this device does not read: switched off
+UNUSED_STREAMS = (
+    mavlink.MAVLINK_MSG_ID_ATTITUDE,  # 15 Hz
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,  # 5 Hz (LOCAL_POSITION_NED is what it flies by)
+    mavlink.MAVLINK_MSG_ID_VFR_HUD,  # 4 Hz
+)
+#: COM_OBL_RC_ACT for each failsafe
+OFFBOARD_LOSS_ACTION = {"land": 4, "return": 3, "hold": 5}
+#: the offboard stream keeps the vehicle fed at 20 Hz of wall clock; a COM_OF_LOSS_T below this is too tight
+MIN_OFFBOARD_TIMEOUT = 0.2
+#: capability bits each mode needs
+NEEDS = {
+    "offboard": ("SET_POSITION_TARGET_LOCAL_NED", mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED),
+}
 
 
 class _Strict(BaseModel):
@@ -88,6 +125,9 @@ class Timeouts(_Strict):
     command_retries: int = Field(default=5, ge=0)
     mission: PositiveFloat = 1.5
     mission_retries: int = Field(default=5, ge=0)
+    #: a download's wait for each item, a parameter's for its value, before asking again (the vehicle
+    #: answers these at once; MAVSDK's default 0.5 s)
+    mission_item: PositiveFloat = 0.5
     #: whole transfers tried when a mission upload is cancelled or times out
     upload_attempts: int = Field(default=3, ge=1)
     #: waiting for a mode or arming to show in the vehicle's HEARTBEAT
@@ -120,8 +160,12 @@ class MavlinkVehicleSettings(_Strict):
     gcs_system_id: int = Field(default=255, ge=1, le=255)
     gcs_component_id: int = Field(default=190, ge=1, le=255)  # MAV_COMP_ID_MISSIONPLANNER
     mode: Literal["mission", "offboard"] = "mission"
-    #: local_ned (MISSION_ITEM_INT in metres) or global_relative_alt (what PX4 and ArduPilot fly)
-    mission_frame: Literal["local_ned", "global_relative_alt"] = "local_ned"
+    #: mission items in MAV_FRAME_GLOBAL_RELATIVE_ALT (3; altitude above home) or MAV_FRAME_GLOBAL (0; AMSL),
+    #: the current frames (their _INT twins 6 and 5 are deprecated); PX4 flies no local-frame mission
+    mission_frame: Literal["global_relative_alt", "global"] = "global_relative_alt"
+    #: the planned path's certified clearance (the vehicle a sphere of the plan's tip_radius) must be at
+    #: least this everywhere, or the flight is refused before any motion (negative: always refused)
+    safety_margin: Length = Field(default=0.0, ge=0.0)
     frame: FrameSettings = Field(default_factory=FrameSettings)
     cruise_speed: PositiveFloat = 1.0  # m/s
     acceleration: PositiveFloat = 1.0  # m/s^2, offboard profile
@@ -149,6 +193,16 @@ class MavlinkVehicleSettings(_Strict):
     #: run the simulated vehicle as a subprocess (the real program) or in a thread
     sim_process: Literal["subprocess", "thread"] = "subprocess"
     figure: bool = True
+
+    @field_validator("mission_frame", mode="before")
+    @classmethod
+    def _no_local_missions(cls, value):
+        if value == "local_ned":
+            raise ValueError(
+                "local_ned is no longer offered: PX4 refuses mission items in local frames "
+                "(MAV_MISSION_UNSUPPORTED_FRAME); use global_relative_alt (the default) or global"
+            )
+        return value
 
     @field_validator("connection")
     @classmethod
@@ -180,6 +234,12 @@ class MavlinkVehicle(Device):
         self.geo: tuple[MapProjection, float] | None = None
         self.connection = settings.connection
         self._stderr = None
+        #: the vehicle's AUTOPILOT_VERSION capability names, its parameters read, those set
+        self.capabilities: list[str] = []
+        self.vehicle_params: dict[str, float | int] = {}
+        self.params_set: dict[str, float | int] = {}
+        #: upload as the deprecated MISSION_ITEM (a vehicle without MISSION_INT)
+        self.legacy_missions = False
 
     # ------------------------------------------------------------------ the simulated vehicle
     def _sim_settings(self) -> SimSettings:
@@ -273,6 +333,7 @@ class MavlinkVehicle(Device):
                 command_retries=t.command_retries,
                 mission_timeout=t.mission,
                 mission_retries=t.mission_retries,
+                item_timeout=t.mission_item,
                 upload_attempts=t.upload_attempts,
             )
             vehicle = self.gcs.connect(t.connect, s.system_id)
@@ -282,16 +343,56 @@ class MavlinkVehicle(Device):
                     "conventions (custom modes, mission item 0 is a mission item): use PX4 or the simulated vehicle",
                     step="connect",
                 )
+            self._check_capabilities()
             self.gcs.step = "telemetry setup"
             self.gcs.set_message_interval(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, s.telemetry_rate)
-            if s.mission_frame == "global_relative_alt":
-                self.gcs.step = "reading the EKF origin"
-                origin = self.gcs.request_message("GPS_GLOBAL_ORIGIN", mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, t.mode)
-                home = self.gcs.request_message("HOME_POSITION", mavlink.MAVLINK_MSG_ID_HOME_POSITION, t.mode)
-                self.geo = (MapProjection(origin.latitude * 1e-7, origin.longitude * 1e-7), float(home.z))
+            for message_id in UNUSED_STREAMS:  # bandwidth a radio link needs for the rest
+                self.gcs.stop_message(message_id)
+            self.gcs.step = "reading the EKF origin"
+            origin = self.gcs.request_message("GPS_GLOBAL_ORIGIN", mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, t.mode)
+            home = self.gcs.request_message("HOME_POSITION", mavlink.MAVLINK_MSG_ID_HOME_POSITION, t.mode)
+            #: projection about the EKF origin, home's local down (m), the origin's altitude AMSL (m)
+            self.geo = (
+                MapProjection(origin.latitude * 1e-7, origin.longitude * 1e-7),
+                float(home.z),
+                origin.altitude * 1e-3,
+            )
+            self.gcs.step = "reading parameters"
+            self.vehicle_params = {name: value for name, (value, _) in self.gcs.read_params(RELIED_ON).items()}
         except BaseException:
             self._release()
             raise
+
+    def _check_capabilities(self) -> None:
+        """AUTOPILOT_VERSION's capability bits: the protocols this flight needs, or a refusal naming the bit."""
+        gcs, s = self.gcs, self.settings
+        gcs.step = "capabilities"
+        try:
+            gcs.autopilot_version(s.timeouts.mode)
+        except VehicleError as exc:
+            raise VehicleError(
+                f"{exc.detail}; without AUTOPILOT_VERSION its capabilities (mission protocol, offboard) are unknown",
+                step="capabilities",
+            ) from None
+        bits = gcs.vehicle.capabilities
+        self.capabilities = capability_names(bits)
+        missing = []
+        if not bits & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2:
+            missing.append("MAVLINK2")
+        if s.mode == "mission":
+            if not bits & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT:
+                if bits & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT:
+                    self.legacy_missions = True  # the deprecated MISSION_ITEM it is (float latitudes: ~0.5 m)
+                else:
+                    missing.append("MISSION_INT (or MISSION_FLOAT)")
+        elif s.mode in NEEDS and not bits & NEEDS[s.mode][1]:
+            missing.append(NEEDS[s.mode][0])
+        if missing:
+            raise VehicleError(
+                f"the vehicle's AUTOPILOT_VERSION lacks MAV_PROTOCOL_CAPABILITY_{', '.join(missing)}, which "
+                f"mode {s.mode} needs (it has: {', '.join(self.capabilities) or 'none'})",
+                step="capabilities",
+            )
 
     def on_activate(self) -> None:
         gcs = self.gcs
@@ -337,15 +438,101 @@ class MavlinkVehicle(Device):
             not vehicle.armed and vehicle.landed_state == mavlink.MAV_LANDED_STATE_UNDEFINED
         )
         try:
+            check_path_clearance(trajectory, s.safety_margin)
+            self._limits()
             # the ground: where the vehicle stands, or (airborne) the local origin's height, its EKF's ground
             ground = float(position[2]) if on_ground else float(self.frame.origin[2])
             route = build_route(trajectory, position, on_ground, ground, s, threshold)
         except Refusal as exc:
-            return ExecutionReport("stopped", {"refused": True}, message=f"refused before any motion: {exc}")
+            return ExecutionReport(
+                "stopped",
+                {"refused": True, "vehicle_parameters": self.vehicle_params},
+                message=f"refused before any motion: {exc}",
+            )
+        self._set_failsafe_parameters(route)
         flight = Flight(gcs, s, self.frame, route, context.progress if context else NullProgress(), self.geo)
+        flight.legacy_missions = self.legacy_missions
         log = flight.fly_offboard() if s.mode == "offboard" else flight.fly_mission()
         gcs.recording = False
         return self._report(trajectory, route, flight, log, threshold, critical)
+
+    def _simulator_link(self) -> dict | None:
+        """The simulated vehicle's own link statistics (None for a real vehicle, or when it does not say)."""
+        if self.simulator is not None:
+            return self.simulator.link_statistics()
+        if self.process is None or self.process.poll() is not None:
+            return None
+        import selectors
+        import signal
+
+        self.process.send_signal(signal.SIGUSR1)
+        with selectors.DefaultSelector() as selector:
+            selector.register(self.process.stdout, selectors.EVENT_READ)
+            deadline = time.monotonic() + 2.0
+            while time.monotonic() < deadline:
+                if selector.select(timeout=0.1):
+                    line = self.process.stdout.readline()
+                    try:
+                        return json.loads(line)["link"]
+                    except (ValueError, KeyError, TypeError):
+                        continue
+        return None
+
+    def _link_metrics(self) -> dict:
+        """Messages each way and how many were lost: the vehicle's by the gaps in its sequence numbers (any
+        vehicle), ours as the simulated vehicle counted them (None for a real one)."""
+        link = self.endpoint.stats.to_json()
+        lost_in = self.endpoint.lost_in
+        link["messages_dropped_in"] = lost_in
+        link["link_loss_in"] = lost_in / max(lost_in + self.endpoint.counted_in, 1)
+        sim = self._simulator_link()
+        if sim is not None:
+            link["messages_dropped_out"] = sim["injected_drops_in"] + sim["lost_in"]
+            link["link_loss_out"] = link["messages_dropped_out"] / max(link["messages_sent"], 1)
+            link["vehicle_link"] = sim
+        else:
+            link["messages_dropped_out"] = None
+        return link
+
+    def _limits(self) -> None:
+        """Refuse (naming the parameter) when the vehicle's limits are tighter than the flight's profile."""
+        s, params = self.settings, self.vehicle_params
+        checks = [("MPC_XY_VEL_MAX", s.cruise_speed, "cruise_speed", "m/s")]
+        if s.mode == "offboard":
+            checks += [
+                ("MPC_Z_VEL_MAX_UP", s.vertical_speed, "vertical_speed", "m/s"),
+                ("MPC_Z_VEL_MAX_DN", s.vertical_speed, "vertical_speed", "m/s"),
+                ("MPC_ACC_HOR_MAX", s.acceleration, "acceleration", "m/s^2"),
+            ]
+        for name, wanted, setting, unit in checks:
+            if name in params and params[name] < wanted - 1e-6:
+                raise Refusal(
+                    f"the vehicle's {name} is {params[name]:g} {unit}, below the flight's {setting} {wanted:g} "
+                    f"{unit}: it cannot fly the profile as planned (lower {setting}, or raise {name})"
+                )
+        if s.mode == "offboard" and params.get("COM_OF_LOSS_T", math.inf) < MIN_OFFBOARD_TIMEOUT:
+            raise Refusal(
+                f"the vehicle's COM_OF_LOSS_T is {params['COM_OF_LOSS_T']:g} s: offboard control would be lost "
+                f"between setpoints (at least {MIN_OFFBOARD_TIMEOUT:g} s: the stream keeps a 50 ms period)"
+            )
+
+    def _set_failsafe_parameters(self, route) -> None:
+        """Set what the failsafe relies on: a return no higher than the route, offboard loss = the failsafe."""
+        s, gcs = self.settings, self.gcs
+        gcs.step = "setting parameters"
+        wanted: dict[str, tuple[float | int, int]] = {}
+        if s.failsafe == "return" and "RTL_RETURN_ALT" in self.vehicle_params:
+            # a return climbs to RTL_RETURN_ALT above home first: not above the highest point of the route
+            home_down = self.geo[1]
+            top = math.floor((home_down - float(np.min(self.frame.to_ned(route.points)[:, 2]))) * 100) / 100
+            if self.vehicle_params["RTL_RETURN_ALT"] > top:
+                wanted["RTL_RETURN_ALT"] = (max(top, 0.0), mavlink.MAV_PARAM_TYPE_REAL32)
+        if s.mode == "offboard" and "COM_OBL_RC_ACT" in self.vehicle_params:
+            action = OFFBOARD_LOSS_ACTION[s.failsafe]
+            if self.vehicle_params["COM_OBL_RC_ACT"] != action:
+                wanted["COM_OBL_RC_ACT"] = (action, mavlink.MAV_PARAM_TYPE_INT32)
+        for name, (value, kind) in wanted.items():
+            self.params_set[name] = self.vehicle_params[name] = gcs.set_param(name, value, kind)
 
     def _report(self, trajectory, route, flight, log, threshold, critical) -> ExecutionReport:
         s = self.settings
@@ -358,6 +545,10 @@ class MavlinkVehicle(Device):
         setpoints = None
         if log.profile is not None and len(t):
             setpoints = self.frame.from_ned(log.profile.sample(t - log.profile_start)[0])
+            # only while the stream flies the profile: before it the vehicle takes off from its pad, after it
+            # it lands (NAV_LAND), and "the setpoint" is then the profile's end, which it leaves on purpose
+            since = t - log.profile_start
+            setpoints[(since < 0) | (since > log.profile.duration)] = np.nan
         metrics, arrays = flight_metrics(
             t, flown, velocity, trajectory.space, planned, log.path_window, threshold, critical, setpoints
         )
@@ -368,8 +559,11 @@ class MavlinkVehicle(Device):
             **route.metrics,
             **log.metrics,
             **metrics,
-            **self.endpoint.stats.to_json(),
+            **self._link_metrics(),
             "heartbeats_received": self.gcs.vehicle.heartbeats,
+            "autopilot_capabilities": self.capabilities,
+            "vehicle_parameters": self.vehicle_params,
+            "parameters_set": self.params_set,
             "setpoints_sent": self.endpoint.stats.sent["SET_POSITION_TARGET_LOCAL_NED"],
             "signed": self.endpoint.signed,
         }
@@ -379,8 +573,8 @@ class MavlinkVehicle(Device):
         context = self.context
         if context is not None and len(t):
             name = context.name
-            write_flight_csv(context.output_dir / f"flight-{name}.csv", t, flown, velocity, arrays)
-            files.append(f"flight-{name}.csv")
+            write_flight_csv(context.output_dir / f"{name}.csv", t, flown, velocity, arrays)
+            files.append(f"{name}.csv")
             if s.figure:
                 title = f"{name} (mavlink_vehicle, {s.mode}): {log.status}; {describe(metrics)}"
                 flight_figure(
@@ -395,9 +589,24 @@ class MavlinkVehicle(Device):
                     threshold,
                     critical,
                     title,
+                    link=np.array(self.gcs.vehicle.link) if self.gcs.vehicle.link else None,
+                    link_text=_link_text(metrics),
                 )
                 files.append(f"{name}.png")
         return ExecutionReport(log.status, metrics, flown if len(flown) else None, log.faults, log.message, files)
+
+
+def _link_text(metrics: dict) -> str:
+    """The link's totals for the figure: losses each way and what the mission upload had to repeat."""
+    text = f"lost: {metrics['messages_dropped_in']} of the vehicle's messages ({100 * metrics['link_loss_in']:.1f} %)"
+    if metrics.get("messages_dropped_out") is not None:
+        text += f", {metrics['messages_dropped_out']} of ours ({100 * metrics['link_loss_out']:.1f} %)"
+    if "upload_requests" in metrics:
+        text += (
+            f"\nupload: {metrics['upload_requests']} requests for {metrics['mission_items']} items, "
+            f"{metrics['upload_repeated_requests']} repeated, {metrics['upload_retransmissions']} re-sent"
+        )
+    return text
 
 
 def _autopilot(value: int) -> str:

@@ -12,9 +12,11 @@ an obstacle refuses the flight.
 Two ways to fly it (the ``mode`` setting):
 
 * ``mission``: a mission (DO_CHANGE_SPEED, NAV_TAKEOFF, NAV_WAYPOINT...,
-  NAV_LAND) uploaded with the mission protocol, then hold mode, arming and
-  mission mode (which starts it, exactly once), each acknowledged; progress
-  from MISSION_CURRENT and MISSION_ITEM_REACHED;
+  NAV_LAND) in MAV_FRAME_GLOBAL_RELATIVE_ALT (or MAV_FRAME_GLOBAL),
+  uploaded with the mission protocol and downloaded back to check that the
+  vehicle holds what was sent (else the flight does not start), then hold
+  mode, arming and mission mode (which starts it, exactly once), each
+  acknowledged; progress from MISSION_CURRENT and MISSION_ITEM_REACHED;
 * ``offboard``: the route time-parameterised (:mod:`.mavlink_profile`) and
   streamed as SET_POSITION_TARGET_LOCAL_NED (position, velocity and
   acceleration) up to the path's end, then NAV_LAND, on the *vehicle's* clock (:mod:`.mavlink_stream`): one
@@ -37,16 +39,45 @@ from typing import Any
 
 import numpy as np
 
-from .conventions import LocalFrame, MapProjection, px4_mode_command
+from .conventions import LocalFrame, px4_mode_command
 from .gcs import GroundStation, LinkLost
-from .link import VehicleError, mavlink
-from .mission import MissionItem
+from .link import VehicleError, enum_name, mavlink
+from .mission import MissionItem, compare_missions
 from .profile import TimedPath
 from .stream import SetpointStream
 
 
 class Refusal(Exception):
     """The flight will not start; the message says why."""
+
+
+def check_path_clearance(trajectory, margin: float) -> None:
+    """Refuse a planned path whose certified clearance is negative or below ``margin`` anywhere.
+
+    Each straight segment of the path is measured exactly (the vehicle a sphere of the space's
+    ``tip_radius`` swept along it: a capsule against every obstacle), whatever planner produced it; the
+    first offending segment is named with its clearance and the obstacle.
+    """
+    space = trajectory.space
+    path = space.tip(np.atleast_2d(trajectory.path))
+    if len(path) < 2:
+        return
+    clearance = space.segment_clearance(path[:-1], path[1:])
+    bad = np.flatnonzero((clearance < margin) | (clearance < 0) | ~np.isfinite(clearance))
+    if not len(bad):
+        return
+    i = int(bad[0])
+    nearest = int(space.scene.segment_distance(path[i][None], path[i + 1][None])[1][0])
+    what = f"'{space.scene.obstacles[nearest].name}'" if nearest >= 0 else "an obstacle"
+    how = "collides with" if clearance[i] < 0 else "passes"
+    radius = getattr(space, "tip_radius", 0.0)
+    limit = f"below safety_margin {margin:g} m" if clearance[i] >= 0 else "a collision"
+    raise Refusal(
+        f"segment {i} of the planned path (waypoints {i} to {i + 1}: {np.round(path[i], 3).tolist()} to "
+        f"{np.round(path[i + 1], 3).tolist()} m) {how} {what}: certified clearance {clearance[i]:.3f} m for the "
+        f"vehicle's {radius:g} m radius, {limit} ({len(bad)} of {len(clearance)} segments below it; "
+        f"plan stage '{trajectory.source}')"
+    )
 
 
 @dataclass
@@ -140,9 +171,11 @@ class Flight:
         self.frame = frame
         self.route = route
         self.progress = progress
-        #: (MapProjection, home altitude frame offset) for global mission items
-        self.geo: tuple[MapProjection, float] | None = geo
+        #: (MapProjection, home's local down, the EKF origin's altitude AMSL) for global mission items
+        self.geo = geo
         self.log = FlightLog()
+        #: upload as the deprecated MISSION_ITEM (a vehicle without MAV_PROTOCOL_CAPABILITY_MISSION_INT)
+        self.legacy_missions = False
         self.route_ned = frame.to_ned(route.points)
 
     # ------------------------------------------------------------------ missions
@@ -172,17 +205,18 @@ class Flight:
         return items, first, last
 
     def _nav(self, command: int, ned: np.ndarray, **params) -> MissionItem:
+        """A position item at local NED ``ned``: latitude/longitude about the EKF origin, altitude above home
+        (MAV_FRAME_GLOBAL_RELATIVE_ALT) or AMSL (MAV_FRAME_GLOBAL)."""
         if self.geo is None:
-            return MissionItem(command, mavlink.MAV_FRAME_LOCAL_NED, *map(float, ned), **params)
-        projection, home_down = self.geo
+            raise VehicleError("the vehicle's EKF origin is unknown: no global mission items", step="mission")
+        projection, home_down, origin_alt = self.geo
         lat, lon = projection.reproject(ned[0], ned[1])
+        if self.settings.mission_frame == "global":
+            return MissionItem(
+                command, mavlink.MAV_FRAME_GLOBAL, float(lat), float(lon), float(origin_alt - ned[2]), **params
+            )
         return MissionItem(
-            command,
-            mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-            float(lat),
-            float(lon),
-            float(home_down - ned[2]),
-            **params,
+            command, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, float(lat), float(lon), float(home_down - ned[2]), **params
         )
 
     def fly_mission(self) -> FlightLog:
@@ -192,10 +226,22 @@ class Flight:
         gcs.step = "mission upload"
         started = time.monotonic()
         with self.progress.task("uploading mission", total=len(items)) as task:
-            stats, transfers = gcs.upload(items, progress=task)
+            stats, transfers = gcs.upload(items, progress=task, legacy=self.legacy_missions)
+        uploaded = time.monotonic() - started
+        gcs.step = "mission verify"
+        held = gcs.download(legacy=self.legacy_missions)
+        difference = compare_missions(items, held, self.legacy_missions)
+        if difference is not None:
+            raise VehicleError(
+                f"the mission downloaded back differs from the one uploaded: {difference}", step=gcs.step
+            )
         log.metrics.update(
+            mission_verified=True,
+            mission_message="MISSION_ITEM" if self.legacy_missions else "MISSION_ITEM_INT",
+            mission_frame=enum_name("MAV_FRAME", items[-1].frame),
+            download_s=time.monotonic() - started - uploaded,
             mission_items=len(items),
-            upload_s=time.monotonic() - started,
+            upload_s=uploaded,
             upload_transfers=transfers,
             upload_retransmissions=stats.retransmissions,
             upload_requests=stats.requests,

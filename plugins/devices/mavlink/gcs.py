@@ -1,4 +1,4 @@
-"""The ground-station side of a MAVLink link: heartbeats and liveness, commands, mission upload.
+"""The ground-station side of a MAVLink link: heartbeats and liveness, commands, missions, parameters.
 
 mavlink.io services used:
 
@@ -7,9 +7,17 @@ mavlink.io services used:
 * *Command protocol*: COMMAND_LONG, re-sent with ``confirmation`` increased
   when no COMMAND_ACK arrives within the timeout (default 1.5 s, 5 retries);
   MAV_RESULT_IN_PROGRESS extends the wait.
-* *Mission protocol*: :class:`~.mavlink_mission.MissionUpload`; a transfer
+* *Mission protocol*: :class:`~.mission.MissionUpload`; a transfer
   that fails for a lost link is started again from MISSION_COUNT up to
-  ``upload_attempts`` times, a refusal (MISSION_ACK with an error) never is.
+  ``upload_attempts`` times, a refusal (MISSION_ACK with an error) never is;
+  :class:`~.mission.MissionDownload` and :class:`~.mission.MissionClear`
+  likewise (a download is how an upload is verified).
+* *Parameter protocol*: :class:`ParamTransaction` reads one parameter by name
+  (PARAM_REQUEST_READ) or sets it (PARAM_SET) and waits for the vehicle's
+  PARAM_VALUE, re-sent after each timeout; INT32 values are decoded bytewise
+  when the vehicle says it encodes them so (PX4), by a C cast otherwise.
+* *Capabilities*: AUTOPILOT_VERSION (MAV_CMD_REQUEST_MESSAGE), whose
+  ``capabilities`` bits say which protocols the vehicle honours.
 * *Offboard control* and telemetry rates (MAV_CMD_SET_MESSAGE_INTERVAL,
   MAV_CMD_REQUEST_MESSAGE) are thin helpers over the command protocol.
 
@@ -23,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -31,7 +40,7 @@ import numpy as np
 
 from .conventions import px4_mode_command, px4_mode_name
 from .link import Endpoint, VehicleError, enum_description, enum_name, is_mavlink2, mavlink
-from .mission import MissionItem, MissionUpload, UploadStatistics
+from .mission import MISSION, MissionClear, MissionDownload, MissionItem, MissionUpload, UploadStatistics
 
 log = logging.getLogger("surgiplan.devices.mavlink")
 
@@ -112,6 +121,100 @@ class CommandTransaction:
         return [self._message()]
 
 
+def param_to_wire(kind: int, value: float | int, bytewise: bool) -> float:
+    """The float that carries ``value`` in PARAM_SET: bytewise (PX4) or cast (C) for an INT32."""
+    if kind == mavlink.MAV_PARAM_TYPE_INT32 and bytewise:
+        return struct.unpack("<f", struct.pack("<i", int(value)))[0]
+    return float(value)
+
+
+def param_from_wire(kind: int, carried: float, bytewise: bool) -> float | int:
+    """The value a PARAM_VALUE carries."""
+    if kind == mavlink.MAV_PARAM_TYPE_INT32:
+        return struct.unpack("<i", struct.pack("<f", carried))[0] if bytewise else round(carried)
+    return float(np.float32(carried))
+
+
+def _param_name(message) -> str:
+    name = message.param_id
+    return (name.decode("ascii", "replace") if isinstance(name, bytes) else str(name)).rstrip("\x00")
+
+
+class ParamTransaction:
+    """Read (``value`` None) or set one parameter, ground-station side, without I/O.
+
+    Finished when a PARAM_VALUE of that name arrives (for a set: the value it
+    now has, which is the old one when the vehicle refused); re-sent after
+    each ``timeout`` up to ``retries`` times.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        target: tuple[int, int],
+        *,
+        value: float | int | None = None,
+        kind: int = mavlink.MAV_PARAM_TYPE_REAL32,
+        bytewise: bool = True,
+        timeout: float = 1.5,
+        retries: int = 5,
+    ) -> None:
+        self.name = name
+        self.target = target
+        self.value = value
+        self.kind = kind
+        self.bytewise = bytewise
+        self.timeout = timeout
+        self.retries = retries
+        self.attempts = 0
+        self.deadline = math.inf
+        self.result: float | int | None = None
+        self.result_kind: int | None = None
+        self.timed_out = False
+
+    @property
+    def finished(self) -> bool:
+        return self.result is not None or self.timed_out
+
+    def _message(self):
+        if self.value is None:
+            return mavlink.MAVLink_param_request_read_message(*self.target, self.name.encode(), -1)
+        wire = param_to_wire(self.kind, self.value, self.bytewise)
+        return mavlink.MAVLink_param_set_message(*self.target, self.name.encode(), wire, self.kind)
+
+    def start(self, now: float) -> list:
+        self.deadline = now + self.timeout
+        return [self._message()]
+
+    def on_message(self, message, now: float) -> list:
+        if self.finished or message.get_type() != "PARAM_VALUE" or _param_name(message) != self.name:
+            return []
+        self.result_kind = int(message.param_type)
+        self.result = param_from_wire(self.result_kind, message.param_value, self.bytewise)
+        self.deadline = math.inf
+        return []
+
+    def on_timer(self, now: float) -> list:
+        if self.finished or now < self.deadline:
+            return []
+        if self.attempts >= self.retries:
+            self.timed_out = True
+            self.deadline = math.inf
+            return []
+        self.attempts += 1
+        self.deadline = now + self.timeout
+        return [self._message()]
+
+
+def capability_names(bits: int) -> list[str]:
+    """MAV_PROTOCOL_CAPABILITY names of the bits set in ``bits``."""
+    names = []
+    for value, entry in sorted(mavlink.enums["MAV_PROTOCOL_CAPABILITY"].items()):
+        if value and value & (value - 1) == 0 and bits & value and not entry.name.endswith("_ENUM_END"):
+            names.append(entry.name.removeprefix("MAV_PROTOCOL_CAPABILITY_"))
+    return names
+
+
 @dataclass
 class PositionSample:
     """One LOCAL_POSITION_NED: vehicle time (s), position (m) and velocity (m/s) in NED."""
@@ -144,6 +247,10 @@ class VehicleState:
     #: (seq, vehicle time s) whenever MISSION_CURRENT showed a new current item
     current_changes: list[tuple[int, float]] = field(default_factory=list)
     statustext: list[str] = field(default_factory=list)
+    #: AUTOPILOT_VERSION.capabilities (None until read)
+    capabilities: int | None = None
+    #: (vehicle time s, messages lost, messages received) of the vehicle's stream, by its sequence numbers
+    link: list[tuple[float, int, int]] = field(default_factory=list)
 
     @property
     def on_ground(self) -> bool:
@@ -173,6 +280,7 @@ class GroundStation:
         command_retries: int = 5,
         mission_timeout: float = 1.5,
         mission_retries: int = 5,
+        item_timeout: float = 0.5,
         upload_attempts: int = 3,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -183,6 +291,9 @@ class GroundStation:
         self.command_retries = command_retries
         self.mission_timeout = mission_timeout
         self.mission_retries = mission_retries
+        #: how long a download waits for each item, and a parameter read or set for its PARAM_VALUE, before
+        #: asking again: the vehicle answers these at once (MAVSDK's default timeout, 0.5 s)
+        self.item_timeout = item_timeout
         self.upload_attempts = upload_attempts
         self.clock = clock
         self.vehicle = VehicleState()
@@ -237,6 +348,8 @@ class GroundStation:
             mine.append(message)
         for transaction in self._transactions:
             self.send(transaction.on_timer(now))
+        if self.recording and any(m.get_type() == "LOCAL_POSITION_NED" for m in mine):
+            self.vehicle.link.append((self.vehicle.vehicle_time, self.link.lost_in, self.link.counted_in))
         for ticker in list(self.tickers):
             ticker(mine, now)
         self._heartbeat(now)
@@ -376,12 +489,23 @@ class GroundStation:
         return transaction.result
 
     def set_message_interval(self, message_id: int, rate: float) -> bool:
-        """Ask for a message at ``rate`` Hz; False when the vehicle does not support it."""
-        result = self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, [message_id, 1e6 / rate], accept_unsupported=True)
+        """Ask for a message at ``rate`` Hz (0: not at all); False when the vehicle does not support it."""
+        interval = 1e6 / rate if rate > 0 else -1
+        result = self.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, [message_id, interval], accept_unsupported=True)
         return result == RESULT_ACCEPTED
 
+    def stop_message(self, message_id: int) -> bool:
+        """Ask the vehicle not to stream a message (any refusal is fine: it is only bandwidth)."""
+        try:
+            return self.set_message_interval(message_id, 0)
+        except VehicleError:
+            return False
+
     def request_message(self, message_type: str, message_id: int, timeout: float):
-        """MAV_CMD_REQUEST_MESSAGE, then wait for the message itself."""
+        """MAV_CMD_REQUEST_MESSAGE, then wait for the message itself.
+
+        On a lossy link the message can be lost after its request was acknowledged: then it is requested
+        again (the command protocol's timeout and retries), for at most ``timeout`` s overall."""
         got = []
 
         def collect(messages, now) -> None:  # it may come in the same datagram burst as the ACK
@@ -389,12 +513,15 @@ class GroundStation:
 
         self.tickers.append(collect)
         try:
-            self.command(mavlink.MAV_CMD_REQUEST_MESSAGE, [message_id])
             deadline = self.clock() + timeout
             while not got:
-                if self.clock() > deadline:
+                self.command(mavlink.MAV_CMD_REQUEST_MESSAGE, [message_id])
+                wait = min(self.command_timeout, max(deadline - self.clock(), 0.0))
+                until = self.clock() + wait
+                while not got and self.clock() < until:
+                    self.pump(0.05)
+                if not got and self.clock() >= deadline:
                     raise VehicleError(f"the vehicle did not send {message_type} within {timeout:g} s", step=self.step)
-                self.pump(0.1)
         finally:
             self.tickers.remove(collect)
         return got[0]
@@ -415,11 +542,18 @@ class GroundStation:
         self.wait_for(lambda: self.vehicle.armed, timeout, "the vehicle's HEARTBEAT did not show it armed")
 
     # ------------------------------------------------------------------ missions
-    def upload(self, items: Sequence[MissionItem], progress=None) -> tuple[UploadStatistics, int]:
-        """Upload a mission; returns the statistics of the successful transfer and the number of transfers."""
+    def upload(
+        self, items: Sequence[MissionItem], progress=None, *, legacy: bool = False, mission_type: int = MISSION
+    ) -> tuple[UploadStatistics, int]:
+        """Upload a list; returns the statistics of the successful transfer and the number of transfers.
+
+        ``legacy``: as MISSION_ITEM (a vehicle without MAV_PROTOCOL_CAPABILITY_MISSION_INT)."""
         last_error = ""
         for attempt in range(1, self.upload_attempts + 1):
-            upload = MissionUpload(items, *self.target, timeout=self.mission_timeout, retries=self.mission_retries)
+            upload = MissionUpload(
+                items, *self.target, timeout=self.mission_timeout, retries=self.mission_retries, legacy=legacy,
+                mission_type=mission_type,
+            )  # fmt: skip
             self._transactions.append(upload)
             done = 0
             try:
@@ -440,6 +574,123 @@ class GroundStation:
                 progress.update(0)
             log.warning("mission upload attempt %d failed: %s", attempt, last_error)
         raise VehicleError(f"{last_error} ({self.upload_attempts} transfers tried)", step=self.step)
+
+    def _exchange(self, transaction, what: str):
+        """Run a mission exchange (download, clear) to its end; :class:`VehicleError` naming ``what``."""
+        self._transactions.append(transaction)
+        try:
+            self.send(transaction.start(self.clock()))
+            while not transaction.finished:
+                self.pump(0.1)
+        finally:
+            self._transactions.remove(transaction)
+        if transaction.state != "done":
+            raise VehicleError(f"{what}: {transaction.error}", step=self.step)
+        return transaction
+
+    def download(self, mission_type: int = MISSION, *, legacy: bool = False) -> list[MissionItem]:
+        """Download a list (mission, fence or rally points) from the vehicle; tried ``upload_attempts`` times."""
+        for attempt in range(1, self.upload_attempts + 1):
+            download = MissionDownload(
+                *self.target, timeout=self.mission_timeout, retries=self.mission_retries, mission_type=mission_type,
+                legacy=legacy, item_timeout=self.item_timeout,
+            )  # fmt: skip
+            try:
+                return self._exchange(download, "mission download").items
+            except VehicleError:
+                if download.result is not None or attempt == self.upload_attempts:
+                    raise
+                log.warning("mission download attempt %d failed: %s", attempt, download.error)
+        raise AssertionError("unreachable")
+
+    def clear(self, mission_type: int = MISSION) -> None:
+        """MISSION_CLEAR_ALL for one list (or MAV_MISSION_TYPE_ALL), acknowledged."""
+        clear = MissionClear(
+            *self.target, timeout=self.mission_timeout, retries=self.mission_retries, mission_type=mission_type
+        )
+        self._exchange(clear, "mission clear")
+
+    # ------------------------------------------------------------------ parameters
+    @property
+    def bytewise_params(self) -> bool:
+        """Whether INT32 parameters travel bytewise (PX4, or the capability bit) rather than C-cast."""
+        caps = self.vehicle.capabilities or 0
+        if caps & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST:
+            return False
+        return bool(caps & mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE) or (
+            self.vehicle.autopilot == mavlink.MAV_AUTOPILOT_PX4
+        )
+
+    @property
+    def item_retries(self) -> int:
+        """Retries of the quick exchanges (an item, a parameter): as many as fit a command's patience."""
+        return max(
+            self.command_retries, math.ceil(self.command_timeout * (self.command_retries + 1) / self.item_timeout) - 1
+        )
+
+    def _param(self, transaction: ParamTransaction) -> ParamTransaction:
+        self._transactions.append(transaction)
+        try:
+            self.send(transaction.start(self.clock()))
+            while not transaction.finished:
+                self.pump(0.1)
+        finally:
+            self._transactions.remove(transaction)
+        return transaction
+
+    def read_param(self, name: str) -> tuple[float | int, int]:
+        """A parameter's value and MAV_PARAM_TYPE; :class:`VehicleError` when the vehicle does not answer."""
+        return self.read_params([name])[name]
+
+    def read_params(self, names: Sequence[str]) -> dict[str, tuple[float | int, int]]:
+        """Several parameters at once (their requests and retries in parallel): name -> (value, MAV_PARAM_TYPE)."""
+        reads = [
+            ParamTransaction(
+                name, self.target, bytewise=self.bytewise_params, timeout=self.item_timeout,
+                retries=self.item_retries,
+            )
+            for name in names
+        ]  # fmt: skip
+        self._transactions.extend(reads)
+        try:
+            for read in reads:
+                self.send(read.start(self.clock()))
+            while not all(read.finished for read in reads):
+                self.pump(0.1)
+        finally:
+            for read in reads:
+                self._transactions.remove(read)
+        for read in reads:
+            if read.timed_out:
+                raise VehicleError(
+                    f"the vehicle did not send parameter {read.name} after {read.attempts + 1} requests "
+                    f"({self.item_timeout:g} s apart): it has no such parameter",
+                    step=self.step,
+                )
+        return {read.name: (read.result, read.result_kind) for read in reads}
+
+    def set_param(self, name: str, value: float | int, kind: int = mavlink.MAV_PARAM_TYPE_REAL32) -> float | int:
+        """Set a parameter and check the vehicle's PARAM_VALUE says it took the value; returns it."""
+        write = self._param(
+            ParamTransaction(
+                name, self.target, value=value, kind=kind, bytewise=self.bytewise_params,
+                timeout=self.item_timeout, retries=self.item_retries,
+            )
+        )  # fmt: skip
+        if write.timed_out:
+            raise VehicleError(f"the vehicle did not confirm setting {name} to {value:g}", step=self.step)
+        if np.float32(write.result) != np.float32(value):
+            reasons = f"; vehicle says: {self.vehicle.statustext[-1]}" if self.vehicle.statustext else ""
+            raise VehicleError(
+                f"the vehicle kept {name} at {write.result:g} when set to {value:g}{reasons}", step=self.step
+            )
+        return write.result
+
+    def autopilot_version(self, timeout: float = 5.0):
+        """AUTOPILOT_VERSION (MAV_CMD_REQUEST_MESSAGE); its capabilities are kept in :attr:`vehicle`."""
+        message = self.request_message("AUTOPILOT_VERSION", mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, timeout)
+        self.vehicle.capabilities = int(message.capabilities)
+        return message
 
     # ------------------------------------------------------------------ offboard
     def position_target(self, vehicle_time: float, position, velocity, acceleration):

@@ -3,7 +3,7 @@
 Everything protocol-level (encoding, CRCs, sequence numbers, MAVLink 2
 signing, serial/UDP/TCP transports) is pymavlink's; this module opens a
 ``mavutil`` connection in the form users know from MAVProxy and QGroundControl
-(``udpin:0.0.0.0:14550``, ``udpout:127.0.0.1:14560``, ``tcp:127.0.0.1:5760``,
+(``udpin:127.0.0.1:14550``, ``udpout:127.0.0.1:14560``, ``tcp:127.0.0.1:5760``,
 ``/dev/ttyACM0``), makes sure MAVLink 2 is spoken, and adds what both ends of
 surgiplan's links need: signing set up from a key in the settings, and (for
 the simulated vehicle) packet loss injected in both directions.
@@ -59,6 +59,8 @@ class VehicleError(SurgiplanError):
 
     def __init__(self, message: str, *, step: str = "", **kwargs) -> None:
         self.step = step
+        #: the message without the step
+        self.detail = message
         super().__init__(f"{step}: {message}" if step else message, **kwargs)
 
 
@@ -158,6 +160,7 @@ class Endpoint:
         except (OSError, ValueError) as exc:
             raise VehicleError(f"cannot open MAVLink connection '{connection}': {exc}", step="connect") from None
         self.mav = self.conn.mav
+        self._bind_loopback(connection)
         self._enlarge_receive_buffer()
         self.stats = LinkStatistics(Counter(), Counter())
         self.loss = float(loss)
@@ -168,6 +171,20 @@ class Endpoint:
         if key is not None:
             # no allow_unsigned_callback: an unsigned frame or a wrong signature is rejected
             self.conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
+
+    def _bind_loopback(self, connection: str) -> None:
+        """``udpout`` to a loopback address: bind the socket to loopback too.
+
+        pymavlink leaves a ``udpout`` socket unbound, and the kernel binds it to the wildcard address
+        (every interface) at the first send; bound to 127.0.0.1 (or ::1) the link is loopback at both ends.
+        """
+        kind, _, rest = connection.partition(":")
+        host = rest.rpartition(":")[0].strip("[]")
+        sock = getattr(self.conn, "port", None)
+        if kind != "udpout" or not isinstance(sock, socket.socket) or host not in ("127.0.0.1", "localhost", "::1"):
+            return
+        with contextlib.suppress(OSError):
+            sock.bind(("::1" if host == "::1" else "127.0.0.1", 0))
 
     def _enlarge_receive_buffer(self) -> None:
         """Ask for a 4 MB socket receive buffer (the kernel caps it at net.core.rmem_max).
@@ -236,6 +253,16 @@ class Endpoint:
             self.stats.received[kind] += 1
             out.append(message)
         return out
+
+    @property
+    def lost_in(self) -> int:
+        """Messages of the peer that never arrived, by the gaps in its MAVLink sequence numbers (pymavlink)."""
+        return int(getattr(self.conn, "mav_loss", 0))
+
+    @property
+    def counted_in(self) -> int:
+        """Messages that arrived and were counted for :attr:`lost_in`."""
+        return int(getattr(self.conn, "mav_count", 0))
 
     @property
     def signature_rejections(self) -> int:

@@ -124,8 +124,10 @@ def flight_metrics(
     if setpoints is not None and np.any(in_path):
         error = np.linalg.norm(flown - setpoints, axis=1)
         arrays["setpoint_error"] = error
-        metrics["setpoint_error_max_m"] = float(error[in_path].max())
-        metrics["setpoint_error_rms_m"] = float(np.sqrt(np.mean(error[in_path] ** 2)))
+        during = in_path & np.isfinite(error)
+        if np.any(during):
+            metrics["setpoint_error_max_m"] = float(error[during].max())
+            metrics["setpoint_error_rms_m"] = float(np.sqrt(np.mean(error[during] ** 2)))
     return metrics, arrays
 
 
@@ -150,16 +152,24 @@ def flight_figure(
     threshold: float | None,
     critical: list[tuple[float, float]],
     title: str,
+    link: np.ndarray | None = None,
+    link_text: str = "",
 ) -> None:
-    """Planned versus flown: a top view coloured by clearance, and clearance and deviation over time."""
+    """Planned versus flown: a top view coloured by clearance, and clearance, deviation and (given ``link``)
+    the link's losses over time.
+
+    ``link``: rows (vehicle time s, messages of the vehicle lost so far, received so far), from the gaps in
+    its MAVLink sequence numbers; drawn as the share lost per second of vehicle time, with ``link_text``
+    (totals) beside it."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection, PolyCollection
 
-    fig = plt.figure(figsize=(14, 6.2))
-    grid = fig.add_gridspec(2, 2, width_ratios=[1.7, 1.0], hspace=0.35, wspace=0.3)
+    rows = 3 if link is not None and len(link) >= 2 else 2
+    fig = plt.figure(figsize=(14, 6.2 if rows == 2 else 8.0))
+    grid = fig.add_gridspec(rows, 2, width_ratios=[1.7, 1.0], hspace=0.45, wspace=0.3)
     top = fig.add_subplot(grid[:, 0])
     for obstacle in scene.obstacles:
         mesh = obstacle.to_trimesh()
@@ -246,9 +256,28 @@ def flight_figure(
     clearance_ax.set_ylim(0, max(3 * (threshold or 0), 3 * (metrics.get("planned_min_clearance_m") or 0), 0.5))
     clearance_ax.legend(fontsize=7, loc="upper right")
     deviation_ax.set_ylabel("tracking error (m)")
-    deviation_ax.set_xlabel("vehicle time since arming (s)")
     deviation_ax.set_ylim(bottom=0)
     deviation_ax.legend(fontsize=7, loc="upper right")
+    bottom = deviation_ax
+    if rows == 3 and len(t):
+        link_ax = fig.add_subplot(grid[2, 1], sharex=clearance_ax)
+        times, lost, received = (np.asarray(c, float) for c in np.asarray(link).T)
+        edges = np.arange(np.floor(times[0]), np.ceil(times[-1]) + 1.0, 1.0)
+        at = np.searchsorted(times, edges, side="right") - 1
+        at = np.clip(at, 0, len(times) - 1)
+        d_lost, d_received = np.diff(lost[at]), np.diff(received[at])
+        share = np.where(d_lost + d_received > 0, 100 * d_lost / np.maximum(d_lost + d_received, 1), 0.0)
+        link_ax.bar(edges[:-1] - t[0], share, width=1.0, align="edge", color="#d62728", alpha=0.6,
+                    label="vehicle's messages lost (per s)")  # fmt: skip
+        total = 100 * (lost[-1] - lost[0]) / max((lost[-1] - lost[0]) + (received[-1] - received[0]), 1)
+        link_ax.axhline(total, color="#333333", linestyle="--", linewidth=1, label=f"over the flight: {total:.1f} %")
+        link_ax.set_ylabel("link loss (%)")
+        link_ax.set_ylim(0, max(5.0, float(share.max()) * 1.5 if len(share) else 5.0))
+        link_ax.legend(fontsize=7, loc="upper right", ncol=2)
+        if link_text:
+            link_ax.set_title(link_text, fontsize=7, loc="left")
+        bottom = link_ax
+    bottom.set_xlabel("vehicle time since arming (s)")
     fig.suptitle(title, fontsize=10)
     try:
         with atomic_write(path, "wb") as handle:

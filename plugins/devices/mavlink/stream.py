@@ -20,6 +20,15 @@ of the vehicle's clock alone. A real PX4 applies a setpoint on receipt
 A wall-clock keep-alive (every ``keepalive`` s) repeats the newest setpoint
 when the vehicle's clock does not advance (a stalled simulation, lost
 telemetry), so that the vehicle never sees the stream lapse.
+
+The profile is sampled at its own time since the start, computed in whole
+grid periods (``(index - start index) * period``), never as the difference
+of two absolute vehicle times: that difference carries rounding that
+depends on *when* the profile started, and the timed path's acceleration
+jumps at its phase boundaries (a climb at 1 m/s^2 to 0.5 m/s ends exactly at
+0.5 s, a grid time), so a boundary sampled at 0.4999999999999998 s instead
+of 0.5 s sent a = 1 m/s^2 instead of 0 with that setpoint, and the vehicle,
+extrapolating it over the next 50 ms, flew a different flight.
 """
 
 from __future__ import annotations
@@ -52,6 +61,8 @@ class SetpointStream:
         self.lead_ms = int(lead_ms)
         #: vehicle time (s) at which the profile starts (a grid time)
         self.start = math.inf
+        #: ... as a grid index (the profile's own time is counted from it in whole periods)
+        self.start_index: int | None = None
         self._last_index: int | None = None  # grid index of the newest setpoint sent
         self._last_wall = -math.inf
         self.sent = 0
@@ -62,18 +73,22 @@ class SetpointStream:
     def begin(self) -> float:
         """Start the profile at the first grid time two leads after the vehicle's newest report (vehicle s):
         every setpoint already sent (at most one lead ahead) is still the hold."""
-        self.start = math.ceil((self._now_ms() + 2 * self.lead_ms) / self.period_ms) * self.period_ms / 1000
+        self.start_index = -(-(self._now_ms() + 2 * self.lead_ms) // self.period_ms)
+        self.start = self.start_index * self.period_ms / 1000
         return self.start
 
-    def setpoints(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Position, velocity and acceleration (NED; m, m/s, m/s^2) at vehicle times ``times`` (s)."""
-        times = np.atleast_1d(np.asarray(times, float))
-        p = np.repeat(self.hold[None], len(times), axis=0)
+    def setpoints(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and acceleration (NED; m, m/s, m/s^2) at grid indices ``indices``
+        (vehicle time ``index * period``)."""
+        indices = np.atleast_1d(np.asarray(indices, np.int64))
+        p = np.repeat(self.hold[None], len(indices), axis=0)
         v = np.zeros_like(p)
         a = np.zeros_like(p)
-        flying = times >= self.start
-        if np.any(flying):
-            p[flying], v[flying], a[flying] = self.profile.sample(times[flying] - self.start)
+        if self.start_index is not None:
+            flying = indices >= self.start_index
+            if np.any(flying):
+                since = (indices[flying] - self.start_index) * self.period_ms / 1000  # exact: see the docstring
+                p[flying], v[flying], a[flying] = self.profile.sample(since)
         return p, v, a
 
     def __call__(self, messages, now: float) -> None:
@@ -85,7 +100,7 @@ class SetpointStream:
                 return
             indices = np.array([self._last_index])
         times = indices * self.period_ms / 1000
-        p, v, a = self.setpoints(times)
+        p, v, a = self.setpoints(indices)
         gcs = self.gcs
         gcs.send([gcs.position_target(t, *x) for t, *x in zip(times, p, v, a, strict=True)])
         self._last_index = int(max(indices[-1], self._last_index if self._last_index is not None else indices[-1]))

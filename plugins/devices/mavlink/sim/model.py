@@ -90,6 +90,8 @@ class PointMassMultirotor:
         self.gusts = Gusts(wind, seed)
         self.wind = np.array(self.gusts.wind)
         self.airborne = False
+        #: the acceleration the controller asks for beyond gravity (NED m/s^2): the attitude follows it
+        self.thrust = (0.0, 0.0, 0.0)
 
     @property
     def on_ground(self) -> bool:
@@ -110,6 +112,7 @@ class PointMassMultirotor:
         drag = a.drag
         if not armed or reference is None:
             self.integral = np.zeros(3)
+            self.thrust = (0.0, 0.0, 0.0)
             if self.on_ground:
                 self.v = np.zeros(3)
                 return
@@ -119,20 +122,21 @@ class PointMassMultirotor:
             (rx, ry, rz), (ux, uy, uz), (fx, fy, fz) = (tuple(float(c) for c in x) for x in reference)
             # position P loop with velocity feed-forward, clipped to the airframe's speeds
             sx, sy = _clip_horizontal(ux + a.position_gain * (rx - px), uy + a.position_gain * (ry - py), a.max_speed)
-            sz = min(max(uz + a.position_gain * (rz - pz), -a.max_climb), a.max_descent)
+            sz = min(max(uz + a.position_gain_z * (rz - pz), -a.max_climb), a.max_descent)
             ex, ey, ez = sx - vx, sy - vy, sz - vz
             ix, iy, iz = (float(x) for x in self.integral)
-            k = a.velocity_gain
+            k, kz = a.velocity_gain, a.velocity_gain_z
             cx, cy, cz = _clip_norm(
                 fx + k * ex + ix + drag * vx,
                 fy + k * ey + iy + drag * vy,
-                fz + k * ez + iz + drag * vz,
+                fz + kz * ez + iz + drag * vz,
                 a.max_acceleration,
             )
+            self.thrust = (cx, cy, cz)
             # anti-windup: integrate only while the thrust is not saturated
             if math.sqrt(cx * cx + cy * cy + cz * cz) < a.max_acceleration * 0.999:
-                ki = a.velocity_integral * dt
-                self.integral = np.array([ix + ki * ex, iy + ki * ey, iz + ki * ez])
+                ki, kiz = a.velocity_integral * dt, a.velocity_integral_z * dt
+                self.integral = np.array([ix + ki * ex, iy + ki * ey, iz + kiz * ez])
             ax, ay, az = cx + drag * (wx - vx), cy + drag * (wy - vy), cz + drag * (wz - vz)
             if self.on_ground and cz >= 0:
                 # thrust at or below hover: it stays on the ground, which holds it against the wind too

@@ -10,6 +10,12 @@ can be rehearsed from the pipeline file::
       sim: {stop_answering: mission_upload}                     # the vehicle goes silent
       sim: {reject_mission: MAV_MISSION_NO_SPACE}               # the vehicle refuses
       sim: {heartbeat_loss: {at_s: 3}}                          # heartbeats stop in flight
+      sim: {params: {MPC_XY_VEL_MAX: 1.0}}                       # a vehicle configured slower
+      sim: {rates: {ATTITUDE: 0}}                                # telemetry rates (Hz) other than PX4's
+
+Several settings are PX4 parameters as well (the ``params`` table of
+:mod:`.params` names which): they are the parameters' values at power-up,
+and a ground station that sets the parameter changes the simulation.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from __future__ import annotations
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, field_validator, model_validator
-from surgiplan.plugins.devices.mavlink.link import enum_value, signing_key
+from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_key
 
 
 class _Strict(BaseModel):
@@ -70,6 +76,14 @@ class Airframe(_Strict):
     landing_speed: PositiveFloat = 0.5  # m/s
     #: default acceptance radius of waypoints whose param2 is 0 (m)
     acceptance_radius: PositiveFloat = 0.3
+    #: acceleration along mission and return legs (m/s^2; PX4 MPC_ACC_HOR)
+    auto_acceleration: PositiveFloat = 2.0
+    #: climb speed of a take-off (m/s; PX4 MPC_TKO_SPEED)
+    takeoff_speed: PositiveFloat = 1.5
+    #: vertical gains (PX4 MPC_Z_P, MPC_Z_VEL_P_ACC, MPC_Z_VEL_I_ACC); the horizontal ones above are MPC_XY_*
+    position_gain_z: PositiveFloat = 1.0
+    velocity_gain_z: PositiveFloat = 2.0
+    velocity_integral_z: NonNegativeFloat = 0.4
 
 
 class SimSettings(_Strict):
@@ -89,8 +103,11 @@ class SimSettings(_Strict):
     step: PositiveFloat = 0.01
     #: HEARTBEAT rate (Hz, wall clock: the link's, not the physics')
     heartbeat_rate: PositiveFloat = 1.0
-    #: LOCAL_POSITION_NED rate until a ground station asks otherwise (Hz, vehicle time)
-    position_rate: PositiveFloat = 10.0
+    #: telemetry rates (Hz of vehicle time, 0: off) other than PX4's defaults for a ground station link
+    #: (MAVLINK_MODE_NORMAL: LOCAL_POSITION_NED 1, GLOBAL_POSITION_INT 5, ATTITUDE 15, ...; see telemetry.STREAMS)
+    rates: dict[str, NonNegativeFloat] = Field(default_factory=dict)
+    #: PX4 parameters at power-up (name -> value), over the settings they stand for
+    params: dict[str, float] = Field(default_factory=dict)
     #: where the vehicle stands at power-up, local NED (m); the ground is at its z
     home: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: the EKF origin (GPS_GLOBAL_ORIGIN): latitude, longitude (deg), altitude AMSL (m)
@@ -107,6 +124,18 @@ class SimSettings(_Strict):
     mission_retries: int = Field(default=20, ge=0)
     #: offboard setpoints older than this stop offboard control (PX4 COM_OF_LOSS_T); wall s with lockstep
     offboard_timeout: PositiveFloat = 1.0
+    #: what offboard loss does (PX4 COM_OBL_RC_ACT: 0, 1, 2, 5 hold, 3 return, 4 land)
+    offboard_loss_action: int = Field(default=0, ge=0, le=5)
+    #: take-off altitude above home when a NAV_TAKEOFF gives none (m; PX4 MIS_TAKEOFF_ALT)
+    takeoff_altitude: PositiveFloat = 2.5
+    #: a return first climbs to this height above home, if lower (m; PX4 RTL_RETURN_ALT)
+    rtl_return_altitude: NonNegativeFloat = 60.0
+    #: auto-disarm after landing (s; PX4 COM_DISARM_LAND) and without take-off (wall s; COM_DISARM_PRFLT)
+    disarm_after_landing: PositiveFloat = 1.0
+    disarm_before_takeoff: PositiveFloat = 10.0
+    #: fence and rally-point lists the vehicle can store (as PX4, which stores them; see the README)
+    fence_capacity: int = Field(default=64, ge=0)
+    rally_capacity: int = Field(default=8, ge=0)
     #: MAVLink 2 signing key (64 hex digits or a passphrase); unsigned frames are then rejected
     signing_key: str | None = None
     seed: int = 0
@@ -120,8 +149,12 @@ class SimSettings(_Strict):
     reject_at_item: int | None = Field(default=None, ge=0)
     heartbeat_loss: HeartbeatLoss | None = None
     mission_requests: MissionRequests = Field(default_factory=MissionRequests)
-    #: refuse arming with this reason (a STATUSTEXT and MAV_RESULT_DENIED)
+    #: refuse arming with this reason (a STATUSTEXT and MAV_RESULT_TEMPORARILY_REJECTED)
     refuse_arming: str | None = None
+    #: behave as a vehicle without these MAV_PROTOCOL_CAPABILITY bits (names without the prefix): they are
+    #: not announced, and MISSION_INT withheld makes it request items with MISSION_REQUEST (the deprecated
+    #: float items), SET_POSITION_TARGET_LOCAL_NED withheld makes it ignore offboard setpoints
+    capabilities_withheld: list[str] = Field(default_factory=list)
 
     @field_validator("stop_answering", mode="before")
     @classmethod
@@ -137,6 +170,34 @@ class SimSettings(_Strict):
         if result == 0:
             raise ValueError("MAV_MISSION_ACCEPTED is not a rejection")
         return result
+
+    @field_validator("params")
+    @classmethod
+    def _known_params(cls, value):
+        from .params import validate_overrides  # the table lives with the protocol
+
+        return validate_overrides(value)
+
+    @field_validator("rates")
+    @classmethod
+    def _known_streams(cls, value):
+        from .telemetry import STREAMS
+
+        unknown = sorted(set(value) - set(STREAMS))
+        if unknown:
+            raise ValueError(f"unknown message {unknown[0]!r} in rates; the streams are: {', '.join(STREAMS)}")
+        return value
+
+    @field_validator("capabilities_withheld")
+    @classmethod
+    def _known_capabilities(cls, value):
+        names = {
+            e.name.removeprefix("MAV_PROTOCOL_CAPABILITY_") for e in mavlink.enums["MAV_PROTOCOL_CAPABILITY"].values()
+        }
+        for name in value:
+            if name.upper().removeprefix("MAV_PROTOCOL_CAPABILITY_") not in names:
+                raise ValueError(f"unknown capability '{name}'; choose among: {', '.join(sorted(names))}")
+        return [name.upper().removeprefix("MAV_PROTOCOL_CAPABILITY_") for name in value]
 
     @field_validator("signing_key")
     @classmethod

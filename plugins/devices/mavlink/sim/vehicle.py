@@ -1,33 +1,40 @@
-"""``surgiplan-sim-vehicle``: a simulated PX4-like quadrotor that speaks MAVLink 2.
+"""``surgiplan-sim-vehicle``: a simulated PX4-like quadrotor that speaks MAVLink 2 as PX4 does.
 
-It implements, over any pymavlink connection (UDP by default), what the
-``mavlink_vehicle`` device needs from a real autopilot, so that the whole
-chain can be rehearsed anywhere, faults included:
+It implements, over any pymavlink connection (UDP by default), what a PX4
+vehicle offers a ground station (the README's MAVLink table lists it, and
+what is answered MAV_RESULT_UNSUPPORTED), so that MAVSDK, MAVProxy,
+QGroundControl and the ``mavlink_vehicle`` device can rehearse against it:
 
-* HEARTBEAT (1 Hz wall clock), LOCAL_POSITION_NED, EXTENDED_SYS_STATE,
-  MISSION_CURRENT, MISSION_ITEM_REACHED, STATUSTEXT, COMMAND_ACK;
-* the command protocol: arm/disarm, PX4 mode changes (DO_SET_MODE),
-  MISSION_START, LAND, RETURN_TO_LAUNCH, DO_PAUSE_CONTINUE,
-  SET_MESSAGE_INTERVAL, REQUEST_MESSAGE (GPS_GLOBAL_ORIGIN, HOME_POSITION);
-* the mission protocol, vehicle side (:class:`~.mavlink_mission.MissionReceiver`):
-  local-NED and global (relative-altitude) items, optionally requested
-  out of order and repeated;
-* mission execution (takeoff, waypoints, land, RTL, loiter, change speed)
-  and offboard control by SET_POSITION_TARGET_LOCAL_NED, with a point-mass
-  multirotor (:mod:`.mavlink_sim_model`) under velocity and acceleration
+* telemetry (:mod:`.telemetry`): HEARTBEAT at 1 Hz of wall clock, SYS_STATUS,
+  EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, LOCAL_POSITION_NED,
+  GPS_RAW_INT, HOME_POSITION, BATTERY_STATUS, VFR_HUD, GPS_GLOBAL_ORIGIN at
+  PX4's default rates for a ground station link, changed by
+  SET_MESSAGE_INTERVAL; MISSION_CURRENT, MISSION_ITEM_REACHED, STATUSTEXT;
+  AUTOPILOT_VERSION with the capability bits it honours;
+* the command protocol (:mod:`.commands`): arming, PX4 modes, take-off,
+  land, return, reposition, mission start/pause/current, speed, message
+  intervals and requests; everything else MAV_RESULT_UNSUPPORTED;
+* the mission protocol for missions, geofences and rally points (upload,
+  download, clear, set current; :mod:`.missions` holds PX4's rules);
+* the parameter protocol over a subset of PX4's parameters that drive the
+  simulation (:mod:`.params`);
+* PING and TIMESYNC answered;
+* mission execution, take-off, return, reposition, land, loiter and
+  offboard control by SET_POSITION_TARGET_LOCAL_NED (:mod:`.autopilot`), with
+  a point-mass multirotor (:mod:`.model`) under velocity and acceleration
   limits, in wind;
-* faults from its settings (:mod:`.mavlink_sim_settings`): packet loss both
-  ways, falling silent at a protocol step, refusing missions or arming,
-  losing its heartbeat in flight.
+* faults from its settings (:mod:`.settings`): packet loss both ways,
+  falling silent at a protocol step, refusing missions or arming, losing
+  its heartbeat in flight.
 
 Time: the physics runs at ``speed`` simulated seconds per wall second (so a
 test flight can run faster than real time); the link's own timing
 (heartbeats, protocol timeouts) stays on the wall clock. In offboard mode
 each setpoint applies at the vehicle time it is stamped for and the
 simulation never runs past the ground station's newest stamp (lockstep,
-:mod:`.mavlink_sim_offboard`), so a loaded machine slows the flight down
-instead of changing it. Gusts advance only in the air
-(:mod:`.mavlink_sim_model`): with both, a flight is reproducible from its seed.
+:mod:`.offboard`), so a loaded machine slows the flight down instead of
+changing it. Gusts advance only in the air (:mod:`.model`): with both, a
+flight is reproducible from its seed.
 
 Run it on its own (``surgiplan-sim-vehicle --help``); the device starts it as
 a subprocess on a free 127.0.0.1 UDP port unless told to connect elsewhere.
@@ -45,32 +52,47 @@ import threading
 import time
 
 import numpy as np
-from surgiplan.plugins.devices.mavlink.conventions import MapProjection, px4_custom_mode, px4_mode_from_command
+from surgiplan.plugins.devices.mavlink.conventions import MapProjection, px4_custom_mode
 from surgiplan.plugins.devices.mavlink.link import Endpoint, mavlink, signing_key
-from surgiplan.plugins.devices.mavlink.mission import MissionItem, MissionReceiver, ReceiverFaults
+from surgiplan.plugins.devices.mavlink.mission import (
+    ALL_TYPES,
+    FENCE,
+    MISSION,
+    RALLY,
+    MissionItem,
+    MissionReceiver,
+    MissionSender,
+    ReceiverFaults,
+)
 
 from .autopilot import Autopilot
+from .commands import Commands
+from .missions import px4_check, px4_stored
 from .model import PointMassMultirotor
-from .offboard import OffboardSetpoints, Setpoint
+from .offboard import OffboardSetpoints
+from .params import ParameterStore
 from .settings import SimSettings
+from .telemetry import Telemetry
 
-ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
-DENIED = mavlink.MAV_RESULT_DENIED
-UNSUPPORTED = mavlink.MAV_RESULT_UNSUPPORTED
-FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 magic number
+#: while waiting in lockstep for a setpoint, the position is said again this often (wall s): a lost
+#: report must not leave a ground station that stamps its setpoints from the reports waiting for ever
+WAITING_REPORT = 0.1
 
 
-class SimulatedVehicle(Autopilot):
+class SimulatedVehicle(Autopilot, Commands, Telemetry):
     """The simulated vehicle on ``connection`` (a listening UDP port by default)."""
 
     def __init__(self, settings: SimSettings | None = None, connection: str = "udpin:127.0.0.1:0") -> None:
-        self.settings = s = settings or SimSettings()
+        # a private copy: the parameters (PARAM_SET) change it while the simulation runs
+        self.settings = s = (settings or SimSettings()).model_copy(deep=True)
         key = signing_key(s.signing_key) if s.signing_key else None
         self.endpoint = Endpoint(
             connection, system_id=s.system_id, component_id=s.component_id, key=key, loss=s.packet_loss, seed=s.seed
         )
+        self.params = ParameterStore(s, self._parameter_changed)
         self.model = PointMassMultirotor(s.airframe, s.home, s.wind, seed=s.seed + 1)
         self.projection = MapProjection(s.origin[0], s.origin[1])
+        self.home = np.asarray(s.home, float).copy()
         faults = ReceiverFaults(
             reject=s.reject_mission,
             reject_at_item=s.reject_at_item,
@@ -81,12 +103,19 @@ class SimulatedVehicle(Autopilot):
         self.receiver = MissionReceiver(
             s.system_id,
             s.component_id,
-            capacity=s.mission_capacity,
+            capacity={MISSION: s.mission_capacity, FENCE: s.fence_capacity, RALLY: s.rally_capacity},
             timeout=s.mission_timeout,
             retries=s.mission_retries,
             validate=self._validate_item,
             on_accept=self._mission_accepted,
             faults=faults,
+            types=(MISSION, FENCE, RALLY),
+            int_requests="MISSION_INT" not in s.capabilities_withheld,
+        )
+        self.sender = MissionSender(
+            lambda mission_type: len(self.receiver.stored.get(mission_type, [])),
+            lambda seq, mission_type, int_form: px4_stored(self.receiver.stored[mission_type][seq], int_form),
+            current=lambda: self.current,
         )
         self._noise = np.random.default_rng(s.seed + 3)
         self.t = 0.0  # vehicle time (s): steps * step
@@ -101,25 +130,61 @@ class SimulatedVehicle(Autopilot):
         self.hold_point = self.model.p.copy()
         self._leg: list[int] = []
         self._leg_reached = 0
+        self._leg_offset = 1
         self._hold_until: float | None = None
         self._landing = False
         self._landed_at: float | None = None
         self.armed_at: float | None = None
         self._armed_wall = math.inf
+        self._armed_time = 0.0
+        self._consumed_mah = 0.0
+        self.takeoff_height = s.takeoff_altitude
+        self._takeoff_request: float | None = None
         self.offboard = OffboardSetpoints(s.offboard_timeout, s.lockstep, s.lockstep_horizon)
         self.silent = s.stop_answering is not None and s.stop_answering.step == "connect"
         self._silence_count = 0
         self.heartbeat_lost = False
         self.telemetry_lost = False
-        self.position_interval = 1.0 / s.position_rate
-        self._next = {"position": 0.0, "state": 0.0, "current": 0.0}
+        self._next = {"current": 0.0}
+        self._init_telemetry()
         self._reported = -math.inf  # vehicle time of the last LOCAL_POSITION_NED
+        self._reported_wall = -math.inf
         #: (t, x, y, z, vx, vy, vz) true states at the position rate, for tests and figures
         self.trajectory: list[tuple[float, ...]] = []
         #: what happened, in words, with the vehicle time (for tests and the log)
         self.events: list[tuple[float, str]] = []
+        #: (MAV_CMD, MAV_RESULT) of every command answered, in order (for tests)
+        self.commands_answered: list[tuple[int, int]] = []
+        #: the message ids MAV_CMD_REQUEST_MESSAGE asked for, in order (for tests)
+        self.messages_requested: list[int] = []
+        #: every list the vehicle accepted (upload or clear), with its mission type, in order (for tests)
+        self.uploads: list[tuple[int, list[MissionItem]]] = []
+        #: messages received by type (for tests: what a client sent)
+        self.received: dict[str, int] = {}
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        #: set (SIGUSR1 in the program): print link_statistics() as a JSON line on stdout at the next pass
+        self.statistics_requested = threading.Event()
+
+    def link_statistics(self) -> dict:
+        """What went over the link, as the vehicle counted it (the device reports it for a simulated vehicle)."""
+        stats = self.endpoint.stats
+        return {
+            "messages_sent": int(sum(stats.sent.values())),
+            "messages_received": int(sum(stats.received.values())),
+            # injected faults: messages dropped before sending, and received but dropped
+            "injected_drops_out": stats.dropped_out,
+            "injected_drops_in": stats.dropped_in,
+            # the ground station's messages that never arrived, by the gaps in their sequence numbers
+            "lost_in": self.endpoint.lost_in,
+        }
+
+    def _parameter_changed(self, parameter, value) -> None:
+        self.events.append((self.t, f"parameter {parameter.name} = {value}"))
+        if parameter.name == "COM_OF_LOSS_T":
+            self.offboard.timeout = float(value)
+        elif parameter.name == "MPC_XY_CRUISE":
+            self.cruise_speed = float(value)
 
     # ------------------------------------------------------------------ state announced at once
     @property
@@ -182,26 +247,42 @@ class SimulatedVehicle(Autopilot):
             for _ in range(steps):
                 if (self.steps + 1) * dt > limit + 1e-9:
                     carry = 0.0
-                    if self._reported < self.t and self.position_interval > 0:
-                        # waiting for a setpoint: say where we wait, or a ground station that stamps its
-                        # setpoints from our reports (at a slow telemetry rate) would never get past here
-                        self._report_position()
+                    self._waiting_report(now)
                     break
                 self._physics(dt)
                 self._offboard_watchdog(now)  # offboard loss on the step it falls due (vehicle time)
+            if steps == 0 and self.t + dt > limit + 1e-9:
+                self._waiting_report(now)
             for message in self.endpoint.receive():
                 self._handle(message, now)
             self._send(self.receiver.on_timer(now))
+            self.sender.on_timer(now)
             self._offboard_watchdog(now)
             if now >= self._next_heartbeat:
                 self._heartbeat()
                 self._next_heartbeat = now + 1.0 / self.settings.heartbeat_rate
+            if self.statistics_requested.is_set():
+                self.statistics_requested.clear()
+                print(json.dumps({"link": self.link_statistics()}), flush=True)
             if not behind:  # running behind the asked speed: no sleeping
                 wait = min(0.005, self._next_heartbeat - now, self.receiver.deadline - now)
                 self.endpoint.wait(max(wait, 0.0))
 
     def _time_limit(self, now: float) -> float:
         return self.offboard.lockstep_limit() if self.mode == "offboard" else math.inf
+
+    def _waiting_report(self, now: float) -> None:
+        """Waiting for a setpoint: say where we wait (once per vehicle time, then every WAITING_REPORT wall s).
+
+        A ground station that stamps its setpoints from our reports (at a slow telemetry rate) would
+        otherwise never get past here, nor one that lost the one report sent at this time."""
+        if self.position_interval <= 0:
+            return
+        if self._reported < self.t:
+            self._report_position()
+        elif now - self._reported_wall >= WAITING_REPORT:
+            self._reported_wall = now
+            self._telemetry(self._position_message())
 
     # ------------------------------------------------------------------ sending
     def _send(self, messages) -> None:
@@ -238,30 +319,24 @@ class SimulatedVehicle(Autopilot):
             return mavlink.MAV_LANDED_STATE_ON_GROUND
         if self._landing:
             return mavlink.MAV_LANDED_STATE_LANDING
+        if self.mode == "takeoff" and self.guidance is not None:
+            return mavlink.MAV_LANDED_STATE_TAKEOFF
         return mavlink.MAV_LANDED_STATE_IN_AIR
 
-    def _periodic(self) -> None:
-        t = self.t
-        if t >= self._next["position"] - 1e-9 and self.position_interval > 0:
-            # on multiples of the interval: reports fall on the ground station's setpoint grid (50 ms)
-            self._next["position"] = (round(t / self.position_interval) + 1) * self.position_interval
-            self._report_position()
-        if t >= self._next["state"] - 1e-9:
-            self._next["state"] = t + 0.2
-            self._telemetry(mavlink.MAVLink_extended_sys_state_message(0, self._landed_state()))
-        if t >= self._next["current"] - 1e-9:
-            self._next["current"] = t + 1.0
-            self._mission_current()
+    def _position_message(self):
+        p, v = self.model.p, self.model.v
+        noisy = p + self._noise.normal(0.0, self.settings.position_noise, 3) if self.settings.position_noise else p
+        return mavlink.MAVLink_local_position_ned_message(round(self.t * 1000), *noisy, *v)
 
     def _report_position(self) -> None:
         t = self.t
         self._reported = t
+        self._reported_wall = time.monotonic()
         p, v = self.model.p, self.model.v
         self.trajectory.append((t, *p, *v))
-        noisy = p + self._noise.normal(0.0, self.settings.position_noise, 3) if self.settings.position_noise else p
-        self._telemetry(mavlink.MAVLink_local_position_ned_message(round(t * 1000), *noisy, *v))
+        self._telemetry(self._position_message())
 
-    def _mission_current(self) -> None:
+    def _mission_current_message(self):
         if not self.mission:
             state = mavlink.MISSION_STATE_NO_MISSION
         elif self.current >= len(self.mission):
@@ -270,9 +345,11 @@ class SimulatedVehicle(Autopilot):
             state = mavlink.MISSION_STATE_ACTIVE
         else:
             state = mavlink.MISSION_STATE_NOT_STARTED
-        self._telemetry(
-            mavlink.MAVLink_mission_current_message(self.current, len(self.mission), state, int(self.mode == "mission"))
-        )
+        total = len(self.mission) if self.mission else 0xFFFF  # the spec's (and PX4's) "no mission"
+        return mavlink.MAVLink_mission_current_message(self.current, total, state, int(self.mode == "mission"))
+
+    def _mission_current(self) -> None:
+        self._telemetry(self._mission_current_message())
 
     # ------------------------------------------------------------------ messages
     def _silence(self, step: str) -> bool:
@@ -289,6 +366,7 @@ class SimulatedVehicle(Autopilot):
         if self.silent:
             return
         kind = message.get_type()
+        self.received[kind] = self.received.get(kind, 0) + 1
         source = (message.get_srcSystem(), message.get_srcComponent())
         target = getattr(message, "target_system", None)
         if target not in (None, 0, self.settings.system_id):
@@ -296,165 +374,55 @@ class SimulatedVehicle(Autopilot):
         if kind in ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM"):
             if self._silence("mission_upload"):
                 return
+            if self.sender.busy and kind == "MISSION_COUNT":
+                self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, 0)])
+                return  # PX4: busy with a download
             self._send(self.receiver.on_message(message, source, now))
+        elif kind in ("MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
+            self._send(self.sender.on_message(message, source, now))
+        elif kind == "MISSION_CLEAR_ALL":
+            self._clear(message, source)
+        elif kind == "MISSION_SET_CURRENT":
+            if not self.set_current(int(message.seq)):
+                self._say("WPM: WP CURR CMD: Not in list", mavlink.MAV_SEVERITY_CRITICAL)
         elif kind in ("COMMAND_LONG", "COMMAND_INT"):
             self._command(message, source)
         elif kind == "SET_POSITION_TARGET_LOCAL_NED":
-            self._setpoint(message, now)
+            if "SET_POSITION_TARGET_LOCAL_NED" not in self.settings.capabilities_withheld:
+                self._setpoint(message, now)
+        elif kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            answers, refusal = self.params.handle(message)
+            self._send(answers)  # the value in force first, then why it is not the one asked for
+            if refusal:
+                self._say(f"param: {refusal}", mavlink.MAV_SEVERITY_WARNING)
+        elif kind == "PING":
+            self._ping(message, source)
+        elif kind == "TIMESYNC":
+            if int(message.tc1) == 0:  # a request: our time (ns) and theirs back (PX4's timesync)
+                self._send([mavlink.MAVLink_timesync_message(time.monotonic_ns(), int(message.ts1))])
 
-    def _ack(self, command: int, result: int, source) -> None:
-        self._send([mavlink.MAVLink_command_ack_message(command, result, 255, 0, source[0], source[1])])
+    def _ping(self, message, source) -> None:
+        """A PING addressed to all (target 0/0) is a request: sent back, addressed to the sender (PX4)."""
+        if int(message.target_system) == 0 and int(message.target_component) == 0:
+            self._send([mavlink.MAVLink_ping_message(int(message.time_usec), int(message.seq), *source)])
 
-    def _command(self, message, source) -> None:
-        command = int(message.command)
-        params = [message.param1, message.param2, message.param3, message.param4]
-        steps = {
-            mavlink.MAV_CMD_COMPONENT_ARM_DISARM: "arming",
-            mavlink.MAV_CMD_DO_SET_MODE: "mode_change",
-            mavlink.MAV_CMD_MISSION_START: "mission_start",
-        }
-        step = steps.get(command)
-        if command == mavlink.MAV_CMD_DO_SET_MODE and px4_mode_from_command(params[1], params[2]) == "mission":
-            step = "mission_start"  # switching to mission mode starts a mission, as MISSION_START does
-        if step is not None and self._silence(step):
+    def _clear(self, message, source) -> None:
+        mission_type = int(getattr(message, "mission_type", MISSION))
+        if self.receiver.busy or self.sender.busy:
+            self._say("WPM: IGN CLEAR CMD: Busy", mavlink.MAV_SEVERITY_CRITICAL)
             return
-        handler = {
-            mavlink.MAV_CMD_COMPONENT_ARM_DISARM: self._cmd_arm,
-            mavlink.MAV_CMD_DO_SET_MODE: self._cmd_mode,
-            mavlink.MAV_CMD_MISSION_START: self._cmd_mission_start,
-            mavlink.MAV_CMD_NAV_LAND: lambda p: self._set_mode("land"),
-            mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: lambda p: self._set_mode("return"),
-            mavlink.MAV_CMD_DO_PAUSE_CONTINUE: self._cmd_pause,
-            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._cmd_interval,
-            mavlink.MAV_CMD_REQUEST_MESSAGE: self._cmd_request,
-        }.get(command)
-        result = handler(params) if handler is not None else UNSUPPORTED
-        self._ack(command, result, source)
-        if command == mavlink.MAV_CMD_REQUEST_MESSAGE and result == ACCEPTED:
-            self._send_requested(int(params[0]))
-
-    def _cmd_arm(self, params) -> int:
-        if params[0] >= 0.5:
-            if self.armed:
-                return ACCEPTED
-            if self.settings.refuse_arming:
-                self._say(f"Arming denied: {self.settings.refuse_arming}", mavlink.MAV_SEVERITY_CRITICAL)
-                return DENIED
-            if self.mode == "offboard" and not self._fresh_setpoint():
-                self._say("Arming denied: no offboard setpoints", mavlink.MAV_SEVERITY_CRITICAL)
-                return DENIED
-            self.armed = True
-            self.armed_at = self.t
-            self._armed_wall = time.monotonic()
-            self.hold_point = self.model.p.copy()
-            self._say("armed")
-            if self.mode == "mission" and self.mission:
-                self._start_mission()
-            return ACCEPTED
-        if self.model.airborne and int(params[1]) != FORCE_DISARM:
-            self._say("Disarming denied: in air", mavlink.MAV_SEVERITY_CRITICAL)
-            return DENIED
-        if self.armed:
-            self._disarm("disarmed")
-        return ACCEPTED
-
-    def _fresh_setpoint(self) -> bool:
-        return self.offboard.fresh(time.monotonic())
-
-    def _cmd_mode(self, params) -> int:
-        mode = px4_mode_from_command(params[1], params[2])
-        if mode is None:
-            return UNSUPPORTED
-        return self._set_mode(mode)
-
-    def _set_mode(self, mode: str) -> int:
-        if mode == self.mode:
-            return ACCEPTED
-        if mode == "offboard" and not self._fresh_setpoint():
-            self._say("Offboard denied: no setpoints", mavlink.MAV_SEVERITY_CRITICAL)
-            return DENIED
-        if mode == "mission" and not self.mission:
-            self._say("Mission denied: no mission", mavlink.MAV_SEVERITY_CRITICAL)
-            return DENIED
-        self.mode = mode
-        self.events.append((self.t, f"mode {mode}"))
-        self._landing = False
-        if mode == "mission":
-            if self.armed:
-                self._start_mission()
-        elif mode == "land":
-            self._begin_landing() if self.model.airborne else self._hold_here()
-        elif mode == "return":
-            if self.model.airborne:
-                start = self.model.stopping_point()
-                self.cruise_speed = self.settings.airframe.cruise_speed
-                self._follow([self.model.p.copy(), start, np.array([*self.settings.home[:2], start[2]])], 0.0)
-        elif mode == "offboard":
-            self.guidance = None
+        if mission_type not in (MISSION, FENCE, RALLY, ALL_TYPES):
+            result = mavlink.MAV_MISSION_ERROR
         else:
-            self._hold_here()
-        return ACCEPTED
+            self.receiver.clear(mission_type)
+            result = mavlink.MAV_MISSION_ACCEPTED
+        self._send([mavlink.MAVLink_mission_ack_message(*source, result, mission_type)])
 
-    def _cmd_mission_start(self, params) -> int:
-        if not self.mission:
-            self._say("Mission denied: no mission", mavlink.MAV_SEVERITY_CRITICAL)
-            return DENIED
-        first = int(params[0])
-        if self.mode == "mission" and self.armed and self.guidance is not None:
-            return ACCEPTED  # already flying it (PX4 starts a mission when armed in mission mode)
-        self.current = first if 0 <= first < len(self.mission) else 0
-        self.mode = "mission"
-        if self.armed:
-            self._start_mission()
-        return ACCEPTED
-
-    def _cmd_pause(self, params) -> int:
-        if params[0] < 0.5:
-            self.mode = "hold"
-            self._hold_here()
-        elif self.mission:
-            self.mode = "mission"
-            if self.armed:
-                self._start_item(self.current)
-        return ACCEPTED
-
-    def _cmd_interval(self, params) -> int:
-        message_id, interval = int(params[0]), float(params[1])
-        if message_id != mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-            return UNSUPPORTED
-        if interval == 0:
-            self.position_interval = 1.0 / self.settings.position_rate
-        else:
-            self.position_interval = -1.0 if interval < 0 else max(interval * 1e-6, self.settings.step)
-        return ACCEPTED
-
-    def _cmd_request(self, params) -> int:
-        known = (mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, mavlink.MAVLINK_MSG_ID_HOME_POSITION)
-        return ACCEPTED if int(params[0]) in known else UNSUPPORTED
-
-    def _send_requested(self, message_id: int) -> None:
-        lat, lon, alt = self.settings.origin
-        if message_id == mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
-            self._send([mavlink.MAVLink_gps_global_origin_message(int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0)])
-        else:
-            home = np.asarray(self.settings.home, float)
-            hlat, hlon = self.projection.reproject(home[0], home[1])
-            self._send(
-                [
-                    mavlink.MAVLink_home_position_message(
-                        int(hlat * 1e7), int(hlon * 1e7), int((alt - home[2]) * 1000), *home, [1, 0, 0, 0], 0, 0, 0, 0
-                    )
-                ]
-            )
-
-    def _setpoint(self, message, now: float) -> None:
-        if message.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
-            return
-        mask = int(message.type_mask)
-        p = np.array([message.x, message.y, message.z])
-        v = np.zeros(3) if mask & 0b111000 else np.array([message.vx, message.vy, message.vz])
-        a = np.zeros(3) if mask & 0b111000000 else np.array([message.afx, message.afy, message.afz])
-        self.offboard.receive(Setpoint(message.time_boot_ms / 1000.0, p, v, a), self.t, now)
+    def _validate_item(self, item: MissionItem, seq: int, mission_type: int, int_form: bool) -> int | None:
+        result, why = px4_check(item, mission_type, int_form)
+        if result is not None:
+            self._say(f"item {seq}: {why}"[:50], mavlink.MAV_SEVERITY_CRITICAL)
+        return result
 
 
 # ----------------------------------------------------------------------------- command line
@@ -508,6 +476,8 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    # SIGUSR1: the link statistics as a JSON line on stdout (the device reads them for its report)
+    signal.signal(signal.SIGUSR1, lambda *_args: vehicle.statistics_requested.set())
     if args.exit_with_parent:
         parent = os.getppid()
 
