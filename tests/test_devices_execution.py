@@ -123,7 +123,7 @@ def test_device_approaches_the_path_start_from_where_it_stands(block_world, tmp_
 
 # ----------------------------------------------------------------------------- refused before motion
 def refused(report, truth, initial, match):
-    assert report.status == "stopped"
+    assert report.status == "refused"
     assert report.metrics["refused"] is True and report.metrics["cycles"] == 0
     assert report.message.startswith("refused before any motion")
     assert match in report.message

@@ -97,7 +97,7 @@ def clearance_in(message: str, body: str) -> float:
 
 
 def assert_no_motion(report, truth):
-    assert report.status == "stopped" and report.metrics["refused"] is True
+    assert report.status == "refused" and report.metrics["refused"] is True
     assert report.message.startswith("refused before any motion: the timed motion's certified")
     assert report.metrics["cycles"] == 0 and truth["log"] is None
     # the stable metric names of an execute stage, even when nothing moved

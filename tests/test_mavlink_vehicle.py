@@ -271,7 +271,7 @@ def test_flight_is_refused_when_the_approach_crosses_a_wall(tmp_path, roadmap):
     # and, deepest, pillar A1 (the message names the obstacle it comes closest to)
     with simulated(home=(-3.0, 12.0, 0.0)) as vehicle:
         outcome, _, stage, _ = fly(tmp_path, roadmap, external(vehicle))
-    assert not outcome.ok and stage["status"] == "stopped"
+    assert not outcome.ok and stage["status"] == "refused"
     assert stage["message"].startswith(
         "refused before any motion: the approach leg from [14.0, 3.0, 1.5] to [2.0, 6.0, 1.5] m "
         "passes -0.453 m from 'A1'"
@@ -411,7 +411,7 @@ def test_a_path_through_an_obstacle_is_refused_before_any_motion_whatever_produc
     with simulated() as vehicle, device_on(vehicle, tmp_path) as device:
         report = device.execute(hall_trajectory(path))
         assert_nothing_but_the_connection(vehicle)
-    assert report.status == "stopped" and report.metrics["refused"] is True
+    assert report.status == "refused" and report.metrics["refused"] is True
     scene = load_scene(HALL)
     a, b = np.array([path[1]]), np.array([path[2]])
     measured = coal_scene_segment_distance(scene, a, b, RADIUS)[0]
@@ -431,7 +431,7 @@ def test_a_path_below_the_safety_margin_is_refused(tmp_path):
         assert_nothing_but_the_connection(vehicle)
     door = coal_scene_segment_distance(load_scene(HALL), np.array([path[0]]), np.array([path[1]]), RADIUS)[0]
     assert door == pytest.approx(0.35, abs=1e-9)
-    assert report.status == "stopped" and "segment 0" in report.message
+    assert report.status == "refused" and "segment 0" in report.message
     assert f"passes 'wall-south': certified clearance {door:.3f} m" in report.message or "passes 'wall-north'" in (
         report.message
     )
@@ -443,7 +443,7 @@ def test_vehicle_limits_tighter_than_the_profile_refuse_the_flight_naming_the_pa
     with simulated(params={"MPC_XY_VEL_MAX": 1.2}) as vehicle, device_on(vehicle, tmp_path) as device:
         report = device.execute(hall_trajectory(path))
         assert_nothing_but_the_connection(vehicle)
-    assert report.status == "stopped"
+    assert report.status == "refused"
     assert report.message == (
         "refused before any motion: the vehicle's MPC_XY_VEL_MAX is 1.2 m/s, below the flight's cruise_speed 2 m/s: "
         "it cannot fly the profile as planned (lower cruise_speed, or raise MPC_XY_VEL_MAX)"

@@ -121,6 +121,18 @@ class BusSettings(BaseModel):
     def _channel_text(cls, value: Any) -> Any:
         return str(value) if isinstance(value, int) and not isinstance(value, bool) else value
 
+    @field_validator("interface")
+    @classmethod
+    def _known_interface(cls, value: str) -> str:
+        """An interface python-can does not know is an error at validation, before any stage runs."""
+        from can.interfaces import VALID_INTERFACES
+
+        if value not in VALID_INTERFACES:
+            from surgiplan.errors import choices_hint
+
+            raise ValueError(f"unknown python-can interface '{value}'; {choices_hint(value, VALID_INTERFACES)}")
+        return value
+
     @property
     def simulated(self) -> bool:
         return self.interface == "virtual"

@@ -42,6 +42,7 @@ import numpy as np
 from surgiplan.devices import Device, ExecutionReport, LifecycleError, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.plugins.devices.kinematics.model import KinematicModel
+from surgiplan.status import ExecuteStatus
 
 from . import cia402
 from .bus import ArmedFaults, BusError, MonitoredBus, open_bus, worst_case_bits
@@ -369,7 +370,7 @@ class Cia402Device(Device):
         # the execute stage's metric names stay the same whatever happened: nothing tracked, no fault
         out = {**(metrics or {}), "cycles": 0, "refused": True, "faults": []}
         out |= {"tracking_error_max_m": None, "tracking_error_rms_m": None}
-        return ExecutionReport("stopped", out, message=f"refused before any motion: {reason}")
+        return ExecutionReport(ExecuteStatus.REFUSED, out, message=f"refused before any motion: {reason}")
 
     def _certified(self, planned, trajectory: Trajectory, metrics: dict[str, Any]) -> str | None:
         """Certify the timed motion's clearance (every body, between the samples too); the reason to refuse it

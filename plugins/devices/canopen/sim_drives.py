@@ -87,6 +87,9 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from surgiplan.processes import exit_with_parent
+
+    exit_with_parent()  # started by a run or a test with surgiplan.processes.child_env(): never outlive it
     parser = argparse.ArgumentParser(prog="surgiplan-sim-drives", description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", default="cast_gimbal", help="a CiA 402 device plugin (cast_gimbal, gripper6, ...)")
     parser.add_argument(

@@ -62,7 +62,9 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validato
 from surgiplan.devices import Device, ExecutionReport, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
+from surgiplan.processes import child_env
 from surgiplan.progress import NullProgress
+from surgiplan.status import ExecuteStatus
 from surgiplan.units import Angle, Length, PositiveLength, Vec3
 
 from .conventions import LocalFrame, MapProjection
@@ -266,7 +268,9 @@ class MavlinkVehicle(Device):
             json.dumps(sim.model_dump(mode="json")),
             "--exit-with-parent",
         ]
-        self.process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=self._stderr, text=True)
+        self.process = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=self._stderr, text=True, env=child_env()
+        )
         line = self._first_line(self.settings.timeouts.connect)
         if line is None or " on udpin:" not in line:
             self._stop_simulator()
@@ -445,7 +449,7 @@ class MavlinkVehicle(Device):
             route = build_route(trajectory, position, on_ground, ground, s, threshold)
         except Refusal as exc:
             return ExecutionReport(
-                "stopped",
+                ExecuteStatus.REFUSED,
                 {"refused": True, "vehicle_parameters": self.vehicle_params},
                 message=f"refused before any motion: {exc}",
             )

@@ -452,6 +452,9 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     from pydantic import ValidationError
+    from surgiplan.processes import exit_with_parent
+
+    exit_with_parent()  # started by a run (mavlink_vehicle): never outlive it, even a kill -9 of it
 
     try:
         data = json.loads(args.settings) if args.settings else {}
