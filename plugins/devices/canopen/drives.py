@@ -63,6 +63,7 @@ import logging
 import struct
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import can
@@ -565,6 +566,8 @@ class DriveSimulator:
         self._rpdo_callbacks: dict[int, object] = {}
         #: real time: the time of the frame being handled (a SYNC's arrival), else None (the clock's now)
         self._event_time: float | None = None
+        #: simulation only: where a hand holds the unpowered axes at time t (see move_by_hand)
+        self.hand: Callable[[float], np.ndarray] | None = None
         self.dictionaries = []
         for i, axis in enumerate(axes):
             dictionary = cia402.drive_object_dictionary(axis.node_id, axis.defaults(device, model.sync_timeout))
@@ -1243,7 +1246,19 @@ class DriveSimulator:
             return
         state = self.state
         powered_mask = ((state == OE) | (state == QS)) & self.alive
+        if self.hand is not None:
+            # unpowered axes moved by hand (a trainee holding the instrument): they go where the hand takes them
+            by_hand = ~powered_mask & self.alive
+            if by_hand.any():
+                where = np.asarray(self.hand(t), dtype=float)
+                self.vel[by_hand] = (where[by_hand] - self.pos[by_hand]) / span
+                self.pos[by_hand] = where[by_hand]
+                for i in np.flatnonzero(by_hand):
+                    self.reference.hold(i, t, self.pos[i])
         if not powered_mask.any():
+            if self.hand is not None:
+                self.t = t
+                return
             # every brake holds: nothing moves (unpowered velocities are zero)
             self.vel[:] = 0.0
             self.t = t
@@ -1392,6 +1407,14 @@ class DriveSimulator:
             now = self.clock.now()
             while (timer := self.scheduler.pop_due(now)) is not None:
                 timer.action()
+
+    @_locked
+    def move_by_hand(self, motion: Callable[[float], np.ndarray] | None) -> None:
+        """Simulation only: while an axis is unpowered (its drive not enabled, as when a trainee moves the
+        instrument by hand, the observe mode of a guide stage), its position follows ``motion(t)`` (units per
+        axis, ``t`` the clock's time); the encoders, TPDOs and SDO reads report it. None lets go."""
+        self._advance_locked(self.clock.now())
+        self.hand = motion
 
     def positions(self) -> np.ndarray:
         """True joint positions (units): the simulation's ground truth, for tests."""

@@ -430,6 +430,13 @@ class DriveMaster:
         for cob, data in zip(self._rpdo_ids, frames, strict=True):
             self.network.send_message(cob, data)
 
+    def sync(self) -> None:
+        """SYNC alone: every drive answers with its TPDOs (positions, statuswords); nothing is commanded (the
+        observe mode of a guide stage: the drives stay disabled and a hand moves the instrument)."""
+        with self._lock:
+            self.syncs_sent += 1
+        self.network.send_message(0x080, b"")
+
     def emcy_since(self, count: int) -> list[tuple[float, int, int, int]]:
         with self._lock:
             return list(self.emcy[count:])

@@ -5,7 +5,8 @@ The Computer Assisted Surgical Trainer's instrument mount, the device papers
 Surgical Trainer: design, models, and implementation", SummerSim 2014):
 yaw and pitch about a fulcrum, insertion along the shaft, roll about it.
 Modules: :mod:`.device` (the :class:`CastGimbalDevice`: model, closed-form
-inverse kinematics check, execution); ``urdf/cast_gimbal.urdf`` (the model,
+inverse kinematics check, execution); :mod:`.observe` (the gimbal as a pose
+source for guide stages: observe mode, the drives never commanded); ``urdf/cast_gimbal.urdf`` (the model,
 package data).
 """
 
@@ -14,8 +15,9 @@ from __future__ import annotations
 from surgiplan.hookspecs import PluginSpec, hookimpl
 
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
+from .observe import CastGimbalObserver, CastGimbalObserveSettings
 
-__all__ = ["CastGimbalDevice", "CastGimbalDeviceSettings"]
+__all__ = ["CastGimbalDevice", "CastGimbalDeviceSettings", "CastGimbalObserveSettings", "CastGimbalObserver"]
 
 
 @hookimpl
@@ -25,5 +27,16 @@ def surgiplan_register_devices():
             "cast_gimbal",
             CastGimbalDevice,
             "CAST laparoscopic gimbal (yaw, pitch, insertion, roll): 4 CiA 402 drives over CAN",
+        )
+    ]
+
+
+@hookimpl
+def surgiplan_register_sources():
+    return [
+        PluginSpec(
+            "cast_gimbal",
+            CastGimbalObserver,
+            "the CAST gimbal in observe mode: drives not commanded, encoder positions by TPDO (guide stages)",
         )
     ]

@@ -1,0 +1,204 @@
+"""``cast_gimbal`` as a pose source: observe mode, for a ``guide`` stage (paper 000's training loop).
+
+The trainee moves the instrument by hand; the drives are **not commanded**:
+the master runs the standard start-up (reset communication, boot-up, SDO
+configuration, PDO mapping, NMT start) and then only sends SYNC. The drives
+stay in SWITCH ON DISABLED (torque off), and answer each SYNC with TPDO1
+(statusword and encoder position); no RPDO, no controlword, no target is ever
+sent (the tests check the bus traffic). The encoder positions are the gimbal's
+joints, so the guide stage measures the *whole shaft's* clearance through the
+gimbal's kinematics (the ``cast_gimbal`` space), or, for a plan in ``r3``, the
+tip from the device's Pinocchio model.
+
+In simulation (``bus: {interface: virtual}``, the default) a trainee moves the
+simulated drives' axes by hand (:meth:`DriveSimulator.move_by_hand`): the
+synthetic trainee of :mod:`surgiplan.guidance.trainee` (``hand: {synthetic:
+{level: beginner, seed: 3}}``, the default an intermediate one) or a recorded
+attempt replayed (``hand: {replay: attempt.csv}``, tip positions or joints,
+:mod:`surgiplan.guidance.files`). On real drives there is no ``hand``: the
+trainee's.
+
+The attempt ends when the simulated hand has finished (and ``rest_time`` has
+passed), when the tip has rested within ``goal_tolerance`` of the path's end
+for ``rest_time``, or after ``max_duration``; a drive whose TPDO does not come
+for ``pdo_timeout_cycles`` stops it (:class:`SourceStopped`, naming the node).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import PositiveFloat, PrivateAttr, ValidationInfo, model_validator
+from surgiplan.errors import ConfigError, PlanningInputError
+from surgiplan.guidance import PoseSample, PoseSource, SourceStopped, TraineeModel, synthetic_attempt
+from surgiplan.guidance.files import read_attempt_csv
+from surgiplan.units import LENGTH_SCALE_KEY, PositiveLength
+
+from .device import CastGimbalDevice, CastGimbalDeviceSettings
+
+
+class HandModel(TraineeModel):
+    """How the simulated trainee's hand moves the instrument: ``synthetic`` (the default, an intermediate
+    trainee; the fields of :class:`surgiplan.guidance.TraineeModel`) or ``replay`` of a recorded file."""
+
+    replay: str | None = None
+    _recorded: tuple | None = PrivateAttr(default=None)
+
+    @model_validator(mode="after")
+    def _read(self, info: ValidationInfo):
+        if self.replay is not None:
+            context = info.context or {}
+            path = (Path(context.get("base_dir", ".")) / self.replay).resolve()
+            times, values, kind = read_attempt_csv(path, context.get(LENGTH_SCALE_KEY, 1.0))
+            self.replay = str(path)
+            self._recorded = (times - times[0], values, kind)
+        return self
+
+
+class CastGimbalObserveSettings(CastGimbalDeviceSettings):
+    #: simulation only: the trainee's hand (default: a synthetic intermediate trainee)
+    hand: HandModel | None = None
+    #: the attempt ends at the latest after this many seconds
+    max_duration: PositiveFloat = 300.0
+    #: ... or once the tip has rested this long within goal_tolerance of the path's end
+    rest_time: PositiveFloat = 0.5
+    goal_tolerance: PositiveLength = 0.003
+
+    @model_validator(mode="after")
+    def _hand_only_in_simulation(self):
+        if self.hand is not None and not self.bus.simulated:
+            raise ValueError(
+                "hand: moves simulated drives; on real drives (bus.interface other than virtual) a trainee does"
+            )
+        return self
+
+
+class CastGimbalObserver(PoseSource):
+    """The CAST gimbal in observe mode (see the module)."""
+
+    Settings = CastGimbalObserveSettings
+
+    def __init__(self, settings: CastGimbalObserveSettings) -> None:
+        super().__init__(settings)
+        self.device: CastGimbalDevice | None = None
+        self.hand_end = np.inf
+
+    # ------------------------------------------------------------------ opening
+    def open(self, context) -> None:
+        space = context.space
+        s = self.settings
+        if space.kind == "cast_gimbal":
+            self.gimbal_space = space
+        elif space.kind == "r3" and s.fulcrum is not None:
+            from surgiplan.spaces import CastGimbalSpace
+
+            self.gimbal_space = CastGimbalSpace.from_settings(
+                CastGimbalSpace.Settings.model_validate({"fulcrum": s.fulcrum.model_dump()}), context.scene
+            )
+        else:
+            raise ConfigError(
+                f"observing the CAST gimbal needs the recommended path in the cast_gimbal space, or an r3 path and "
+                f"the device's fulcrum setting; the plan is in {space.kind}"
+            )
+        self.yield_q = space.kind == "cast_gimbal"
+        motion = None
+        fields: dict[str, Any] = s.model_dump(exclude={"hand", "max_duration", "rest_time", "goal_tolerance"})
+        if s.bus.simulated:
+            times, joints = self._hand_motion(context)
+            fields["simulation"] = {**fields.get("simulation", {}), "initial": joints[0].tolist()}
+            motion = (times, joints)
+        if fields.get("fulcrum") is None:
+            from scipy.spatial.transform import Rotation
+
+            with warnings.catch_warnings():  # at pitch +-90 deg any split of roll and yaw is the same frame
+                warnings.simplefilter("ignore", UserWarning)
+                rpy = Rotation.from_matrix(self.gimbal_space.frame).as_euler("xyz")  # URDF's fixed-axis rpy
+            fields["fulcrum"] = {"xyz": self.gimbal_space.fulcrum.tolist(), "rpy": rpy.tolist()}
+        self.device = CastGimbalDevice(CastGimbalDeviceSettings.model_validate(fields))
+        self.device.configure(context.stage)  # the standard start-up; the drives are never enabled
+        self.cpu = np.array([a.counts_per_unit for a in self.device.master.axes], dtype=float)
+        self.goal_tip = np.asarray(context.tips[-1], dtype=float)
+        if motion is not None:
+            times, joints = motion
+            start = self.device.clock.now()
+            self.hand_end = float(times[-1])
+
+            def hand(t: float, times=times, joints=joints, start=start) -> np.ndarray:
+                u = t - start
+                return np.array([np.interp(u, times, joints[:, k]) for k in range(joints.shape[1])])
+
+            self.device.simulator.move_by_hand(hand)
+            self.origin = start
+        else:
+            self.origin = self.device.clock.now()
+
+    def _hand_motion(self, context) -> tuple[np.ndarray, np.ndarray]:
+        """Times (s) and gimbal joints (n, 4) of the simulated hand."""
+        hand = self.settings.hand or HandModel()
+        recorded = hand._recorded
+        if recorded is None:
+            times, tips = synthetic_attempt(context.tips, hand)
+            kind, values = "tip", tips
+        else:
+            times, values, kind = recorded
+        if kind == "joints":
+            return np.asarray(times, float), np.asarray(values, float)
+        joints = []
+        for tip in values:
+            try:
+                joints.append(self.gimbal_space.configuration(tip, what="the trainee's tip"))
+            except PlanningInputError as exc:
+                raise ConfigError(f"the simulated hand's path leaves the gimbal's reach: {exc.message}") from None
+        return np.asarray(times, float), np.asarray(joints, float)
+
+    # ------------------------------------------------------------------ observing
+    def samples(self):
+        device, s = self.device, self.settings
+        clock, master = device.clock, device.master
+        period = 1.0 / s.control_rate
+        next_due = clock.now()
+        previous_sync = None
+        missing = np.zeros(len(self.cpu), dtype=int)
+        rest_since = None
+        for _ in range(int(s.max_duration / period) + 2):  # bounded: max_duration
+            clock.sleep_until(next_due)
+            now = next_due
+            next_due += period
+            if clock.realtime and clock.now() - now > period:  # descheduled: skip, never burst SYNCs
+                now = clock.now()
+                next_due = now + period
+            feedback = master.feedback()  # the answers to the previous SYNC
+            if previous_sync is not None:
+                fresh = np.asarray(feedback.fresh, dtype=bool) & np.asarray(feedback.current, dtype=bool)
+                missing = np.where(fresh, 0, missing + 1)
+                late = np.flatnonzero(missing > s.pdo_timeout_cycles)
+                if late.size:
+                    axis = master.axes[int(late[0])]
+                    raise SourceStopped(
+                        f"no TPDO from CAN node {axis.node_id} (joint '{axis.name}') for {int(missing[late[0]])} "
+                        f"SYNC cycles"
+                    )
+                if fresh.all():
+                    q = np.asarray(feedback.position, dtype=float) / self.cpu
+                    t = previous_sync - self.origin
+                    tip = self.gimbal_space.tip(q[None])[0]
+                    yield PoseSample(t, q=q) if self.yield_q else PoseSample(t, tip=tip)
+                    at_goal = float(np.linalg.norm(tip - self.goal_tip)) <= s.goal_tolerance
+                    rest_since = (rest_since if rest_since is not None else t) if at_goal else None
+                    if rest_since is not None and t - rest_since >= s.rest_time:
+                        return
+                    if t >= self.hand_end + s.rest_time:
+                        return
+            try:
+                master.sync()
+            except Exception as exc:  # a bus error: the bus is gone
+                raise SourceStopped(f"the CAN bus failed: {exc}") from None
+            previous_sync = now
+
+    def close(self) -> None:
+        if self.device is not None:
+            self.device.shutdown()
+            self.device = None
