@@ -155,3 +155,22 @@ def test_a_hand_on_real_drives_is_refused(tmp_path, cli):
     )
     code, _, err = cli("validate", path)
     assert code == 2 and "hand: moves simulated drives" in err and "pipeline[1].settings" in err
+
+
+@pytest.mark.parametrize(
+    ("fault", "reason"),
+    [
+        ({"kind": "dead_node", "node": 2, "at_s": 1.0}, "no TPDO from CAN node 2"),
+        ({"kind": "bus_off", "at_s": 1.0}, "the CAN bus failed"),
+    ],
+)
+def test_a_drive_or_bus_that_stops_answering_stops_the_attempt_with_the_reason(tmp_path, cli, fault, reason):
+    path = gimbal_pipeline(
+        tmp_path, {"hand": {"level": "intermediate", "seed": 2}, "control_rate": 100, "bus": {"faults": [fault]}}
+    )
+    code, _, _ = cli("run", path, "--quiet")
+    stage = json.loads((tmp_path / "out" / "result.json").read_text())["stages"][1]
+    assert code == 1
+    assert stage["status"] == "stopped" and reason in stage["message"], stage["message"]
+    # what arrived before the fault is still scored: about a second of samples at 100 Hz
+    assert 80 <= stage["metrics"]["samples"] <= 120, stage["metrics"]["samples"]

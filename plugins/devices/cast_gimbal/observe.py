@@ -21,7 +21,8 @@ trainee's.
 The attempt ends when the simulated hand has finished (and ``rest_time`` has
 passed), when the tip has rested within ``goal_tolerance`` of the path's end
 for ``rest_time``, or after ``max_duration``; a drive whose TPDO does not come
-for ``pdo_timeout_cycles`` stops it (:class:`SourceStopped`, naming the node).
+for ``pdo_timeout_cycles`` stops it (:class:`SourceStopped`, naming the node), as does a bus error. Faults
+injected in simulation (``bus: {faults: [...]}``) are timed from the attempt's start.
 """
 
 from __future__ import annotations
@@ -134,6 +135,10 @@ class CastGimbalObserver(PoseSource):
             self.origin = start
         else:
             self.origin = self.device.clock.now()
+        # injected faults (bus.faults) are timed from the attempt's start, as from a trajectory's in execute
+        self.device.faults.arm(self.origin)
+        if self.device.simulator is not None:
+            self.device.simulator.arm(self.origin)
 
     def _hand_motion(self, context) -> tuple[np.ndarray, np.ndarray]:
         """Times (s) and gimbal joints (n, 4) of the simulated hand."""
