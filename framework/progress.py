@@ -18,7 +18,18 @@ from collections.abc import Iterator
 
 
 class ProgressTask:
-    """Handle of one running task; ``advance`` by finished units."""
+    """Handle of one running task; ``advance`` by finished units.
+
+    A task whose ``with`` block ends normally is shown finished (its bar full, whatever the last update
+    was: a flight that arrived within the acceptance radius of its goal has flown the whole path). One
+    that ends early without finishing (a flight the vehicle stopped) calls :meth:`abandon`: its bar stays
+    where it got to, and an exception leaves it there too.
+    """
+
+    abandoned = False
+
+    def abandon(self) -> None:
+        self.abandoned = True
 
     def advance(self, amount: float = 1.0) -> None:  # pragma: no cover - interface
         pass
@@ -103,8 +114,9 @@ class RichProgress(Progress):
             self._started = True
         task_id = self._progress.add_task(description, total=total)
         try:
-            yield _RichTask(self._progress, task_id)
-            if total is not None:
+            handle = _RichTask(self._progress, task_id)
+            yield handle
+            if total is not None and not handle.abandoned:
                 self._progress.update(task_id, completed=total)
         finally:
             self._progress.stop_task(task_id)

@@ -134,6 +134,29 @@ def test_progress_bars_are_named_after_their_stage():
     assert seen == ["expert: sampling milestones", "flap: static equilibrium"]
 
 
+def test_a_finished_bar_ends_full_and_an_abandoned_one_where_it_got_to():
+    import io
+
+    from rich.console import Console
+    from surgiplan.progress import RichProgress
+
+    progress = RichProgress(Console(file=io.StringIO(), force_terminal=True, width=100))
+    with progress.task("flying offboard", total=98.4) as task:
+        task.update(97.9)  # the last position report came 0.5 mm before the goal: the flight arrived
+    with progress.task("flying mission", total=7) as task:
+        task.update(3)
+        task.abandon()  # the vehicle left mission mode by itself
+    try:
+        with progress.task("uploading", total=5) as task:
+            task.update(2)
+            raise RuntimeError("link lost")
+    except RuntimeError:
+        pass
+    progress.close()
+    done = {t.description: t.completed for t in progress._progress.tasks}
+    assert done == {"flying offboard": 98.4, "flying mission": 3, "uploading": 2}
+
+
 def test_the_figures_have_a_legend_critical_regions_and_a_height_cue(tmp_path, block_world):
     """Drawn on a scene and a path built for it: the legend lists what is drawn, the critical region is
     circled, and the top view says where the path passes over a block and how high."""

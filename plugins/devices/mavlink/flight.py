@@ -284,6 +284,8 @@ class Flight:
 
         with self.progress.task("flying mission", total=len(items)) as task:
             self._watch(finished, window, advance, allowed=("mission",), over=over)
+            if log.status != "completed":
+                task.abandon()
         return log
 
     # ------------------------------------------------------------------ offboard
@@ -336,6 +338,7 @@ class Flight:
             with self.progress.task("flying offboard", total=total) as task:
                 self._watch(arrived, lambda: path_window, advance, allowed=("offboard",))
                 if log.status != "completed":
+                    task.abandon()
                     return log
                 gcs.step = "landing" if self.route.land else "hold"
                 if self.route.land:
