@@ -469,13 +469,14 @@ def simulation_speed(scene) -> dict:
     }
 
 
-def readme_table() -> str:
+def readme_table(data: dict | None = None) -> str:
     """The README's table, from benchmarks/results/devices.json (so that its numbers are never typed by hand)."""
     import json
 
     from common import RESULTS
 
-    data = json.loads((RESULTS / "devices.json").read_text())
+    if data is None:
+        data = json.loads((RESULTS / "devices.json").read_text())
     rows = data["rows"]
     machine = next(r for r in rows if r["section"] == "machine")
     lines = [

@@ -1,0 +1,213 @@
+"""The README's measured numbers come from the benchmarks' result files, through benchmarks/readme_tables.py.
+
+A number typed by hand drifts (issue 21: the hall flight's door clearances in the README were not what
+the shipped config flies). Every benchmark figure the README quotes sits in a generated block; these
+tests check that each block is what its results render to, that a hand edit or a changed result is
+caught, that the sentences' judgements (a target met or not) follow the data, and that a benchmark
+figure is not also quoted outside its block.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import readme_tables as rt  # noqa: E402
+
+README = ROOT / "README.md"
+
+
+@pytest.fixture()
+def results(tmp_path: Path) -> Path:
+    copy = tmp_path / "results"
+    shutil.copytree(rt.RESULTS, copy)
+    return copy
+
+
+def edit_json(path: Path, change) -> None:
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+
+
+def flat(text: str) -> str:
+    """The text with its line breaks undone (the renderers wrap paragraphs at 78 columns)."""
+    return " ".join(text.split())
+
+
+def block(text: str, name: str) -> str:
+    start, end = rt.spans(text)[name]
+    return text[start:end]
+
+
+def test_every_generated_block_is_what_its_results_render_to():
+    text = README.read_text()
+    assert set(rt.spans(text)) == set(rt.BLOCKS), "each block appears in the README once"
+    _, changed = rt.regenerate(text)
+    assert changed == [], f"run python benchmarks/readme_tables.py: stale blocks {changed}"
+
+
+def test_every_results_file_the_readme_cites_is_rendered_by_a_block():
+    cited = set(re.findall(r"benchmarks/results/(\w+)\.json", README.read_text()))
+    rendered = {source for b in rt.BLOCKS.values() for source in b.sources}
+    assert cited, "the README cites its results files"
+    assert cited <= rendered, f"quoted but not generated: {sorted(cited - rendered)}"
+
+
+def test_a_hand_edited_number_is_caught_and_named():
+    text = README.read_text()
+    original = block(text, "safe_prm")
+    row = next(line for line in original.splitlines() if line.startswith("| 5,000 |"))
+    number = re.search(r"\d+\.\d+x", row).group(0)
+    edited = text.replace(original, original.replace(row, row.replace(number, "999.9x")))
+    _, changed = rt.regenerate(edited)
+    assert changed == ["safe_prm"]
+    fixed, _ = rt.regenerate(edited)
+    assert fixed == text, "rewriting restores the README exactly"
+
+
+def test_a_changed_result_changes_the_table(results: Path):
+    path = results / "mavlink.json"
+    edit_json(
+        path,
+        lambda d: [r.update(door_min_clearance_m=0.123) for r in d["rows"] if r.get("flight") == "mission"],
+    )
+    assert "| mission | 0.093 / 0.054 m | 0.123 m |" in rt.render_mavlink_hall(results)
+
+
+def test_the_sentences_judge_the_targets_from_the_data(results: Path):
+    def faster(d):
+        for r in d["rows"]:
+            if r["planner"] == "OMPL PRM (vectorised)" and r["milestones"] in (2000, 5000):
+                r["build_ratio"] = "28.6x" if r["milestones"] == 2000 else "26.2x"
+            if r["planner"].startswith("safe_prm") and r["milestones"] == 5000:
+                r["query_repair_ms_4mm"], r["query_repair_ms_8mm"] = "0.83", "0.74"
+
+    edit_json(results / "safe_prm_vs_ompl.json", faster)
+    text = flat(rt.render_safe_prm(results))
+    assert "milestones: met (28.6x and 26.2x" in text
+    assert "at 5,000 milestones: met (0.83 / 0.74 ms)" in text
+
+    def slower(d):
+        for r in d["rows"]:
+            if r["planner"] == "OMPL PRM (vectorised)" and r["milestones"] == 5000:
+                r["build_ratio"] = "8.1x"
+            if r["planner"].startswith("safe_prm") and r["milestones"] == 5000:
+                r["query_repair_ms_8mm"] = "2.4"
+
+    edit_json(results / "safe_prm_vs_ompl.json", slower)
+    text = flat(rt.render_safe_prm(results))
+    assert "milestones: not met (28.6x and 8.1x" in text
+    assert "at 5,000 milestones: not met (0.83 / 2.4 ms)" in text
+
+    edit_json(
+        results / "optmis.json",
+        lambda d: [r.update(value=1.7) for r in d["rows"] if r["measure"].startswith("online query between free")],
+    )
+    assert "all 1,000 solved: not met (1.7 ms" in flat(rt.render_optmis(results))
+
+    def generation(first: float, second: float):
+        def change(d):
+            d["summary"][0]["current_generation_s"], d["summary"][1]["current_generation_s"] = first, second
+            d["summary"][0]["target_s"] = d["summary"][1]["target_s"] = 150
+
+        return change
+
+    edit_json(results / "retraction_speed.json", generation(128.0, 96.0))
+    speed = flat(rt.render_retraction_speed(results))
+    assert "with the moderate load both scenarios generate 1,000 samples within the issue's 150 s" in speed.lower()
+    edit_json(results / "retraction_speed.json", generation(128.0, 171.0))
+    speed = flat(rt.render_retraction_speed(results))
+    assert "with the moderate load only scenario 1 does (128 s and 171 s)" in speed.lower()
+    assert "| 171.0 s |" in speed
+
+    edit_json(results / "fem_vs_fenicsx.json", lambda d: [r.update(speedup=2.5) for r in d["rows"]])
+    fem = flat(rt.render_fem_vs_fenicsx(results))
+    assert "met on seven of the seven cases" in fem and "missed on none." in fem
+
+    edit_json(results / "guide.json", lambda d: d["rows"][1].update(analysis_p99_ms=6.0))
+    guide = rt.render_guide(results)
+    assert guide.count("| met |") == 1 and guide.count("| not met |") == 1
+
+
+@pytest.mark.parametrize(
+    ("readme", "message"),
+    [
+        ("<!-- generated by benchmarks/readme_tables.py: report -->\nx\n", "block 'report' has no 'end generated"),
+        ("<!-- end generated: report -->\n", "'end generated: report' without its beginning"),
+        (
+            "<!-- generated by benchmarks/readme_tables.py: nosuch -->\n<!-- end generated: nosuch -->\n",
+            "unknown block 'nosuch'",
+        ),
+        (
+            "<!-- generated by benchmarks/readme_tables.py: report -->\n<!-- end generated: report -->\n" * 2,
+            "block 'report' appears twice",
+        ),
+        (
+            "<!-- generated by benchmarks/readme_tables.py: report -->\n"
+            "<!-- generated by benchmarks/readme_tables.py: guide -->\n",
+            "block 'guide' begins inside block 'report' (line 2)",
+        ),
+        (
+            "<!-- generated by benchmarks/readme_tables.py: report -->\n<!-- end generated: report -->\n",
+            "no generated block for safe_prm",
+        ),
+    ],
+)
+def test_malformed_markers_are_named_with_their_line(tmp_path: Path, readme: str, message: str, capsys):
+    path = tmp_path / "README.md"
+    path.write_text("intro\n" + readme)
+    assert rt.main(["--readme", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and str(path) in err
+    assert path.read_text() == "intro\n" + readme, "nothing written"
+
+
+def test_check_and_rewrite_from_the_command_line(tmp_path: Path, results: Path, capsys):
+    path = tmp_path / "README.md"
+    path.write_text(README.read_text())
+    assert rt.main(["--check", "--readme", str(path), "--results", str(results)]) == 0
+
+    edit_json(results / "guide.json", lambda d: d["rows"][0].update(analysis_median_ms=0.0777))
+    assert rt.main(["--check", "--readme", str(path), "--results", str(results)]) == 1
+    assert "out of date with benchmarks/results: guide" in capsys.readouterr().err
+    assert path.read_text() == README.read_text(), "--check writes nothing"
+
+    assert rt.main(["--readme", str(path), "--results", str(results)]) == 0
+    assert "| 0.078 / " in block(path.read_text(), "guide")
+    assert rt.main(["--check", "--readme", str(path), "--results", str(results)]) == 0
+
+    (results / "optmis.json").unlink()
+    before = path.read_text()
+    assert rt.main(["--readme", str(path), "--results", str(results)]) == 2
+    err = capsys.readouterr().err
+    assert "optmis.json: missing" in err
+    assert path.read_text() == before, "a failed rendering leaves the README as it was"
+
+
+#: figures that a block quotes and the prose uses for another meaning (a protocol timeout, a vehicle's
+#: radius, a setting's value, the paper's figure), so their appearing outside the blocks is not a copy
+COINCIDENCES = {"0.25 s", "0.1 mm", "67.6 s", "0.3 ms", "0.25 m", "0.5 m"}
+
+
+def test_no_benchmark_figure_is_also_typed_outside_its_block():
+    text = README.read_text()
+    found = rt.spans(text)
+    outside = text
+    for start, end in sorted(found.values(), reverse=True):
+        outside = outside[:start] + outside[end:]
+    figure = re.compile(r"(?<![\w.])\d[\d,]*\.\d+ ?(?:x|×|ms|s|%|µs|mm|m|h|MB|kPa)(?!\w)")
+    copies = []
+    for name, (start, end) in found.items():
+        for token in set(figure.findall(text[start:end])) - COINCIDENCES:
+            if re.search(rf"(?<![\w.]){re.escape(token)}(?!\w)", outside):
+                copies.append(f"{name}: {token}")
+    assert copies == [], f"benchmark figures typed outside their generated blocks: {copies}"
