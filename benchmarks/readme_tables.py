@@ -52,7 +52,7 @@ def sig(x: float, n: int = 3) -> str:
     x = float(x)
     if x == 0:
         return "0"
-    s = f"{x:.{n}g}"
+    s = f"{x:#.{n}g}".rstrip(".")  # trailing zeros kept: 0.40 ms, not 0.4 ms
     if "e" in s:
         s = f"{x:.{max(n - 1 - int(f'{x:e}'.split('e')[1]), 0)}f}"
     if "." not in s and abs(x) >= 1000:
@@ -205,7 +205,7 @@ def render_safe_prm(results: Path) -> str:
                 f"{m:,}",
                 f"{sig(f(s['build_s']), 2)} s",
                 f"{sig(f(v['build_s']))} s ({v['build_ratio']}) / {sig(f(c['build_s']))} s ({c['build_ratio']}) / "
-                f"{sig(f(b['build_s']), 2)} s ({b['build_ratio']})",
+                f"{sig(f(b['build_s']))} s ({b['build_ratio']})",
                 f"{sig(f(s['query_ms']), 2)} ms",
                 f"{sig(f(s['query_repair_ms_4mm']), 2)} / {sig(f(s['query_repair_ms_8mm']), 2)} ms",
                 f"{sig(f(v['query_ms']), 2)} ms",
