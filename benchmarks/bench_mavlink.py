@@ -457,7 +457,10 @@ SECTIONS = ("hall", "upload", "tracking", "speed", "lockstep")
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small sizes, for checking the script")
-    parser.add_argument("--only", help=f"comma-separated sections of {', '.join(SECTIONS)} (results not saved)")
+    parser.add_argument("--only", help=f"comma-separated sections of {', '.join(SECTIONS)} (saved only with --save)")
+    parser.add_argument(
+        "--save", action="store_true", help="with --only: replace those sections in results/mavlink.json, keep the rest"
+    )
     parser.add_argument(
         "--markdown", action="store_true", help="only rewrite results/mavlink.md from results/mavlink.json"
     )
@@ -506,9 +509,15 @@ def main() -> None:
         "load_average_at_start: os.getloadavg() when each section began (a shared machine)"
     )
     print("\n" + markdown(rows))
-    if args.quick or args.only:
-        return  # a check of the script, or a part: results/ hold full runs only
+    if args.quick or (args.only and not args.save):
+        return  # a check of the script, or a part not asked to be saved
     from common import RESULTS
+
+    if args.only:
+        # replace this run's sections in the saved results, keep the others (their load averages say when)
+        kept = [r for r in json.loads((RESULTS / "mavlink.json").read_text())["rows"] if r["benchmark"] not in only]
+        order = {name: i for i, name in enumerate(SECTIONS)}
+        rows = sorted(kept + rows, key=lambda r: order.get(r["benchmark"], len(order)))
 
     print(f"\nwritten {save('mavlink', rows, notes)}")
     from surgiplan.storage import write_text_atomic
