@@ -28,38 +28,10 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from surgiplan.paths.heap import distance, pop, push
 
 #: the heuristic's safety factor against round-off (see the module docstring)
 _SHRINK = 1.0 - 1e-12
-
-
-@njit(cache=True, nogil=True)
-def _sift_up(keys, items, at):
-    key, item = keys[at], items[at]
-    while at > 0:
-        parent = (at - 1) >> 1
-        if keys[parent] <= key:
-            break
-        keys[at], items[at] = keys[parent], items[parent]
-        at = parent
-    keys[at], items[at] = key, item
-
-
-@njit(cache=True, nogil=True)
-def _sift_down(keys, items, size):
-    key, item = keys[0], items[0]
-    at = 0
-    while True:
-        child = 2 * at + 1
-        if child >= size:
-            break
-        if child + 1 < size and keys[child + 1] < keys[child]:
-            child += 1
-        if keys[child] >= key:
-            break
-        keys[at], items[at] = keys[child], items[child]
-        at = child
-    keys[at], items[at] = key, item
 
 
 @njit(cache=True, nogil=True)
@@ -90,7 +62,6 @@ def astar(
     virtual goal (last); it is empty when the target cannot be reached.
     """
     n = scaled.shape[0]
-    dim = scaled.shape[1]
     start_node = n  # the virtual start, in the per-query arrays
     goal_node = n + 1
     best = np.full(n + 2, np.inf)
@@ -121,35 +92,19 @@ def astar(
         for k in range(source_targets.shape[0]):
             t = source_targets[k]
             if parent[t] == start_node and not closed[t]:
-                h = 0.0
-                for d in range(dim):
-                    diff = scaled[t, d] - goal_at[d]
-                    h += diff * diff
-                keys[size] = best[t] + np.sqrt(h) * _SHRINK
-                items[size] = t
-                _sift_up(keys, items, size)
-                size += 1
+                size = push(keys, items, size, best[t] + distance(scaled, t, goal_at) * _SHRINK, t)
         if target < 0 and direct_cost < best[goal_node]:
             best[goal_node] = direct_cost
             parent[goal_node] = start_node
-            keys[size] = direct_cost
-            items[size] = goal_node
-            _sift_up(keys, items, size)
-            size += 1
+            size = push(keys, items, size, direct_cost, goal_node)
     else:
         best[source] = 0.0
-        keys[0] = 0.0
-        items[0] = source
-        size = 1
+        size = push(keys, items, size, 0.0, source)
 
     settled = 0
     found = -1
     while size > 0:
-        v = items[0]
-        size -= 1
-        if size > 0:
-            keys[0], items[0] = keys[size], items[size]
-            _sift_down(keys, items, size)
+        v, size = pop(keys, items, size)
         if closed[v]:
             continue
         closed[v] = True
@@ -163,10 +118,7 @@ def astar(
             if c < best[goal_node]:
                 best[goal_node] = c
                 parent[goal_node] = v
-                keys[size] = c
-                items[size] = goal_node
-                _sift_up(keys, items, size)
-                size += 1
+                size = push(keys, items, size, c, goal_node)
         for e in range(indptr[v], indptr[v + 1]):
             w = indices[e]
             if closed[w]:
@@ -175,14 +127,7 @@ def astar(
             if c < best[w]:
                 best[w] = c
                 parent[w] = v
-                h = 0.0
-                for d in range(dim):
-                    diff = scaled[w, d] - goal_at[d]
-                    h += diff * diff
-                keys[size] = c + np.sqrt(h) * _SHRINK
-                items[size] = w
-                _sift_up(keys, items, size)
-                size += 1
+                size = push(keys, items, size, c + distance(scaled, w, goal_at) * _SHRINK, w)
 
     if found < 0:
         return np.empty(0, dtype=np.int64), np.inf, settled

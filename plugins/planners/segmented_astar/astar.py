@@ -25,42 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from surgiplan.paths.heap import distance, pop, push
 
 _SHRINK = 1.0 - 1e-12
-
-
-@njit(cache=True, nogil=True)
-def _push(keys, items, size, key, item):
-    at = size
-    while at > 0:
-        parent = (at - 1) >> 1
-        if keys[parent] <= key:
-            break
-        keys[at], items[at] = keys[parent], items[parent]
-        at = parent
-    keys[at], items[at] = key, item
-    return size + 1
-
-
-@njit(cache=True, nogil=True)
-def _pop(keys, items, size):
-    item = items[0]
-    size -= 1
-    if size > 0:
-        key, last = keys[size], items[size]
-        at = 0
-        while True:
-            child = 2 * at + 1
-            if child >= size:
-                break
-            if child + 1 < size and keys[child + 1] < keys[child]:
-                child += 1
-            if keys[child] >= key:
-                break
-            keys[at], items[at] = keys[child], items[child]
-            at = child
-        keys[at], items[at] = key, last
-    return item, size
 
 
 @njit(cache=True, nogil=True)
@@ -98,13 +65,13 @@ def astar_junctions(
             came[v] = -2 - k
     for v in range(n):
         if came[v] <= -2:
-            size = _push(keys, items, size, best[v] + _distance(points, v, goal_point) * _SHRINK, v)
+            size = push(keys, items, size, best[v] + distance(points, v, goal_point) * _SHRINK, v)
     if direct_cost < np.inf:
         best[goal] = direct_cost
-        size = _push(keys, items, size, direct_cost, goal)
+        size = push(keys, items, size, direct_cost, goal)
     expanded = 0
     while size > 0:
-        v, size = _pop(keys, items, size)
+        v, size = pop(keys, items, size)
         if closed[v]:
             continue
         closed[v] = True
@@ -116,14 +83,14 @@ def astar_junctions(
             best[goal] = g + end_cost[v]
             via[goal] = end_index[v]
             came[goal] = v
-            size = _push(keys, items, size, best[goal], goal)
+            size = push(keys, items, size, best[goal], goal)
         for e in range(indptr[v], indptr[v + 1]):
             w = neighbour[e]
             c = g + cost[e]
             if not closed[w] and c < best[w]:
                 best[w] = c
                 came[w] = e
-                size = _push(keys, items, size, c + _distance(points, w, goal_point) * _SHRINK, w)
+                size = push(keys, items, size, c + distance(points, w, goal_point) * _SHRINK, w)
     if not closed[goal]:
         return np.empty(0, dtype=np.int64), -1, -2, np.inf, expanded
     if via[goal] < 0:
@@ -141,15 +108,6 @@ def astar_junctions(
         entries[k] = came[u]
         u = _source_of(indptr, came[u])
     return entries, -2 - came[u], via[goal], best[goal], expanded
-
-
-@njit(cache=True, nogil=True)
-def _distance(points, v, target):
-    total = 0.0
-    for d in range(points.shape[1]):
-        diff = points[v, d] - target[d]
-        total += diff * diff
-    return np.sqrt(total)
 
 
 @njit(cache=True, nogil=True)
