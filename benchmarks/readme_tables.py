@@ -63,10 +63,6 @@ def sig(x: float, n: int = 3) -> str:
     return s
 
 
-def fixed(x: float, digits: int) -> str:
-    return f"{float(x):,.{digits}f}"
-
-
 def secs(x: float) -> str:
     """A time in seconds as the tables print it: three decimals below a second, three digits above."""
     return f"{float(x):.3f}" if x < 1 else sig(x, 3)
@@ -118,6 +114,16 @@ def wrap(text: str, width: int = 78) -> str:
         lines.append(line)
         out.append("\n".join(lines))
     return "\n\n".join(out)
+
+
+def section(head: str, body: str, tail: str = "") -> str:
+    """A block: the conditions paragraph, the table, and the paragraph that reads it (each re-flowed)."""
+    return "\n\n".join(part for part in (wrap(head), body, wrap(tail) if tail else "") if part)
+
+
+def dims(text: str) -> str:
+    """Mesh sizes as the README writes them: 40x4x4 -> 40×4×4."""
+    return re.sub(r"(?<=\d)x(?=\d)", "×", text)
 
 
 def met(ok: bool) -> str:
@@ -185,7 +191,7 @@ def render_report(results: Path) -> str:
         f"its time instead of {1e3 * alone['overrun_s']:.0f} ms. With a GPU, or a viewer on another core, "
         f"that cost goes."
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_safe_prm(results: Path) -> str:
@@ -261,7 +267,7 @@ def render_safe_prm(results: Path) -> str:
         f"{ompl_margin[1]}/{seeds} and {ompl_margin[2]}/{seeds} (the target lies behind a 6 mm gap); safe_prm "
         f"solves {safe_margin[1]}/{seeds} and {safe_margin[2]}/{seeds} and reports the critical region."
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_retraction(results: Path) -> str:
@@ -327,7 +333,7 @@ def render_retraction(results: Path) -> str:
         f"poor substitute for random sampling in scenario {worst['scenario']}: the low-stress routes lie away from "
         f"the surgeon's line (+{100 * worst['rms_rel_error_max_stress']:.0f} % on the optimised stress)."
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_retraction_speed(results: Path) -> str:
@@ -395,7 +401,7 @@ def render_retraction_speed(results: Path) -> str:
         )
         + f"{verdict('retraction_speed', 'moderate').capitalize()}; {verdict('retraction_speed_loaded', 'heavy')}."
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_optmis(results: Path) -> str:
@@ -522,7 +528,7 @@ def render_optmis(results: Path) -> str:
         f"{t('search-space paths')}. For storage, `thinning` keeps the shortest paths and compresses them further "
         f"than the paper's encoding."
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_fem_vs_fenicsx(results: Path) -> str:
@@ -530,7 +536,7 @@ def render_fem_vs_fenicsx(results: Path) -> str:
     rows = data["rows"]
 
     def what(r: dict) -> str:
-        text = re.sub(r"(?<=\d)x(?=\d)", "×", r["what"]).replace("->", "→")
+        text = dims(r["what"]).replace("->", "→")
         return re.sub(r" \(three edges anchored\)| \(gravity, base plane\)| \d+×\d+×\d+$", "", text)
 
     body = table(
@@ -582,7 +588,7 @@ def render_fem_vs_fenicsx(results: Path) -> str:
             else "."
         )
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_fem(results: Path) -> str:
@@ -685,7 +691,7 @@ def render_fem_solvers(results: Path) -> str:
         ],
         [
             [
-                re.sub(r"(?<=\d)x(?=\d)", "×", r["matrix"]),
+                dims(r["matrix"]),
                 f"{r['unknowns']:,}",
                 f"{1e3 * r['superlu_factor_s']:.1f} ms ({1e3 * r['superlu_factor_and_definiteness_s']:.1f} ms)",
                 f"{1e3 * r['pardiso_analysis_and_first_factor_s']:.1f} / {1e3 * r['pardiso_factor_s']:.1f} ms",
@@ -711,7 +717,7 @@ def render_fem_solvers(results: Path) -> str:
         f"qdldl (a refactorisation reusing its analysis) and cholespy (Cholesky only, no refactorisation) are "
         f"{'slower on every tangent' if slower else 'not slower everywhere'} and report no inertia."
     )
-    return wrap(head) + "\n\n" + body + "\n\n" + wrap(tail)
+    return section(head, body, tail)
 
 
 def render_guide(results: Path) -> str:
@@ -747,7 +753,7 @@ def render_guide(results: Path) -> str:
         f"the source producing a sample to the end of its analysis with the synthetic trainee paced in real time "
         f"(100 samples/s), what a trainee watching feels:"
     )
-    return wrap(head) + "\n\n" + body
+    return section(head, body)
 
 
 def render_devices(results: Path) -> str:
