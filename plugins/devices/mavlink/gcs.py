@@ -62,7 +62,44 @@ def result_name(result: int) -> str:
     return f"{text} ({description})" if description else text
 
 
-class CommandTransaction:
+class _RetriedRequest:
+    """A request sent again every ``timeout`` until answered, at most ``retries`` more times, without I/O.
+
+    Subclasses set ``timeout``, ``retries`` and ``result`` and build the request in ``_message``; the
+    count of retransmissions so far is ``retransmissions`` (the command protocol's confirmation).
+    """
+
+    timeout: float
+    retries: int
+    result: object | None
+    retransmissions = 0
+    deadline = math.inf
+    timed_out = False
+
+    @property
+    def finished(self) -> bool:
+        return self.result is not None or self.timed_out
+
+    def _message(self):
+        raise NotImplementedError
+
+    def start(self, now: float) -> list:
+        self.deadline = now + self.timeout
+        return [self._message()]
+
+    def on_timer(self, now: float) -> list:
+        if self.finished or now < self.deadline:
+            return []
+        if self.retransmissions >= self.retries:
+            self.timed_out = True
+            self.deadline = math.inf
+            return []
+        self.retransmissions += 1
+        self.deadline = now + self.timeout
+        return [self._message()]
+
+
+class CommandTransaction(_RetriedRequest):
     """One command of the command protocol, ground-station side, without I/O."""
 
     def __init__(
@@ -81,22 +118,11 @@ class CommandTransaction:
         self.timeout = timeout
         self.retries = retries
         self.in_progress_timeout = in_progress_timeout
-        self.confirmation = 0
         self.result: int | None = None
         self.progress: int | None = None
-        self.deadline = math.inf
-        self.timed_out = False
-
-    @property
-    def finished(self) -> bool:
-        return self.result is not None or self.timed_out
 
     def _message(self):
-        return mavlink.MAVLink_command_long_message(*self.target, self.command, self.confirmation, *self.params)
-
-    def start(self, now: float) -> list:
-        self.deadline = now + self.timeout
-        return [self._message()]
+        return mavlink.MAVLink_command_long_message(*self.target, self.command, self.retransmissions, *self.params)
 
     def on_message(self, message, now: float) -> list:
         if message.get_type() != "COMMAND_ACK" or int(message.command) != self.command or self.finished:
@@ -108,17 +134,6 @@ class CommandTransaction:
         self.result = int(message.result)
         self.deadline = math.inf
         return []
-
-    def on_timer(self, now: float) -> list:
-        if self.finished or now < self.deadline:
-            return []
-        if self.confirmation >= self.retries:
-            self.timed_out = True
-            self.deadline = math.inf
-            return []
-        self.confirmation += 1
-        self.deadline = now + self.timeout
-        return [self._message()]
 
 
 def param_to_wire(kind: int, value: float | int, bytewise: bool) -> float:
@@ -140,7 +155,7 @@ def _param_name(message) -> str:
     return (name.decode("ascii", "replace") if isinstance(name, bytes) else str(name)).rstrip("\x00")
 
 
-class ParamTransaction:
+class ParamTransaction(_RetriedRequest):
     """Read (``value`` None) or set one parameter, ground-station side, without I/O.
 
     Finished when a PARAM_VALUE of that name arrives (for a set: the value it
@@ -166,25 +181,14 @@ class ParamTransaction:
         self.bytewise = bytewise
         self.timeout = timeout
         self.retries = retries
-        self.attempts = 0
-        self.deadline = math.inf
         self.result: float | int | None = None
         self.result_kind: int | None = None
-        self.timed_out = False
-
-    @property
-    def finished(self) -> bool:
-        return self.result is not None or self.timed_out
 
     def _message(self):
         if self.value is None:
             return mavlink.MAVLink_param_request_read_message(*self.target, self.name.encode(), -1)
         wire = param_to_wire(self.kind, self.value, self.bytewise)
         return mavlink.MAVLink_param_set_message(*self.target, self.name.encode(), wire, self.kind)
-
-    def start(self, now: float) -> list:
-        self.deadline = now + self.timeout
-        return [self._message()]
 
     def on_message(self, message, now: float) -> list:
         if self.finished or message.get_type() != "PARAM_VALUE" or _param_name(message) != self.name:
@@ -193,17 +197,6 @@ class ParamTransaction:
         self.result = param_from_wire(self.result_kind, message.param_value, self.bytewise)
         self.deadline = math.inf
         return []
-
-    def on_timer(self, now: float) -> list:
-        if self.finished or now < self.deadline:
-            return []
-        if self.attempts >= self.retries:
-            self.timed_out = True
-            self.deadline = math.inf
-            return []
-        self.attempts += 1
-        self.deadline = now + self.timeout
-        return [self._message()]
 
 
 def capability_names(bits: int) -> list[str]:
@@ -474,7 +467,7 @@ class GroundStation:
             self._transactions.remove(transaction)
         if transaction.timed_out:
             raise VehicleError(
-                f"no COMMAND_ACK for {command_name(command)} after {transaction.confirmation + 1} attempts "
+                f"no COMMAND_ACK for {command_name(command)} after {transaction.retransmissions + 1} attempts "
                 f"({self.command_timeout:g} s apart)",
                 step=self.step,
             )
@@ -663,7 +656,7 @@ class GroundStation:
         for read in reads:
             if read.timed_out:
                 raise VehicleError(
-                    f"the vehicle did not send parameter {read.name} after {read.attempts + 1} requests "
+                    f"the vehicle did not send parameter {read.name} after {read.retransmissions + 1} requests "
                     f"({self.item_timeout:g} s apart): it has no such parameter",
                     step=self.step,
                 )
