@@ -156,9 +156,14 @@ def test_the_guard_refuses_and_reports_a_non_loopback_send(tmp_path, monkeypatch
     import surgiplan_netguard as guard
 
     monkeypatch.setenv("SURGIPLAN_NETGUARD_LOG", str(tmp_path / "log"))
+    # multicast TTL 0: should the guard ever fail, the datagram still could not leave this host
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock, pytest.raises(guard.NetworkPolicyError):
+        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
         sock.sendto(b"x", ("239.74.163.2", 43113))
-    code = "import socket; socket.socket(socket.AF_INET, socket.SOCK_DGRAM).sendto(b'x', ('239.74.163.2', 43113))"
+    code = (
+        "import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); "
+        "s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0); s.sendto(b'x', ('239.74.163.2', 43113))"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert result.returncode != 0 and "network guard" in result.stderr
     log = (tmp_path / "log").read_text()
