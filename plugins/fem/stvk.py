@@ -29,7 +29,9 @@ vertex.
 
 Everything is computed for all elements at once with numpy; no Python loop
 runs over elements (only over an element's quadrature points: one for
-linear, four for quadratic tetrahedra). ``definite=True`` gives a positive
+linear, four for quadratic tetrahedra). The element tangents themselves are
+summed by a compiled kernel (:mod:`.kernels`) from small per-point factors
+computed here, each entry written once. ``definite=True`` gives a positive
 semi-definite surrogate tangent (for Newton far from equilibrium, where
 StVK under compression is not convex; see :meth:`StVKElements._tangent`).
 """
@@ -275,8 +277,8 @@ class StVKElements:
                 return ElementEvaluation(np.inf, False)
         energy = 0.0
         forces = None
-        k = None
-        for q, (point, (f, h, det, cof)) in enumerate(zip(self.points, kinematics, strict=True)):
+        terms = []  # per quadrature point: what the tangent is built from
+        for point, (f, h, det, cof) in zip(self.points, kinematics, strict=True):
             vol = point.weight
             e, tr = self._strain_h(h)
             log_j = self._log_volume_ratio(h, det)
@@ -292,18 +294,16 @@ class StVKElements:
             part = _matmul(point.grad, p.transpose(1, 0, 2))  # (k, 3, m): V P g_a
             forces = part if forces is None else forces + part
             if hessian:
-                k = self._tangent(f, s, inv_t, log_j, definite, point, accumulate=q > 0)
+                terms.append(self._tangent_terms(f, s, inv_t, log_j, definite, point))
         result = ElementEvaluation(energy, True)
         if forces is not None:
             result.gradient = np.bincount(self._dofs_flat, weights=forces.ravel(), minlength=3 * self.n_nodes)
         if hessian:
-            result.hessian = k
+            result.hessian = self._tangent(terms)
         return result
 
-    def _tangent(
-        self, f, s, inv_t, log_j, definite: bool, point: QuadraturePoint | None = None, accumulate: bool = False
-    ) -> np.ndarray:
-        """Element tangents (3k, 3k, m) of one quadrature point, added to the buffer if ``accumulate``.
+    def _tangent_terms(self, f, s, inv_t, log_j, definite: bool, point: QuadraturePoint) -> tuple:
+        """What the tangent of one quadrature point is built from (see :func:`.kernels.element_tangents`).
 
         ``definite``: a positive semi-definite surrogate, much cheaper than
         clamping the eigenvalues of every element matrix: the geometric
@@ -313,47 +313,44 @@ class StVKElements:
         material part is the second variation of W at fixed S,
         ``lambda (F:dF)^2 + 2 mu |sym(F^T dF)|^2``, never negative either.
         """
-        point = point or self.points[0]
-        vol = point.weight
         grad = point.grad
-        n = self.nodes_per_element
-        m = len(vol)
         if definite:
             s = s - np.minimum(symmetric_eigenvalues(s)[0], 0.0) * _EYE[:, :, None]
-        k, tmp = self._buffers(m)
-        # scalars are folded into the small factors before the big outer products
-        fft = _matmul(f, f.transpose(1, 0, 2))
-        first = tmp if accumulate else k
-        np.multiply((self.mu * vol) * point.gg[:, None, :, None, :], fft[None, :, None, :, :], out=first)
-        if accumulate:
-            k += tmp
+        fft = _matmul(f, f.transpose(1, 0, 2))  # F F^T
         gsg = _matmul(grad, _matmul(s, grad.transpose(1, 0, 2)))  # (k, k, m): g_a . S g_b
-        k[:, _DIAG, :, _DIAG] += vol * gsg  # advanced indices go first: (3, k, k, m)
         h = _matmul(grad, f.transpose(1, 0, 2))  # (k, 3, m): F g_a
         q = _matmul(grad, inv_t.transpose(1, 0, 2))  # (k, 3, m): F^-T g_a
-        # [a, i, b, k] += c u_ai u_bk  (outer) and  c u_ak u_bi  (swapped)
-        terms = [(self.lam * vol, h, False), (self.mu * vol, h, True), (self.kappa * vol, q, False)]
-        if not definite:
-            terms.append((-self.kappa * vol * log_j, q, True))
-        for scale, u, swapped in terms:
-            su = scale * u
-            if swapped:
-                np.multiply(u[:, None, None, :, :], su.transpose(1, 0, 2)[None, :, :, None, :], out=tmp)
-            else:
-                np.multiply(u[:, :, None, None, :], su[None, None, :, :, :], out=tmp)
-            k += tmp
-        return k.reshape(3 * n, 3 * n, m)  # a view of the work buffer: valid until the next call
+        swapped = np.zeros_like(log_j) if definite else log_j
+        return fft, gsg, h, q, swapped
 
-    def _buffers(self, m: int) -> tuple[np.ndarray, np.ndarray]:
-        """Work arrays reused between calls (fresh large arrays cost page faults every time)."""
+    def _tangent(self, terms: list[tuple]) -> np.ndarray:
+        """Element tangents (3k, 3k, m) summed over the quadrature points' ``terms`` (compiled kernel).
+
+        A view of a work buffer: valid until the next tangent evaluation.
+        """
+        from .kernels import element_tangents
+
         n = self.nodes_per_element
-        if getattr(self, "_work", None) is None or self._work[0].shape[-1] != m:
-            self._work = (np.empty((n, 3, n, 3, m)), np.empty((n, 3, n, 3, m)))
+        m = self.n_elements
+        out = self._buffer(m)
+        if getattr(self, "_weights", None) is None:  # the quadrature weights and g_a . g_b, stacked once
+            self._weights = (np.stack([p.weight for p in self.points]), np.stack([p.gg for p in self.points]))
+        vol, gg = self._weights
+        fft, gsg, h, q, log_j = (np.stack(column) for column in zip(*terms, strict=True))
+        element_tangents(out, vol, gg, fft, gsg, h, q, self.lam, self.mu, self.kappa, log_j)
+        return out.reshape(3 * n, 3 * n, m)
+
+    def _buffer(self, m: int) -> np.ndarray:
+        """The work array (k, 3, k, 3, m) reused between calls (a fresh large array costs page faults every time)."""
+        n = self.nodes_per_element
+        if getattr(self, "_work", None) is None or self._work.shape[-1] != m:
+            self._work = np.empty((n, 3, n, 3, m))
         return self._work
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
         state["_work"] = None
+        state["_weights"] = None
         return state
 
     # ------------------------------------------------------------------ stress
