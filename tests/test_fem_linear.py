@@ -3,7 +3,8 @@
 * PARDISO (oneMKL) and SuperLU find the same equilibria; PARDISO's inertia,
   read from its factorisation, matches the signs of the eigenvalues numpy
   computes of the same matrix (dense, an independent measure), for a
-  definite and an indefinite tangent.
+  definite tangent (Cholesky) and an indefinite one (Cholesky refuses it,
+  LDLT factors it).
 * The symbolic analysis is done once per mesh: many solves, one analysis;
   factorisations kept side by side are released when dropped.
 * ``linear_solver: pardiso`` where PARDISO cannot load is a clear
@@ -91,6 +92,11 @@ def test_the_inertia_read_from_the_factorisation_matches_the_eigenvalues():
         eigenvalues = np.linalg.eigvalsh(pattern.matrix(values).toarray())
         factor = pattern.factorize(values)
         assert factor.inertia == (int((eigenvalues > 0).sum()), int((eigenvalues < 0).sum()), 0)
+        # definite: factored by Cholesky alone; indefinite: Cholesky refuses, and LDLT gives the inertia above
+        assert factor._handle.mtype == (linear.CHOLESKY if eigenvalues.min() > 0 else linear.MTYPE)
+        if eigenvalues.min() < 0:
+            with pytest.raises(linear.NotPositiveDefinite):
+                pattern.factorize(values, definite_only=True)
         assert factor.positive_pivots() == bool(eigenvalues.min() > 0)
         rhs = np.random.default_rng(1).normal(size=len(eigenvalues))
         dense = pattern.matrix(values).toarray()[np.ix_(pattern.new_of_old, pattern.new_of_old)]
@@ -108,11 +114,14 @@ def test_one_symbolic_analysis_serves_every_solve_and_factors_are_released():
         assert state.converged
         total += state.data["factorizations"]
     solver = m.solver.pattern._pardiso
-    assert total > 8 and len(solver.handles) == 1 and solver.handles[0].analysed
+    # one analysis per matrix type (Cholesky for definite tangents, LDLT where one was indefinite), one ordering
+    assert total > 8 and len(solver.cholesky) == 1 and solver.cholesky[0].analysed and len(solver.handles) <= 1
+    assert all(handle.ordering == solver.ordering for handle in solver.cholesky + solver.handles)
     m.clear_caches()
     del state
     gc.collect()
-    assert len(solver.handles[0].free) == linear.SLOTS  # every factorisation released
+    for handle in solver.cholesky + solver.handles:
+        assert len(handle.free) == linear.SLOTS  # every factorisation released
 
 
 @needs_pardiso

@@ -186,8 +186,11 @@ def test_thinned_encoding_keeps_every_path_within_w_tip_and_stores_far_fewer_poi
         # independently: the rebuilt path sampled every 20 um, nearest sample to each original point, and back
         steps = np.linalg.norm(np.diff(rebuilt, axis=0), axis=1)
         dense = np.concatenate(
-            [np.linspace(a, b, max(int(np.ceil(s / 2e-5)), 1), endpoint=False) for a, b, s in
-             zip(rebuilt[:-1], rebuilt[1:], steps, strict=True)] + [rebuilt[-1:]]
+            [
+                np.linspace(a, b, max(int(np.ceil(s / 2e-5)), 1), endpoint=False)
+                for a, b, s in zip(rebuilt[:-1], rebuilt[1:], steps, strict=True)
+            ]
+            + [rebuilt[-1:]]
         )
         assert cKDTree(dense).query(original)[0].max() <= W_TIP + 2e-5
         assert error[k] >= cKDTree(dense).query(original)[0].max() - 2e-5

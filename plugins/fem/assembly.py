@@ -131,15 +131,19 @@ class TangentPattern:
             self._masks.popitem(last=False)
         return value
 
-    def factorize(self, data: np.ndarray):
+    def factorize(self, data: np.ndarray, definite_only: bool = False):
         """Factors of the (constrained) tangent: ``solve(rhs)``, ``positive_pivots()``.
 
-        Raises :class:`~.linear.SingularMatrix` (a ``RuntimeError``) when it is singular.
+        Raises :class:`~.linear.SingularMatrix` (a ``RuntimeError``) when it
+        is singular; with ``definite_only``, PARDISO raises
+        :class:`~.linear.NotPositiveDefinite` (a ``RuntimeError``) instead of
+        factoring an indefinite matrix (SuperLU returns the factor, whose
+        ``positive_pivots()`` says so).
         """
         if self.solver == "pardiso":
             if self._pardiso is None:
                 self._pardiso = PardisoSolver(self.indptr, self.indices, self.entry_cols)
-            return self._pardiso.factorize(data)
+            return self._pardiso.factorize(data, definite_only)
         return superlu_factor(self.matrix(data), self.new_of_old, self.old_of_new)
 
     def __getstate__(self) -> dict:

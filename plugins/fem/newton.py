@@ -449,8 +449,9 @@ class EquilibriumSolver:
             return self._finish(factor, options, shift)
         _, _, data = self._tangent(x, False)
         constrained = self.pattern.constrain(data, prescribed)
-        factor = self._try_factor(x, prescribed, False, data=data, constrained=constrained)
-        if options.tangent == "exact" or (factor is not None and factor.positive_pivots()):
+        exact = options.tangent == "exact"  # otherwise an indefinite factor is of no use: only definiteness counts
+        factor = self._try_factor(x, prescribed, False, data=data, constrained=constrained, definite_only=not exact)
+        if exact or (factor is not None and factor.positive_pivots()):
             return self._finish(factor, options, shift)
         result.definite_steps += 1
         free_diagonal = self.pattern.diagonal[~prescribed]
@@ -459,7 +460,7 @@ class EquilibriumSolver:
         while tau <= 1.0:
             shifted = constrained.copy()
             shifted[free_diagonal] += tau * scale
-            factor = self._try_factor(x, prescribed, True, data=data, constrained=shifted)
+            factor = self._try_factor(x, prescribed, True, data=data, constrained=shifted, definite_only=True)
             if factor is not None and factor.positive_pivots():
                 # for a following solve: the level that was needed, or lower when it sufficed at once
                 result.shift = tau if tau > shift else max(tau / 8.0, self.MIN_SHIFT)
@@ -481,9 +482,17 @@ class EquilibriumSolver:
     ROUNDING_SPREAD = 4.0
 
     def _try_factor(
-        self, x, prescribed, definite: bool, data=None, constrained=None, regularise: float = 0.0
+        self,
+        x,
+        prescribed,
+        definite: bool,
+        data=None,
+        constrained=None,
+        regularise: float = 0.0,
+        definite_only: bool = False,
     ) -> CachedFactor | None:
-        """Factor ``constrained`` (default: the tangent at x, the surrogate if ``definite``)."""
+        """Factor ``constrained`` (default: the tangent at x, the surrogate if ``definite``); ``None`` when it
+        is singular, or with ``definite_only`` when it is not positive definite."""
         if data is None:
             _, _, data = self._tangent(x, definite)
             if regularise:
@@ -491,8 +500,8 @@ class EquilibriumSolver:
         if constrained is None:
             constrained = self.pattern.constrain(data, prescribed)
         try:
-            lu = self.pattern.factorize(constrained)
-        except RuntimeError:
+            lu = self.pattern.factorize(constrained, definite_only)
+        except RuntimeError:  # SingularMatrix, NotPositiveDefinite
             return None
         return CachedFactor(lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite, x)
 
