@@ -80,6 +80,106 @@ def element_tangents(out, vol, gg, fft, gsg, h, q, lam, mu, kappa, logj):  # pra
     return out
 
 
+@njit(cache=True, nogil=True)
+def energy_and_gradient(ue, grads, weights, checks, lam, mu, kappa, dofs, gradient, want_gradient):  # pragma: no cover
+    """Elastic energy (J) of displacements ``ue`` (3, k, m), adding its gradient into ``gradient`` (3n,).
+
+    Returns (energy, valid): valid is False, and nothing else meaningful,
+    when det F <= 0 at a quadrature point or, for quadratic elements, at a
+    vertex (``checks`` (C, k, 3, m): the shape gradients there). ``grads``
+    (P, k, 3, m) and ``weights`` (P, m): the quadrature points' shape
+    gradients and weights w det J; ``dofs`` (k, 3, m): each element's
+    global degrees of freedom. The same closed forms as the numpy path of
+    :meth:`.stvk.StVKElements.evaluate` (F = I + H with H = grad u, E from H
+    without cancellation, ln J by log1p near J = 1); element by element.
+    """
+    _, k, m = ue.shape
+    n_points = grads.shape[0]
+    h = np.empty((3, 3))
+    f = np.empty((3, 3))
+    cof = np.empty((3, 3))
+    e_ = np.empty((3, 3))
+    p_ = np.empty((3, 3))
+    energy = 0.0
+    for el in range(m):
+        for c in range(checks.shape[0]):
+            for i in range(3):
+                for l in range(3):
+                    total = 1.0 if i == l else 0.0
+                    for a in range(k):
+                        total += ue[i, a, el] * checks[c, a, l, el]
+                    f[i, l] = total
+            det = (
+                f[0, 0] * (f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1])
+                + f[0, 1] * (f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2])
+                + f[0, 2] * (f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0])
+            )
+            if not det > 0.0:
+                return np.inf, False
+        for q in range(n_points):
+            for i in range(3):
+                for l in range(3):
+                    total = 0.0
+                    for a in range(k):
+                        total += ue[i, a, el] * grads[q, a, l, el]
+                    h[i, l] = total
+                    f[i, l] = total + (1.0 if i == l else 0.0)
+            cof[0, 0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
+            cof[0, 1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
+            cof[0, 2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
+            cof[1, 0] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
+            cof[1, 1] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
+            cof[1, 2] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
+            cof[2, 0] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
+            cof[2, 1] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
+            cof[2, 2] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
+            det = f[0, 0] * cof[0, 0] + f[0, 1] * cof[0, 1] + f[0, 2] * cof[0, 2]
+            if not det > 0.0:
+                return np.inf, False
+            # Green strain from H without cancellation: E = (H + H^T + H^T H) / 2
+            for i in range(3):
+                for j in range(3):
+                    total = 0.0
+                    for l in range(3):
+                        total += h[l, i] * h[l, j]
+                    e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
+            tr = e_[0, 0] + e_[1, 1] + e_[2, 2]
+            tr_h = h[0, 0] + h[1, 1] + h[2, 2]
+            square = 0.0
+            e_square = 0.0
+            for i in range(3):
+                for j in range(3):
+                    square += h[i, j] * h[j, i]
+                    e_square += e_[i, j] * e_[i, j]
+            det_h = (
+                h[0, 0] * (h[1, 1] * h[2, 2] - h[1, 2] * h[2, 1])
+                + h[0, 1] * (h[1, 2] * h[2, 0] - h[1, 0] * h[2, 2])
+                + h[0, 2] * (h[1, 0] * h[2, 1] - h[1, 1] * h[2, 0])
+            )
+            excess = tr_h + 0.5 * (tr_h * tr_h - square) + det_h  # J - 1
+            log_j = np.log1p(excess) if abs(excess) < 0.5 else np.log(det)
+            vol = weights[q, el]
+            energy += vol * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
+            if not want_gradient:
+                continue
+            # V P = V (F S) + kappa V ln J F^-T,  S = 2 mu E + lam tr E I
+            penalty = kappa[el] * vol * log_j / det
+            for i in range(3):
+                for j in range(3):
+                    total = 0.0
+                    for l in range(3):
+                        s_lj = 2.0 * mu[el] * e_[l, j] + (lam[el] * tr if l == j else 0.0)
+                        total += f[i, l] * s_lj
+                    p_[i, j] = vol * total + penalty * cof[i, j]
+            for a in range(k):
+                for i in range(3):
+                    total = 0.0
+                    for l in range(3):
+                        total += p_[i, l] * grads[q, a, l, el]
+                    gradient[dofs[a, i, el]] += total
+    return energy, True
+
+
 def warm() -> None:
     """Compile (or load from numba's cache) for the argument types the kernel is called with."""
     m, k, p = 1, 4, 1

@@ -263,6 +263,8 @@ class StVKElements:
         state invalid: energy ``inf`` and nothing else computed.
         """
         ue = self._element_displacements(x, displacement)
+        if displacement and not hessian:  # the Newton solve's energy and forces: the compiled kernel
+            return self._evaluate_compiled(ue, gradient)
         xe = None if displacement else self._element_positions(x)
         kinematics = []
         for point in self.points:
@@ -301,6 +303,26 @@ class StVKElements:
         if hessian:
             result.hessian = self._tangent(terms)
         return result
+
+    def _evaluate_compiled(self, ue: np.ndarray, gradient: bool) -> ElementEvaluation:
+        """Energy and gradient from displacements by :func:`.kernels.energy_and_gradient` (the same closed
+        forms as the numpy path below, element by element)."""
+        from .kernels import energy_and_gradient
+
+        if getattr(self, "_compiled", None) is None:  # the kernel's constant inputs, laid out once
+            k, m = self.nodes_per_element, self.n_elements
+            grads = np.stack([p.grad for p in self.points])
+            checks = np.stack(self._checks) if self._checks else np.empty((0, k, 3, m))
+            weights = np.stack([p.weight for p in self.points])
+            self._compiled = (grads, checks, weights, np.ascontiguousarray(self.dofs))
+        grads, checks, weights, dofs = self._compiled
+        out = np.zeros(3 * self.n_nodes)
+        energy, valid = energy_and_gradient(
+            ue, grads, weights, checks, self.lam, self.mu, self.kappa, dofs, out, gradient
+        )
+        if not valid:
+            return ElementEvaluation(np.inf, False)
+        return ElementEvaluation(float(energy), True, out if gradient else None)
 
     def _tangent_terms(self, f, s, inv_t, log_j, definite: bool, point: QuadraturePoint) -> tuple:
         """What the tangent of one quadrature point is built from (see :func:`.kernels.element_tangents`).
@@ -351,6 +373,7 @@ class StVKElements:
         state = dict(self.__dict__)
         state["_work"] = None
         state["_weights"] = None
+        state["_compiled"] = None
         return state
 
     # ------------------------------------------------------------------ stress
