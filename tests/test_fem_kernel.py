@@ -116,6 +116,12 @@ def test_assembly_and_constrained_solve_match_dense_algebra(cube):
     x = mesh.nodes + 2e-4 * rng.standard_normal(mesh.nodes.shape)
     pattern = TangentPattern(kernel.dofs, 3 * mesh.n_nodes)
     data = pattern.assemble(kernel.evaluate(x, hessian=True).hessian)
+    # assembled as the compiled kernel computes them (the Newton solve's path): the same sums
+    for definite in (False, True):
+        fused = kernel.evaluate(x, hessian=True, definite=definite, element_map=pattern.element_map, nnz=pattern.nnz)
+        reference = pattern.assemble(kernel.evaluate(x, hessian=True, definite=definite).hessian)
+        assert fused.hessian is None
+        assert np.abs(fused.assembled - reference).max() <= 1e-14 * np.abs(reference).max()
     dense = dense_tangent(kernel, x)
     v = rng.standard_normal(3 * mesh.n_nodes)
     assert np.allclose(pattern.matvec(data, v), dense @ v, rtol=1e-12, atol=1e-12 * np.abs(dense @ v).max())

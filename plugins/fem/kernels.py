@@ -25,8 +25,13 @@ CHUNK = 1024
 
 
 @njit(cache=True, nogil=True)
-def element_tangents(out, vol, gg, fft, gsg, h, q, lam, mu, kappa, logj):  # pragma: no cover - compiled
-    """Fill ``out`` (k, 3, k, 3, m) with the element tangents summed over the quadrature points.
+def element_tangents(out, data, element_map, vol, gg, fft, gsg, h, q, lam, mu, kappa, logj):  # pragma: no cover
+    """The element tangents summed over the quadrature points: into ``out`` (k, 3, k, 3, m), or assembled.
+
+    With ``element_map`` (k, 3, k, 3, m) not empty, each entry is added
+    straight into the global tangent's values ``data`` (nnz,) at the
+    position the map gives (the assembly, without the element matrices'
+    buffer and a second pass over it) and ``out`` is not touched.
 
     Per point p (first axis) and element e (last axis): ``vol`` (P, m) the
     weights w det J, ``gg`` (P, k, k, m) g_a . g_b, ``fft`` (P, 3, 3, m)
@@ -39,6 +44,7 @@ def element_tangents(out, vol, gg, fft, gsg, h, q, lam, mu, kappa, logj):  # pra
                     + kappa (q_ai q_bj - ln J q_aj q_bi) ]
     """
     n_points, k, _, m = h.shape
+    assemble = element_map.size > 0
     acc = np.empty(CHUNK)  # a local accumulator: no aliasing with the inputs, so the loops vectorise
     for start in range(0, m, CHUNK):  # a block of elements at a time: its inputs stay in cache
         n = min(CHUNK, m - start)
@@ -73,28 +79,38 @@ def element_tangents(out, vol, gg, fft, gsg, h, q, lam, mu, kappa, logj):  # pra
                                         + v_lam[e] * h_ai[e] * h_bj[e]
                                         + v_kappa[e] * (q_ai[e] * q_bj[e] - log_j[e] * q_aj[e] * q_bi[e])
                                     )
-                        row, mirror = out[a, i, b, j], out[b, j, a, i]
-                        for e in range(n):
-                            row[start + e] = acc[e]
-                            mirror[start + e] = acc[e]
+                        if assemble:
+                            rows, mirrors = element_map[a, i, b, j], element_map[b, j, a, i]
+                            for e in range(n):
+                                data[rows[start + e]] += acc[e]
+                            if b != a or j != i:
+                                for e in range(n):
+                                    data[mirrors[start + e]] += acc[e]
+                        else:
+                            row, mirror = out[a, i, b, j], out[b, j, a, i]
+                            for e in range(n):
+                                row[start + e] = acc[e]
+                                mirror[start + e] = acc[e]
     return out
 
 
 @njit(cache=True, nogil=True)
-def energy_and_gradient(ue, grads, weights, checks, lam, mu, kappa, dofs, gradient, want_gradient):  # pragma: no cover
-    """Elastic energy (J) of displacements ``ue`` (3, k, m), adding its gradient into ``gradient`` (3n,).
+def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradient, want_gradient):  # pragma: no cover
+    """Elastic energy (J) of the displacements ``u`` (3n,), adding its gradient into ``gradient`` (3n,).
 
     Returns (energy, valid): valid is False, and nothing else meaningful,
     when det F <= 0 at a quadrature point or, for quadratic elements, at a
-    vertex (``checks`` (C, k, 3, m): the shape gradients there). ``grads``
-    (P, k, 3, m) and ``weights`` (P, m): the quadrature points' shape
-    gradients and weights w det J; ``dofs`` (k, 3, m): each element's
-    global degrees of freedom. The same closed forms as the numpy path of
+    vertex (``checks`` (m, C, k, 3): the shape gradients there). ``grads``
+    (m, P, k, 3) and ``weights`` (m, P): the quadrature points' shape
+    gradients and weights w det J; ``dofs`` (m, k, 3): each element's
+    global degrees of freedom. Element-major arrays: everything one element
+    reads is contiguous. The same closed forms as the numpy path of
     :meth:`.stvk.StVKElements.evaluate` (F = I + H with H = grad u, E from H
     without cancellation, ln J by log1p near J = 1); element by element.
     """
-    _, k, m = ue.shape
-    n_points = grads.shape[0]
+    m, n_points, k, _ = grads.shape
+    n_checks = checks.shape[1]
+    ue = np.empty((3, k))
     h = np.empty((3, 3))
     f = np.empty((3, 3))
     cof = np.empty((3, 3))
@@ -102,12 +118,15 @@ def energy_and_gradient(ue, grads, weights, checks, lam, mu, kappa, dofs, gradie
     p_ = np.empty((3, 3))
     energy = 0.0
     for el in range(m):
-        for c in range(checks.shape[0]):
+        for a in range(k):
+            for i in range(3):
+                ue[i, a] = u[dofs[el, a, i]]
+        for c in range(n_checks):
             for i in range(3):
                 for l in range(3):
                     total = 1.0 if i == l else 0.0
                     for a in range(k):
-                        total += ue[i, a, el] * checks[c, a, l, el]
+                        total += ue[i, a] * checks[el, c, a, l]
                     f[i, l] = total
             det = (
                 f[0, 0] * (f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1])
@@ -121,7 +140,7 @@ def energy_and_gradient(ue, grads, weights, checks, lam, mu, kappa, dofs, gradie
                 for l in range(3):
                     total = 0.0
                     for a in range(k):
-                        total += ue[i, a, el] * grads[q, a, l, el]
+                        total += ue[i, a] * grads[el, q, a, l]
                     h[i, l] = total
                     f[i, l] = total + (1.0 if i == l else 0.0)
             cof[0, 0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
@@ -158,7 +177,7 @@ def energy_and_gradient(ue, grads, weights, checks, lam, mu, kappa, dofs, gradie
             )
             excess = tr_h + 0.5 * (tr_h * tr_h - square) + det_h  # J - 1
             log_j = np.log1p(excess) if abs(excess) < 0.5 else np.log(det)
-            vol = weights[q, el]
+            vol = weights[el, q]
             energy += vol * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
             if not want_gradient:
                 continue
@@ -175,24 +194,6 @@ def energy_and_gradient(ue, grads, weights, checks, lam, mu, kappa, dofs, gradie
                 for i in range(3):
                     total = 0.0
                     for l in range(3):
-                        total += p_[i, l] * grads[q, a, l, el]
-                    gradient[dofs[a, i, el]] += total
+                        total += p_[i, l] * grads[el, q, a, l]
+                    gradient[dofs[el, a, i]] += total
     return energy, True
-
-
-def warm() -> None:
-    """Compile (or load from numba's cache) for the argument types the kernel is called with."""
-    m, k, p = 1, 4, 1
-    element_tangents(
-        np.empty((k, 3, k, 3, m)),
-        np.ones((p, m)),
-        np.zeros((p, k, k, m)),
-        np.zeros((p, 3, 3, m)),
-        np.zeros((p, k, k, m)),
-        np.zeros((p, k, 3, m)),
-        np.zeros((p, k, 3, m)),
-        np.ones(m),
-        np.ones(m),
-        np.ones(m),
-        np.zeros((p, m)),
-    )

@@ -196,11 +196,19 @@ class EquilibriumSolver:
     ) -> tuple[float, np.ndarray, np.ndarray]:
         """Π, its gradient (3n,) and the assembled tangent's values (pattern order)."""
         xs = x.reshape(-1, 3)
-        elastic = self.elements.evaluate(xs, gradient=True, hessian=True, definite=definite, displacement=displacement)
+        elastic = self.elements.evaluate(
+            xs,
+            gradient=True,
+            hessian=True,
+            definite=definite,
+            displacement=displacement,
+            element_map=self.pattern.element_map,
+            nnz=self.pattern.nnz,
+        )
         if not elastic.valid:
             raise ValueError("the state has an inverted element")
         loads = self.loads.evaluate(xs, gradient=True, displacement=displacement)
-        data = self.pattern.assemble(elastic.hessian)
+        data = elastic.assembled
         if len(loads.contact_nodes):
             self.pattern.add_node_blocks(data, loads.contact_nodes, loads.contact_blocks)
         return elastic.energy + loads.energy, elastic.gradient + loads.gradient, data

@@ -57,6 +57,8 @@ class ElementEvaluation:
     #: element tangents (12, 12, m) in N/m, rows and columns (node a, axis i), elements last;
     #: a work buffer of the kernel, overwritten by its next tangent evaluation
     hessian: np.ndarray | None = None
+    #: the element tangents assembled into the global tangent's values (nnz,) (``evaluate(element_map=...)``)
+    assembled: np.ndarray | None = None
 
 
 def _matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -250,6 +252,8 @@ class StVKElements:
         hessian: bool = False,
         definite: bool = False,
         displacement: bool = False,
+        element_map: np.ndarray | None = None,
+        nnz: int = 0,
     ) -> ElementEvaluation:
         """Elastic energy (J), optionally its gradient (3n,) and the element tangents (3k, 3k, m).
 
@@ -258,13 +262,18 @@ class StVKElements:
         unknowns: rounding then stays relative to u, not to where the mesh
         lies). The kinematics are computed from the displacement gradient
         H = grad u (F = I + H, E from H, ln J by log1p).
+        ``element_map`` (with ``hessian``): the position in the global
+        tangent's values (``nnz`` of them) of every element matrix entry,
+        (3k * 3k * m,) as :class:`~.assembly.TangentPattern` numbers them;
+        the tangents are then assembled as they are computed
+        (``assembled``) instead of returned per element.
         ``definite``: the positive semi-definite surrogate tangent (see
         :meth:`_tangent`). An inverted or flat element (J <= 0) makes the
         state invalid: energy ``inf`` and nothing else computed.
         """
-        ue = self._element_displacements(x, displacement)
         if displacement and not hessian:  # the Newton solve's energy and forces: the compiled kernel
-            return self._evaluate_compiled(ue, gradient)
+            return self._evaluate_compiled(x, gradient)
+        ue = self._element_displacements(x, displacement)
         xe = None if displacement else self._element_positions(x)
         kinematics = []
         for point in self.points:
@@ -301,24 +310,39 @@ class StVKElements:
         if forces is not None:
             result.gradient = np.bincount(self._dofs_flat, weights=forces.ravel(), minlength=3 * self.n_nodes)
         if hessian:
-            result.hessian = self._tangent(terms)
+            if element_map is None:
+                result.hessian = self._tangent(terms)
+            else:
+                result.assembled = self._tangent(terms, element_map, nnz)
         return result
 
-    def _evaluate_compiled(self, ue: np.ndarray, gradient: bool) -> ElementEvaluation:
-        """Energy and gradient from displacements by :func:`.kernels.energy_and_gradient` (the same closed
-        forms as the numpy path below, element by element)."""
+    def _evaluate_compiled(self, u: np.ndarray, gradient: bool) -> ElementEvaluation:
+        """Energy and gradient from the displacements (3n,) by :func:`.kernels.energy_and_gradient` (the
+        same closed forms as the numpy path below, element by element)."""
         from .kernels import energy_and_gradient
 
-        if getattr(self, "_compiled", None) is None:  # the kernel's constant inputs, laid out once
-            k, m = self.nodes_per_element, self.n_elements
-            grads = np.stack([p.grad for p in self.points])
-            checks = np.stack(self._checks) if self._checks else np.empty((0, k, 3, m))
-            weights = np.stack([p.weight for p in self.points])
-            self._compiled = (grads, checks, weights, np.ascontiguousarray(self.dofs))
+        if getattr(self, "_compiled", None) is None:  # the kernel's constant inputs, element-major, laid out once
+            k = self.nodes_per_element
+            grads = np.stack([p.grad for p in self.points]).transpose(3, 0, 1, 2)  # (m, P, k, 3)
+            checks = np.stack(self._checks) if self._checks else np.empty((0, k, 3, self.n_elements))
+            weights = np.stack([p.weight for p in self.points]).T  # (m, P)
+            dofs = self.dofs.transpose(2, 0, 1)  # (m, k, 3)
+            self._compiled = tuple(
+                np.ascontiguousarray(a) for a in (grads, checks.transpose(3, 0, 1, 2), weights, dofs)
+            )
         grads, checks, weights, dofs = self._compiled
         out = np.zeros(3 * self.n_nodes)
         energy, valid = energy_and_gradient(
-            ue, grads, weights, checks, self.lam, self.mu, self.kappa, dofs, out, gradient
+            np.ascontiguousarray(u, dtype=float).ravel(),
+            grads,
+            weights,
+            checks,
+            self.lam,
+            self.mu,
+            self.kappa,
+            dofs,
+            out,
+            gradient,
         )
         if not valid:
             return ElementEvaluation(np.inf, False)
@@ -345,22 +369,28 @@ class StVKElements:
         swapped = np.zeros_like(log_j) if definite else log_j
         return fft, gsg, h, q, swapped
 
-    def _tangent(self, terms: list[tuple]) -> np.ndarray:
-        """Element tangents (3k, 3k, m) summed over the quadrature points' ``terms`` (compiled kernel).
+    def _tangent(self, terms: list[tuple], element_map: np.ndarray | None = None, nnz: int = 0) -> np.ndarray:
+        """Element tangents (3k, 3k, m) summed over the quadrature points' ``terms`` (compiled kernel), or
+        with ``element_map`` their assembly (nnz,).
 
-        A view of a work buffer: valid until the next tangent evaluation.
+        The element tangents are a view of a work buffer: valid until the next tangent evaluation.
         """
         from .kernels import element_tangents
 
         n = self.nodes_per_element
         m = self.n_elements
-        out = self._buffer(m)
         if getattr(self, "_weights", None) is None:  # the quadrature weights and g_a . g_b, stacked once
             self._weights = (np.stack([p.weight for p in self.points]), np.stack([p.gg for p in self.points]))
         vol, gg = self._weights
         fft, gsg, h, q, log_j = (np.stack(column) for column in zip(*terms, strict=True))
-        element_tangents(out, vol, gg, fft, gsg, h, q, self.lam, self.mu, self.kappa, log_j)
-        return out.reshape(3 * n, 3 * n, m)
+        if element_map is None:
+            out = self._buffer(m)
+            element_tangents(out, _NO_DATA, _NO_MAP, vol, gg, fft, gsg, h, q, self.lam, self.mu, self.kappa, log_j)
+            return out.reshape(3 * n, 3 * n, m)
+        data = np.zeros(nnz)
+        blocks = np.ascontiguousarray(element_map, dtype=np.int64).reshape(n, 3, n, 3, m)
+        element_tangents(_NO_OUT, data, blocks, vol, gg, fft, gsg, h, q, self.lam, self.mu, self.kappa, log_j)
+        return data
 
     def _buffer(self, m: int) -> np.ndarray:
         """The work array (k, 3, k, 3, m) reused between calls (a fresh large array costs page faults every time)."""
@@ -441,3 +471,7 @@ def symmetric_eigenvalues(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 _DIAG = np.arange(3)
+#: placeholders for the kernel's unused outputs
+_NO_DATA = np.empty(0)
+_NO_MAP = np.empty((0, 0, 0, 0, 0), dtype=np.int64)
+_NO_OUT = np.empty((0, 0, 0, 0, 0))
