@@ -152,17 +152,15 @@ def iteration_pieces() -> list[dict]:
     solver = model.solver
     x = state.positions.ravel()
     prescribed, _ = model._prescribed(model.grasp_constraints(jaws, lift(0.01)))
-    kernel = model.kernel
     data = solver.tangent(x, False)[2]
     constrained = solver.pattern.constrain(data, prescribed)
     factor = solver.pattern.factorize(constrained)
-    hessian = kernel.evaluate(state.positions, hessian=True).hessian.copy()
+    u = x - solver.elements.rest  # the solve's unknowns: what its compiled kernels are called with
     pieces = {
-        "energy (line search)": lambda: solver.energy(x),
-        "energy + gradient": lambda: solver.gradient(x),
-        "element tangents (exact)": lambda: kernel.evaluate(state.positions, hessian=True),
-        "element tangents (definite surrogate)": lambda: kernel.evaluate(state.positions, hessian=True, definite=True),
-        "assembly (bincount)": lambda: solver.pattern.assemble(hessian),
+        "energy (line search)": lambda: solver.energy(u, displacement=True),
+        "energy + gradient": lambda: solver.gradient(u, displacement=True),
+        "tangent, assembled (exact)": lambda: solver.tangent(u, False, displacement=True),
+        "tangent, assembled (definite surrogate)": lambda: solver.tangent(u, True, displacement=True),
         "constraints": lambda: solver.pattern.constrain(data, prescribed),
         f"factorisation ({solver.pattern.solver})": lambda: solver.pattern.factorize(constrained),
         "triangular solves": lambda: factor.solve(x),

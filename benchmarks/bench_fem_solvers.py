@@ -7,9 +7,11 @@ flap, linear 20x20x2, 3,969 unknowns; the flap with quadratic tetrahedra
 * SuperLU (scipy) as stvk uses it: the pattern pre-ordered by minimum
   degree once, each factorisation without ordering work; definiteness from
   U's diagonal (which builds U);
-* PARDISO (oneMKL via pypardiso) as stvk uses it: LDLᵀ (symmetric
-  indefinite), one symbolic analysis per pattern, then numerical
-  factorisations only; inertia from the factorisation;
+* PARDISO (oneMKL via pypardiso) as stvk uses it: Cholesky first (these
+  tangents are definite, and its success is the definiteness test), LDLᵀ
+  with the inertia from the factorisation where Cholesky fails; one
+  symbolic analysis per pattern and matrix type, then numerical
+  factorisations only;
 * qdldl and cholespy when installed (``pip install qdldl cholespy``: they
   are not dependencies): qdldl's numerical refactorisation, cholespy's
   analysis and factorisation (it has no refactorisation).
@@ -98,7 +100,12 @@ def main() -> None:
         started = time.perf_counter()
         first = pardiso.factorize(values["pardiso"])  # the analysis (both orderings tried) and one factorisation
         pardiso_first = time.perf_counter() - started
-        handle = pardiso._pardiso.handles[0]
+        solver = pardiso._pardiso
+        handle = (solver.cholesky + solver.handles)[0]  # these tangents are definite: Cholesky's handle
+        # the same refactorisation as LDLT (Bunch-Kaufman), what stvk does where Cholesky fails
+        ldlt = linear.PardisoHandle(solver.indptr, solver.indices, handle.ordering, linear.MTYPE)
+        ldlt_values = values["pardiso"][solver.positions]
+        ldlt.analyse(ldlt_values)
         row = {
             "matrix": what,
             "unknowns": n,
@@ -112,6 +119,8 @@ def main() -> None:
             "pardiso_ordering": {0: "minimum degree", 2: "METIS"}[handle.ordering],
             "pardiso_factor_nonzeros": int(handle.iparm[17]),
             "pardiso_factor_s": round(median_time(lambda: pardiso.factorize(values["pardiso"]), args.repeats), 4),
+            "pardiso_method": "Cholesky" if handle.mtype == linear.CHOLESKY else "LDLT",
+            "pardiso_ldlt_factor_s": round(median_time(lambda: ldlt.factorize(ldlt_values), args.repeats), 4),
             "pardiso_solve_s": round(median_time(lambda: first.solve(np.ones(n)), args.repeats), 5),
             "pardiso_inertia": list(first.inertia),
         }

@@ -450,7 +450,34 @@ def surgiplan_side(model, constraints, start, repeats: int) -> dict:
         state = model.solve(constraints, initial=start)
         times.append(time.perf_counter() - started)
     assert state.converged and state.valid, state.message
-    return {"state": state, "times": times}
+    return {"state": state, "times": times, "linear_share": linear_solver_share(model, constraints, start)}
+
+
+def linear_solver_share(model, constraints, start) -> float | None:
+    """The fraction of one more solve's time spent inside PARDISO (factorisations and solves), or None."""
+    from surgiplan.plugins.fem import linear
+
+    if not linear.pardiso_available()[0]:
+        return None
+    spent = [0.0]
+    original = linear.PardisoHandle._call
+
+    def timed(self, *args, **kwargs):
+        started = time.perf_counter()
+        try:
+            return original(self, *args, **kwargs)
+        finally:
+            spent[0] += time.perf_counter() - started
+
+    linear.PardisoHandle._call = timed
+    try:
+        model.clear_caches()
+        started = time.perf_counter()
+        model.solve(constraints, initial=start)
+        total = time.perf_counter() - started
+    finally:
+        linear.PardisoHandle._call = original
+    return round(spent[0] / total, 3)
 
 
 def compare(name: str, model, constraints, start, tolerance: dict, python: Path, repeats: int) -> dict:
@@ -481,6 +508,7 @@ def compare(name: str, model, constraints, start, tolerance: dict, python: Path,
         "surgiplan_iterations": state.iterations,
         "surgiplan_factorizations": state.data["factorizations"],
         "surgiplan_solver": state.data.get("linear_solver", "superlu"),
+        "surgiplan_linear_solver_share": ours["linear_share"],
         "dolfinx": str(theirs["dolfinx"]),
         "petsc": str(theirs["petsc"]),
     }

@@ -226,22 +226,27 @@ def tradeoff(space, graph, repository, reference, quick: bool):
         if options is None:
             repo = repository
         else:
-            options.knot_spacing, options.resolution, options.turn_radius = (base.knot_spacing, base.resolution,
-                                                                            base.turn_radius)
+            options.knot_spacing, options.resolution, options.turn_radius = (
+                base.knot_spacing,
+                base.resolution,
+                base.turn_radius,
+            )
             options.floor = base.floor
             with LocalExecutor(workers=2) as executor:
                 repo = build_repository(space, graph, repository.names, repository.pois, options, executor=executor)
         pathmap = build_pathmap(repo, space, n_s=3)
         ratio = repo.length / reference[repo.pairs[:, 0], repo.pairs[:, 1]]
-        rows.append({
-            "paths": name,
-            "mean_length_mm": round(float(repo.length.mean()) * 1e3, 2),
-            "vs_reference_mean": f"{100 * (ratio.mean() - 1):+.2f}%",
-            "vs_reference_median": f"{100 * (np.median(ratio) - 1):+.2f}%",
-            "m (n_s=3)": round(pathmap.stats["m"], 2),
-            "m_bytes": round(pathmap.stats["m_bytes"], 2),
-            "common_share": f"{100 * pathmap.stats['common_instance_share']:.1f}%",
-        })
+        rows.append(
+            {
+                "paths": name,
+                "mean_length_mm": round(float(repo.length.mean()) * 1e3, 2),
+                "vs_reference_mean": f"{100 * (ratio.mean() - 1):+.2f}%",
+                "vs_reference_median": f"{100 * (np.median(ratio) - 1):+.2f}%",
+                "m (n_s=3)": round(pathmap.stats["m"], 2),
+                "m_bytes": round(pathmap.stats["m_bytes"], 2),
+                "common_share": f"{100 * pathmap.stats['common_instance_share']:.1f}%",
+            }
+        )
         print(f"  trade-off: {name} done", file=sys.stderr, flush=True)
     return rows
 
@@ -268,68 +273,133 @@ def main() -> None:
     repository, graph = result.repository, result.graph
     summary = repository.summary()
     offline_s = statistics.median(times)
-    out.append({"measure": "offline all-pairs repository (s, local, 2 workers)", "value": round(offline_s, 1),
-                "target": "<= 60", "paper": f"~{PAPER_OFFLINE_S} (7 h, ~1300 paths)",
-                "notes": f"{repository.n_paths} paths, {summary['unreachable_pairs']} unreachable pairs; runs: "
-                         f"{', '.join(f'{t:.1f}' for t in times)}; search space {summary['search_space_s']:.1f} s "
-                         f"({summary['search_vertices']} vertices, {summary['search_edges']} edges)"})
+    out.append(
+        {
+            "measure": "offline all-pairs repository (s, local, 2 workers)",
+            "value": round(offline_s, 1),
+            "target": "<= 60",
+            "paper": f"~{PAPER_OFFLINE_S} (7 h, ~1300 paths)",
+            "notes": f"{repository.n_paths} paths, {summary['unreachable_pairs']} unreachable pairs; runs: "
+            f"{', '.join(f'{t:.1f}' for t in times)}; search space {summary['search_space_s']:.1f} s "
+            f"({summary['search_vertices']} vertices, {summary['search_edges']} edges)",
+        }
+    )
 
     # 2. pathmap and Table 1
     pathmap = build_pathmap(repository, space, n_s=3)
     error = reconstruction_error(repository, pathmap)
-    out.append({"measure": "m for n_s = 3 (points in P / points in S)", "value": round(pathmap.stats["m"], 3),
-                "target": ">= 3.45", "paper": PAPER_M,
-                "notes": f"bytes: {pathmap.stats['raw_file_bytes'] / 1e3:.0f} KB -> "
-                         f"{pathmap.stats['pathmap_file_bytes'] / 1e3:.0f} KB (m_bytes "
-                         f"{pathmap.stats['m_bytes']:.2f}); common share "
-                         f"{100 * pathmap.stats['common_instance_share']:.1f}% (paper 50.54%)"})
-    out.append({"measure": "largest reconstruction error (mm)", "value": round(float(error.max()) * 1e3, 4),
-                "target": "<= w_tip = 0.4", "paper": "w_tip tolerance", "notes": ""})
+    out.append(
+        {
+            "measure": "m for n_s = 3 (points in P / points in S)",
+            "value": round(pathmap.stats["m"], 3),
+            "target": ">= 3.45",
+            "paper": PAPER_M,
+            "notes": f"bytes: {pathmap.stats['raw_file_bytes'] / 1e3:.0f} KB -> "
+            f"{pathmap.stats['pathmap_file_bytes'] / 1e3:.0f} KB (m_bytes "
+            f"{pathmap.stats['m_bytes']:.2f}); common share "
+            f"{100 * pathmap.stats['common_instance_share']:.1f}% (paper 50.54%)",
+        }
+    )
+    out.append(
+        {
+            "measure": "largest reconstruction error (mm)",
+            "value": round(float(error.max()) * 1e3, 4),
+            "target": "<= w_tip = 0.4",
+            "paper": "w_tip tolerance",
+            "notes": "",
+        }
+    )
     started = time.perf_counter()
     thinned = build_pathmap(repository, space, n_s=3, thinning=THINNING)
     thinned_s = time.perf_counter() - started
     thinned_error = reconstruction_error(repository, thinned)
-    out.append({"measure": f"m for n_s = 3, thinned encoding ({THINNING * 1e3:g} mm; taut paths)",
-                "value": round(thinned.stats["m"], 3), "target": ">= 3.45 (stretch)", "paper": PAPER_M,
-                "notes": f"bytes: {thinned.stats['raw_file_bytes'] / 1e3:.0f} KB -> "
-                         f"{thinned.stats['pathmap_file_bytes'] / 1e3:.0f} KB (m_bytes {thinned.stats['m_bytes']:.2f});"
-                         f" {len(repository.points)} points -> {thinned.stats['thinned_points']} after thinning -> "
-                         f"{thinned.stats['pathmap_points']} stored (sharing alone m_sharing "
-                         f"{thinned.stats['m_sharing']:.2f}); largest two-sided deviation from the stored paths "
-                         f"{thinned_error.max() * 1e3:.3f} mm (<= w_tip 0.4); built in {thinned_s:.1f} s"})
+    out.append(
+        {
+            "measure": f"m for n_s = 3, thinned encoding ({THINNING * 1e3:g} mm; taut paths)",
+            "value": round(thinned.stats["m"], 3),
+            "target": ">= 3.45 (stretch)",
+            "paper": PAPER_M,
+            "notes": f"bytes: {thinned.stats['raw_file_bytes'] / 1e3:.0f} KB -> "
+            f"{thinned.stats['pathmap_file_bytes'] / 1e3:.0f} KB (m_bytes {thinned.stats['m_bytes']:.2f});"
+            f" {len(repository.points)} points -> {thinned.stats['thinned_points']} after thinning -> "
+            f"{thinned.stats['pathmap_points']} stored (sharing alone m_sharing "
+            f"{thinned.stats['m_sharing']:.2f}); largest two-sided deviation from the stored paths "
+            f"{thinned_error.max() * 1e3:.3f} mm (<= w_tip 0.4); built in {thinned_s:.1f} s",
+        }
+    )
     with tempfile.TemporaryDirectory() as tmp:
         rows = table1(repository, space, sizes=(2, 3, 4, 5), directory=Path(tmp), thinning=THINNING)
-        files = write_report(Path(tmp), rows, f"hand-eye: {repository.n_paths} paths between 80 points of "
-                                              "interest, w_tip = 0.4 mm")
+        files = write_report(
+            Path(tmp), rows, f"hand-eye: {repository.n_paths} paths between 80 points of interest, w_tip = 0.4 mm"
+        )
         for f in files:
             (RESULTS / f"optmis_{f.name}").write_bytes(f.read_bytes())
-    print(table(rows, ["method", "n_s", "common_kb", "unique_kb", "links_kb", "pathmap_kb", "raw_kb", "m", "m_bytes",
-                       "common_share", "max_error_mm", "paper_pathmap_kb"]))
+    print(
+        table(
+            rows,
+            [
+                "method",
+                "n_s",
+                "common_kb",
+                "unique_kb",
+                "links_kb",
+                "pathmap_kb",
+                "raw_kb",
+                "m",
+                "m_bytes",
+                "common_share",
+                "max_error_mm",
+                "paper_pathmap_kb",
+            ],
+        )
+    )
 
     # 3. online
     online_rows, artifact, planner, setup_s = online(scene, space, repository, graph, queries, rng)
     poi_times, astar, expanded = online_rows["poi"]
     free_times, solved, tried, in_sight = online_rows["free"]
-    out.append({"measure": f"online query between points of interest (ms, median of {len(poi_times)})",
-                "value": round(float(np.median(poi_times)) * 1e3, 3), "target": "<= 1", "paper": PAPER_ONLINE_MS,
-                "notes": f"A* alone {np.median(astar) * 1e3:.3f} ms; p90 {np.percentile(poi_times, 90) * 1e3:.2f} ms;"
-                         f" {np.median(expanded):.0f} junctions expanded (median); pathmap graph built in "
-                         f"{setup_s:.1f} s"})
+    out.append(
+        {
+            "measure": f"online query between points of interest (ms, median of {len(poi_times)})",
+            "value": round(float(np.median(poi_times)) * 1e3, 3),
+            "target": "<= 1",
+            "paper": PAPER_ONLINE_MS,
+            "notes": f"A* alone {np.median(astar) * 1e3:.3f} ms; p90 {np.percentile(poi_times, 90) * 1e3:.2f} ms;"
+            f" {np.median(expanded):.0f} junctions expanded (median); pathmap graph built in "
+            f"{setup_s:.1f} s",
+        }
+    )
     blocked = free_times[~in_sight]
-    out.append({"measure": f"online query between free points (ms, median of {tried})",
-                "value": round(float(np.median(free_times)) * 1e3, 3), "target": "<= 1",
-                "paper": "fails (not in graph)",
-                "notes": f"{solved}/{tried} solved; links certified; p90 {np.percentile(free_times, 90) * 1e3:.2f} ms; "
-                         f"{in_sight.sum()} pairs in line of sight (the straight motion, no linking) "
-                         f"{np.median(free_times[in_sight]) * 1e3:.3f} ms, the other {len(blocked)} "
-                         f"{np.median(blocked) * 1e3:.3f} ms (p90 {np.percentile(blocked, 90) * 1e3:.2f} ms)"})
-    out.append({"measure": "optMIS search between free points (ms, median of 20)",
-                "value": round(float(np.median(online_rows["search"])) * 1e3, 1), "target": "",
-                "paper": f"{PAPER_OFFLINE_ONLY_S * 1e3:.0f} (offline-only optMIS)", "notes": "link, Dijkstra, "
-                "tautening, refinement, smoothing in the stored search space"})
-    out.append({"measure": "OMPL RRT-Connect between free points (ms, median of 20)",
-                "value": round(float(np.median(online_rows["ompl"])) * 1e3, 1), "target": "", "paper": "",
-                "notes": "through the bridge, certified motions, simplified"})
+    out.append(
+        {
+            "measure": f"online query between free points (ms, median of {tried})",
+            "value": round(float(np.median(free_times)) * 1e3, 3),
+            "target": "<= 1",
+            "paper": "fails (not in graph)",
+            "notes": f"{solved}/{tried} solved; links certified; p90 {np.percentile(free_times, 90) * 1e3:.2f} ms; "
+            f"{in_sight.sum()} pairs in line of sight (the straight motion, no linking) "
+            f"{np.median(free_times[in_sight]) * 1e3:.3f} ms, the other {len(blocked)} "
+            f"{np.median(blocked) * 1e3:.3f} ms (p90 {np.percentile(blocked, 90) * 1e3:.2f} ms)",
+        }
+    )
+    out.append(
+        {
+            "measure": "optMIS search between free points (ms, median of 20)",
+            "value": round(float(np.median(online_rows["search"])) * 1e3, 1),
+            "target": "",
+            "paper": f"{PAPER_OFFLINE_ONLY_S * 1e3:.0f} (offline-only optMIS)",
+            "notes": "link, Dijkstra, tautening, refinement, smoothing in the stored search space",
+        }
+    )
+    out.append(
+        {
+            "measure": "OMPL RRT-Connect between free points (ms, median of 20)",
+            "value": round(float(np.median(online_rows["ompl"])) * 1e3, 1),
+            "target": "",
+            "paper": "",
+            "notes": "through the bridge, certified motions, simplified",
+        }
+    )
 
     # 4. quality
     started = time.perf_counter()
@@ -339,34 +409,59 @@ def main() -> None:
     ratio = repository.length / reference[i, j]
     visible = space.motion_is_clear(repository.pois[i], repository.pois[j])
     straight = np.linalg.norm(repository.pois[j] - repository.pois[i], axis=1)
-    out.append({"measure": "optMIS length vs edge-visibility reference (mean, all pairs)",
-                "value": f"{100 * (ratio.mean() - 1):+.2f}%", "target": "within 3%", "paper": "",
-                "notes": f"median {100 * (np.median(ratio) - 1):+.2f}%, "
-                         f"95th pct {100 * (np.percentile(ratio, 95) - 1):+.2f}%, max {100 * (ratio.max() - 1):+.2f}%, "
-                         f"{np.count_nonzero(ratio > 1.03)} pairs above +3%, {np.count_nonzero(ratio < 0.99)} pairs "
-                         f"1% or more shorter than the reference; reference built in {reference_s:.0f} s"})
-    out.append({"measure": f"optMIS length vs straight line, pairs in line of sight ({visible.sum()})",
-                "value": f"{100 * (np.mean(repository.length[visible] / straight[visible]) - 1):+.3f}%",
-                "target": "0 (exact)", "paper": "", "notes": ""})
+    out.append(
+        {
+            "measure": "optMIS length vs edge-visibility reference (mean, all pairs)",
+            "value": f"{100 * (ratio.mean() - 1):+.2f}%",
+            "target": "within 3%",
+            "paper": "",
+            "notes": f"median {100 * (np.median(ratio) - 1):+.2f}%, "
+            f"95th pct {100 * (np.percentile(ratio, 95) - 1):+.2f}%, max {100 * (ratio.max() - 1):+.2f}%, "
+            f"{np.count_nonzero(ratio > 1.03)} pairs above +3%, {np.count_nonzero(ratio < 0.99)} pairs "
+            f"1% or more shorter than the reference; reference built in {reference_s:.0f} s",
+        }
+    )
+    out.append(
+        {
+            "measure": f"optMIS length vs straight line, pairs in line of sight ({visible.sum()})",
+            "value": f"{100 * (np.mean(repository.length[visible] / straight[visible]) - 1):+.3f}%",
+            "target": "0 (exact)",
+            "paper": "",
+            "notes": "",
+        }
+    )
     blocked = np.flatnonzero(~visible)
     sample = rng.choice(blocked, min(rrt_pairs, len(blocked)), replace=False)
     rrt = rrt_star_reference(scene, space, repository.pairs[sample], repository.pois, rrt_seconds)
     found = np.isfinite(rrt)
     rrt_ratio = repository.length[sample][found] / rrt[found]
     rrt_vs_reference = rrt[found] / reference[tuple(repository.pairs[sample][found].T)]
-    out.append({"measure": f"optMIS length vs OMPL RRT* ({rrt_seconds:g} s each, {found.sum()} blocked pairs)",
-                "value": f"{100 * (rrt_ratio.mean() - 1):+.2f}%", "target": "within 3%", "paper": "",
-                "notes": f"RRT* vs visibility reference, same pairs: {100 * (rrt_vs_reference.mean() - 1):+.2f}%"})
+    out.append(
+        {
+            "measure": f"optMIS length vs OMPL RRT* ({rrt_seconds:g} s each, {found.sum()} blocked pairs)",
+            "value": f"{100 * (rrt_ratio.mean() - 1):+.2f}%",
+            "target": "within 3%",
+            "paper": "",
+            "notes": f"RRT* vs visibility reference, same pairs: {100 * (rrt_vs_reference.mean() - 1):+.2f}%",
+        }
+    )
     some = np.arange(0, repository.n_paths, 7)
-    online_length = np.array([length(planner.query(artifact, *repository.pois[repository.pairs[k]]).path)
-                              for k in some])
+    online_length = np.array(
+        [length(planner.query(artifact, *repository.pois[repository.pairs[k]]).path) for k in some]
+    )
     rebuilt = np.array([length(artifact.pathmap.path(k)) for k in some])
     vs_rebuilt, vs_stored = online_length / rebuilt, online_length / repository.length[some]
-    out.append({"measure": f"online A* path vs the path rebuilt from the pathmap ({len(some)} pairs)",
-                "value": f"{100 * (vs_rebuilt.mean() - 1):+.3f}%", "target": "<= 0 (the pathmap holds it)",
-                "paper": "", "notes": f"max {100 * (vs_rebuilt.max() - 1):+.3f}%; vs the stored optMIS path: mean "
-                                      f"{100 * (vs_stored.mean() - 1):+.3f}%, max {100 * (vs_stored.max() - 1):+.3f}% "
-                                      "(rebuilt points move by up to w_tip)"})
+    out.append(
+        {
+            "measure": f"online A* path vs the path rebuilt from the pathmap ({len(some)} pairs)",
+            "value": f"{100 * (vs_rebuilt.mean() - 1):+.3f}%",
+            "target": "<= 0 (the pathmap holds it)",
+            "paper": "",
+            "notes": f"max {100 * (vs_rebuilt.max() - 1):+.3f}%; vs the stored optMIS path: mean "
+            f"{100 * (vs_stored.mean() - 1):+.3f}%, max {100 * (vs_stored.max() - 1):+.3f}% "
+            "(rebuilt points move by up to w_tip)",
+        }
+    )
 
     # 5. trade-off
     sweep = tradeoff(space, graph, repository, reference, args.quick)
@@ -382,18 +477,28 @@ def main() -> None:
     replan = fig6.query(artifact, a, b).metrics["replan"]
     current, goal_c = np.array(replan["position_m"]), np.array(replan["new_goal_m"])
     replan_ms, _ = median_time(lambda: fig6.replan(artifact, current, goal_c), repeat=21)
-    out.append({"measure": "replanning query, Fig. 6 instance (ms, median of 21)", "value": round(replan_ms * 1e3, 3),
-                "target": "", "paper": "almost real-time",
-                "notes": f"A-B {replan['first_length_m'] * 1e3:.1f} mm, R-C {replan['new_length_m'] * 1e3:.1f} mm; "
-                         "benchmarks/results/optmis_replanning.png"})
+    out.append(
+        {
+            "measure": "replanning query, Fig. 6 instance (ms, median of 21)",
+            "value": round(replan_ms * 1e3, 3),
+            "target": "",
+            "paper": "almost real-time",
+            "notes": f"A-B {replan['first_length_m'] * 1e3:.1f} mm, R-C {replan['new_length_m'] * 1e3:.1f} mm; "
+            "benchmarks/results/optmis_replanning.png",
+        }
+    )
 
     print(table(out, ["measure", "value", "target", "paper", "notes"]))
-    notes = (f"hand-eye scene, 80 points of interest, w_tip 0.4 mm; machine load average at start "
-             f"{load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} on {os.cpu_count()} cores (timings on a shared machine); "
-             f"{'quick run' if args.quick else 'full run'}")
+    notes = (
+        f"hand-eye scene, 80 points of interest, w_tip 0.4 mm; machine load average at start "
+        f"{load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} on {os.cpu_count()} cores (timings on a shared machine); "
+        f"{'quick run' if args.quick else 'full run'}"
+    )
     path = save("optmis", out + [{"measure": "trade-off", **r} for r in sweep], notes)
-    print(f"\nwritten: {path}, {RESULTS / 'optmis_table1.csv'}, {RESULTS / 'optmis_table1.png'}, "
-          f"{RESULTS / 'optmis_replanning.png'}")
+    print(
+        f"\nwritten: {path}, {RESULTS / 'optmis_table1.csv'}, {RESULTS / 'optmis_table1.png'}, "
+        f"{RESULTS / 'optmis_replanning.png'}"
+    )
 
 
 if __name__ == "__main__":

@@ -9,10 +9,13 @@ calls this model for every sampled gripper pose. Modules:
 * :mod:`.mesh` — tetrahedral meshes (linear or quadratic): structured boxes, meshio files, TetGen;
 * :mod:`.shape` — reference tetrahedra: shape functions and quadrature rules;
 * :mod:`.material` — per-element E, nu, rho, volume penalty; region and image maps;
-* :mod:`.stvk` — the element kernel: energy, forces, tangent (vectorised);
+* :mod:`.stvk` — the element kernel: energy, forces, tangent (vectorised numpy);
+* :mod:`.kernels` — its compiled (numba) parts: the Newton solve's energy and forces, the element
+  tangents summed over the quadrature points and assembled as they are computed;
 * :mod:`.loads` — lumped-mass gravity, dead loads, base-plane contact;
 * :mod:`.assembly` — the sparse tangent by precomputed index arrays;
-* :mod:`.linear` — its sparse direct solvers: PARDISO (oneMKL, analysis once per mesh, inertia), SuperLU;
+* :mod:`.linear` — its sparse direct solvers: PARDISO (oneMKL, analysis once per mesh; Cholesky, LDLᵀ with
+  inertia), SuperLU;
 * :mod:`.newton` — Newton's method with predictor, line search, stopping rules;
 * :mod:`.intersection` — self-intersection of the deformed surface;
 * :mod:`.model` — :class:`StVKModel`, the public API (what planners use; it imports no stage code);
