@@ -302,7 +302,7 @@ def main() -> None:
             grasps = [start]
             for edge in settings.get("grasps", {}).get("edges", []):
                 a, b = np.asarray(edge["start"], float), np.asarray(edge["end"], float)
-                grasps += [list(a + f * (b - a)) for f in np.linspace(0, 1, edge["count"])]
+                grasps += [[float(v) for v in a + f * (b - a)] for f in np.linspace(0, 1, edge["count"])]
             unique = []
             for g in grasps:
                 if not any(np.allclose(g, u) for u in unique):
