@@ -230,3 +230,53 @@ def test_a_large_motion_is_predicted_in_two_steps_and_reaches_the_same_equilibri
     assert np.abs(two.positions - one.positions).max() < 1e-6 * FLAP[0]  # the same equilibrium
     assert two.energy == pytest.approx(one.energy, rel=1e-9)
     assert np.abs(two.reaction_forces - one.reaction_forces).max() < 1e-5 * np.abs(one.reaction_forces).max()
+
+
+def test_the_cubic_interpolation_finds_the_minimiser_of_a_cubic_and_of_a_quadratic():
+    from surgiplan.plugins.fem.newton import _cubic_minimiser
+
+    # c(t) = t^3 - 3t: minimiser 1, from its values and slopes at 0 and 2 (the cubic through them is c itself)
+    assert _cubic_minimiser(0.0, 0.0, -3.0, 2.0, 2.0, 9.0) == pytest.approx(1.0, abs=1e-12)
+    # q(t) = (t - 0.4)^2: a cubic fit of a quadratic is the quadratic
+    assert _cubic_minimiser(0.0, 0.16, -0.8, 1.0, 0.36, 1.2) == pytest.approx(0.4, abs=1e-12)
+    # a cubic with no stationary point (monotone): none
+    assert _cubic_minimiser(0.0, 0.0, 1.0, 1.0, 2.0, 4.0) is None  # t^3 + t
+
+
+class _Quartic:
+    """Π(x) = sum(x^4) / 4 - b . x along a line: the shape of a Newton step from rest on a bending beam."""
+
+    MAX_LINE_SEARCH_TRIALS = EquilibriumSolver.MAX_LINE_SEARCH_TRIALS
+
+    def __init__(self, b):
+        self.b = np.asarray(b, dtype=float)
+        self.calls = 0
+
+    def _gradient(self, x):
+        self.calls += 1
+        return float(np.sum(x**4) / 4 - self.b @ x), x**3 - self.b
+
+
+def test_the_line_search_lands_near_the_minimiser_along_a_quartic_and_meets_strong_wolfe():
+    from types import SimpleNamespace
+
+    from surgiplan.plugins.fem.newton import SolverOptions
+
+    quartic = _Quartic([1.0, 2.0, -0.5])
+    x = np.zeros(3)
+    energy, grad = quartic._gradient(x)
+    direction = 10.0 * quartic.b  # a step far past the minimiser (Π(x + d) is large and positive)
+    options = SolverOptions()
+    free = np.ones(3, dtype=bool)
+    quartic.calls = 0
+    fraction, (value, trial_grad) = EquilibriumSolver._line_search(
+        quartic, x, energy, grad, direction, free, options, SimpleNamespace(line_search_cuts=0)
+    )
+    ts = np.linspace(0.0, 1.0, 100001)
+    values = [np.sum((t * direction) ** 4) / 4 - quartic.b @ (t * direction) for t in ts]
+    best = ts[int(np.argmin(values))]
+    slope0, slope = float(grad @ direction), float(trial_grad @ direction)
+    assert value <= energy + options.armijo * fraction * slope0  # sufficient decrease
+    assert abs(slope) <= options.curvature * abs(slope0)  # the strong curvature condition
+    assert fraction == pytest.approx(best, rel=0.1)  # near the minimiser (0.0675 of the step)
+    assert quartic.calls <= 4  # the whole step, then a couple of cubic fits
