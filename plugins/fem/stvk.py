@@ -33,7 +33,7 @@ linear, four for quadratic tetrahedra). The element tangents themselves are
 summed by a compiled kernel (:mod:`.kernels`) from small per-point factors
 computed here, each entry written once. ``definite=True`` gives a positive
 semi-definite surrogate tangent (for Newton far from equilibrium, where
-StVK under compression is not convex; see :meth:`StVKElements._tangent`).
+StVK under compression is not convex; see :meth:`StVKElements._tangent_terms`).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ class ElementEvaluation:
     energy: float  # J, elastic energy including the volume penalty
     valid: bool  # every element has J > 0
     gradient: np.ndarray | None = None  # (3n,) N: minus the internal forces
-    #: element tangents (12, 12, m) in N/m, rows and columns (node a, axis i), elements last;
+    #: element tangents (3k, 3k, m) in N/m, rows and columns (node a, axis i), elements last;
     #: a work buffer of the kernel, overwritten by its next tangent evaluation
     hessian: np.ndarray | None = None
     #: the element tangents assembled into the global tangent's values (nnz,) (``evaluate(element_map=...)``)
@@ -268,7 +268,7 @@ class StVKElements:
         the tangents are then assembled as they are computed
         (``assembled``) instead of returned per element.
         ``definite``: the positive semi-definite surrogate tangent (see
-        :meth:`_tangent`). An inverted or flat element (J <= 0) makes the
+        :meth:`_tangent_terms`). An inverted or flat element (J <= 0) makes the
         state invalid: energy ``inf`` and nothing else computed.
         """
         if displacement and not hessian:  # the Newton solve's energy and forces: the compiled kernel
