@@ -20,6 +20,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from . import closed_forms
+
+#: the numpy kernel's closed forms, compiled for one 3 x 3 matrix
+_determinant = njit(cache=True, inline="always")(closed_forms.determinant)
+_cofactor = njit(cache=True, inline="always")(closed_forms.cofactor)
+
 #: elements per block: the block's rows of the inputs (about fifteen of 8 kB each) stay in cache
 CHUNK = 1024
 
@@ -128,12 +134,7 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
                     for a in range(k):
                         total += ue[i, a] * checks[el, c, a, l]
                     f[i, l] = total
-            det = (
-                f[0, 0] * (f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1])
-                + f[0, 1] * (f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2])
-                + f[0, 2] * (f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0])
-            )
-            if not det > 0.0:
+            if not _determinant(f) > 0.0:
                 return np.inf, False
         for q in range(n_points):
             for i in range(3):
@@ -143,16 +144,7 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
                         total += ue[i, a] * grads[el, q, a, l]
                     h[i, l] = total
                     f[i, l] = total + (1.0 if i == l else 0.0)
-            cof[0, 0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
-            cof[0, 1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
-            cof[0, 2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
-            cof[1, 0] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
-            cof[1, 1] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
-            cof[1, 2] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
-            cof[2, 0] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
-            cof[2, 1] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
-            cof[2, 2] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
-            det = f[0, 0] * cof[0, 0] + f[0, 1] * cof[0, 1] + f[0, 2] * cof[0, 2]
+            det = _cofactor(f, cof)
             if not det > 0.0:
                 return np.inf, False
             # Green strain from H without cancellation: E = (H + H^T + H^T H) / 2
@@ -170,12 +162,7 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
                 for j in range(3):
                     square += h[i, j] * h[j, i]
                     e_square += e_[i, j] * e_[i, j]
-            det_h = (
-                h[0, 0] * (h[1, 1] * h[2, 2] - h[1, 2] * h[2, 1])
-                + h[0, 1] * (h[1, 2] * h[2, 0] - h[1, 0] * h[2, 2])
-                + h[0, 2] * (h[1, 0] * h[2, 1] - h[1, 1] * h[2, 0])
-            )
-            excess = tr_h + 0.5 * (tr_h * tr_h - square) + det_h  # J - 1
+            excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)  # J - 1
             log_j = np.log1p(excess) if abs(excess) < 0.5 else np.log(det)
             vol = weights[el, q]
             energy += vol * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .closed_forms import cofactor, determinant
 from .shape import VERTICES, physical_gradients, reference_element
 
 _EYE = np.eye(3)
@@ -166,25 +167,9 @@ class StVKElements:
     def _det_and_cofactor(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """det F and cof F = J F^-T, components first, by closed forms."""
         cof = np.empty_like(f)
-        cof[0, 0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
-        cof[0, 1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
-        cof[0, 2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
-        cof[1, 0] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
-        cof[1, 1] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
-        cof[1, 2] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
-        cof[2, 0] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
-        cof[2, 1] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
-        cof[2, 2] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
-        det = f[0, 0] * cof[0, 0] + f[0, 1] * cof[0, 1] + f[0, 2] * cof[0, 2]
-        return det, cof
+        return cofactor(f, cof), cof
 
-    @staticmethod
-    def _det(f: np.ndarray) -> np.ndarray:
-        return (
-            f[0, 0] * (f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1])
-            + f[0, 1] * (f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2])
-            + f[0, 2] * (f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0])
-        )
+    _det = staticmethod(determinant)
 
     def volume_ratio(self, x: np.ndarray) -> np.ndarray:
         """J = det F (m,): deformed over rest volume; <= 0 means inverted.
