@@ -43,6 +43,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per process, as the ta
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
+from bench_fem_vs_fenicsx import FLAP, QUADRATIC_FLAP_MESH, lift
 from common import RESULTS, median_time, save, table
 from fem_support import elastica_tip
 from scipy.spatial.transform import Rotation
@@ -51,32 +52,10 @@ from surgiplan.plugins.fem import StVKModel, StVKSettings
 from surgiplan.plugins.fem.tasks import grasp_sequence_task
 from surgiplan.progress import RichProgress
 
-L, H = 0.05, 0.0025
-FLAP = {
-    "mesh": {"box": {"size": [L, L, H], "divisions": [20, 20, 2], "pattern": "five"}},
-    "material": {"youngs_modulus": 1.0e6, "poisson_ratio": 0.45, "density": 1000.0},
-    "gravity": [0.0, 0.0, -9.8],
-    "anchored": [
-        {"region": {"min": [0, 0, 0], "max": [L, 0, H]}},
-        {"region": {"min": [0, 0, 0], "max": [0, L, H]}},
-        {"region": {"min": [0, L, 0], "max": [L, L, H]}},
-    ],
-    "grasp": {"region": {"min": [L - 0.0025, 0.0225, 0], "max": [L, 0.0275, H]}},
-    "base_plane": {"point": [0, 0, 0]},
-}
-
 
 def flap(order: int = 1) -> StVKModel:
-    settings = dict(FLAP)
-    if order == 2:  # quadratic tetrahedra: one layer, half the cells per side
-        settings["mesh"] = {"box": {"size": [L, L, H], "divisions": [10, 10, 1], "pattern": "five"}, "order": 2}
-    return StVKModel(StVKSettings.model_validate(settings))
-
-
-def lift(dz: float) -> np.ndarray:
-    pose = np.eye(4)
-    pose[2, 3] = dz
-    return pose
+    """The paper's flap (linear 20x20x2), or with quadratic tetrahedra (10x10x1): the cases stvk is compared on."""
+    return StVKModel(StVKSettings.model_validate({**FLAP, "mesh": QUADRATIC_FLAP_MESH} if order == 2 else FLAP))
 
 
 def retraction_path(centre: np.ndarray, step: float = 0.002) -> np.ndarray:
