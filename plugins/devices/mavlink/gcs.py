@@ -456,15 +456,12 @@ class GroundStation:
         transaction = CommandTransaction(
             command, params, self.target, timeout=self.command_timeout, retries=self.command_retries
         )
-        self._transactions.append(transaction)
-        try:
-            self.send(transaction.start(self.clock()))
-            while not transaction.finished:
-                self.pump(0.1)
-                if effect is not None and not transaction.finished and effect():
-                    transaction.result = RESULT_ACCEPTED  # seen done; its ACK was lost
-        finally:
-            self._transactions.remove(transaction)
+
+        def seen_done() -> None:
+            if effect is not None and not transaction.finished and effect():
+                transaction.result = RESULT_ACCEPTED  # seen done; its ACK was lost
+
+        self._run([transaction], seen_done)
         if transaction.timed_out:
             raise VehicleError(
                 f"no COMMAND_ACK for {command_name(command)} after {transaction.retransmissions + 1} attempts "
@@ -547,17 +544,15 @@ class GroundStation:
                 items, *self.target, timeout=self.mission_timeout, retries=self.mission_retries, legacy=legacy,
                 mission_type=mission_type,
             )  # fmt: skip
-            self._transactions.append(upload)
             done = 0
-            try:
-                self.send(upload.start(self.clock()))
-                while not upload.finished:
-                    self.pump(0.1)
-                    if progress is not None and len(upload.requested) > done:
-                        progress.advance(len(upload.requested) - done)
-                        done = len(upload.requested)
-            finally:
-                self._transactions.remove(upload)
+
+            def advance(upload: MissionUpload = upload) -> None:  # this attempt's transfer
+                nonlocal done
+                if progress is not None and len(upload.requested) > done:
+                    progress.advance(len(upload.requested) - done)
+                    done = len(upload.requested)
+
+            self._run([upload], advance)
             if upload.state == "done":
                 return upload.stats, attempt
             if upload.result is not None and upload.result != mavlink.MAV_MISSION_OPERATION_CANCELLED:
@@ -568,15 +563,24 @@ class GroundStation:
             log.warning("mission upload attempt %d failed: %s", attempt, last_error)
         raise VehicleError(f"{last_error} ({self.upload_attempts} transfers tried)", step=self.step)
 
+    def _run(self, transactions: list, after_pump: Callable[[], None] | None = None) -> None:
+        """Start the transactions and pump the link until every one has finished (each ends by its answer
+        or after its retries), calling ``after_pump`` after each pump; the link routes them their messages."""
+        self._transactions.extend(transactions)
+        try:
+            for transaction in transactions:
+                self.send(transaction.start(self.clock()))
+            while not all(transaction.finished for transaction in transactions):
+                self.pump(0.1)
+                if after_pump is not None:
+                    after_pump()
+        finally:
+            for transaction in transactions:
+                self._transactions.remove(transaction)
+
     def _exchange(self, transaction, what: str):
         """Run a mission exchange (download, clear) to its end; :class:`VehicleError` naming ``what``."""
-        self._transactions.append(transaction)
-        try:
-            self.send(transaction.start(self.clock()))
-            while not transaction.finished:
-                self.pump(0.1)
-        finally:
-            self._transactions.remove(transaction)
+        self._run([transaction])
         if transaction.state != "done":
             raise VehicleError(f"{what}: {transaction.error}", step=self.step)
         return transaction
@@ -622,13 +626,7 @@ class GroundStation:
         )
 
     def _param(self, transaction: ParamTransaction) -> ParamTransaction:
-        self._transactions.append(transaction)
-        try:
-            self.send(transaction.start(self.clock()))
-            while not transaction.finished:
-                self.pump(0.1)
-        finally:
-            self._transactions.remove(transaction)
+        self._run([transaction])
         return transaction
 
     def read_param(self, name: str) -> tuple[float | int, int]:
@@ -644,15 +642,7 @@ class GroundStation:
             )
             for name in names
         ]  # fmt: skip
-        self._transactions.extend(reads)
-        try:
-            for read in reads:
-                self.send(read.start(self.clock()))
-            while not all(read.finished for read in reads):
-                self.pump(0.1)
-        finally:
-            for read in reads:
-                self._transactions.remove(read)
+        self._run(reads)
         for read in reads:
             if read.timed_out:
                 raise VehicleError(
