@@ -296,127 +296,11 @@ class UploadStatistics:
     stray_acks: int = 0
 
 
-class MissionUpload:
-    """Ground-station side of a mission upload.
-
-    ``timeout`` (s) is how long to wait for the vehicle's next message before
-    sending the last message again; after ``retries`` such resends the upload
-    fails. ``state`` is ``idle``, ``sending``, ``done`` or ``failed`` (then
-    :attr:`error` says why, and :attr:`result` holds the vehicle's
-    MAV_MISSION_RESULT when it refused). ``legacy``: answer with the
-    deprecated MISSION_ITEM (for a vehicle without MAV_PROTOCOL_CAPABILITY_MISSION_INT).
-    """
-
-    def __init__(
-        self,
-        items: Sequence[MissionItem],
-        target_system: int,
-        target_component: int,
-        *,
-        timeout: float = 1.5,
-        retries: int = 5,
-        mission_type: int = MISSION,
-        legacy: bool = False,
-    ) -> None:
-        self.legacy = legacy
-        self.items = list(items)
-        self.target = (target_system, target_component)
-        self.timeout = float(timeout)
-        self.retries = int(retries)
-        self.mission_type = mission_type
-        self.state = "idle"
-        self.error = ""
-        self.result: int | None = None
-        self.stats = UploadStatistics()
-        self.requested: set[int] = set()
-        self.deadline = math.inf
-        self._last = None
-        self._waiting_for = ""
-        self._attempts = 0
-        self._highest = -1
-
-    @property
-    def count(self) -> int:
-        return len(self.items)
-
-    @property
-    def finished(self) -> bool:
-        return self.state in ("done", "failed")
-
-    def start(self, now: float) -> list:
-        self.state = "sending"
-        count = mavlink.MAVLink_mission_count_message(*self.target, self.count, self.mission_type)
-        return self._send(count, now, "an answer to MISSION_COUNT")
-
-    def _send(self, message, now: float, waiting_for: str) -> list:
-        self._last = message
-        self._waiting_for = waiting_for
-        self._attempts = 0
-        self.deadline = now + self.timeout
-        return [message]
-
-    def on_message(self, message, now: float) -> list:
-        if self.state != "sending":
-            return []
-        kind = message.get_type()
-        if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
-            if getattr(message, "mission_type", MISSION) != self.mission_type:
-                return []
-            return self._on_request(int(message.seq), now)
-        if kind == "MISSION_ACK" and getattr(message, "mission_type", MISSION) == self.mission_type:
-            return self._on_ack(int(message.type))
-        return []
-
-    def _on_request(self, seq: int, now: float) -> list:
-        stats = self.stats
-        stats.requests += 1
-        if not 0 <= seq < self.count:
-            stats.invalid_requests += 1
-            return []
-        if seq in self.requested:
-            stats.repeated_requests += 1
-        if seq != self._highest + 1 and seq not in self.requested:
-            stats.out_of_order_requests += 1
-        self.requested.add(seq)
-        self._highest = max(self._highest, seq)
-        item = self.items[seq].encode(seq, *self.target, self.mission_type, legacy=self.legacy)
-        after = "MISSION_ACK" if len(self.requested) == self.count else f"the next MISSION_REQUEST_INT after item {seq}"
-        return self._send(item, now, after)
-
-    def _on_ack(self, result: int) -> list:
-        if result == ACCEPTED:
-            if len(self.requested) < self.count:
-                self.stats.stray_acks += 1
-                return []
-            self.state = "done"
-            self.deadline = math.inf
-            return []
-        self.state = "failed"
-        self.result = result
-        self.deadline = math.inf
-        what = "mission" if self.mission_type == MISSION else type_name(self.mission_type)
-        self.error = f"the vehicle rejected the {what}: {result_text(result)}"
-        return []
-
-    def on_timer(self, now: float) -> list:
-        if self.state != "sending" or now < self.deadline:
-            return []
-        if self._attempts >= self.retries:
-            self.state = "failed"
-            self.deadline = math.inf
-            self.error = (
-                f"the vehicle stopped answering: waited for {self._waiting_for} through {self._attempts + 1} "
-                f"attempts, {self.timeout:g} s apart; {len(self.requested)} of {self.count} items had been requested"
-            )
-            return []
-        self._attempts += 1
-        self.stats.retransmissions += 1
-        self.deadline = now + self.timeout
-        return [self._last]
-
-
 class _Exchange:
-    """A ground-station transaction that re-sends its last message after a timeout (retries)."""
+    """A ground-station transaction that re-sends its last message after a timeout (retries).
+
+    ``state``: ``idle``, ``sending`` (waiting for the vehicle), ``done`` or ``failed``.
+    """
 
     def __init__(self, target: tuple[int, int], timeout: float, retries: int, mission_type: int) -> None:
         self.target = target
@@ -454,7 +338,7 @@ class _Exchange:
         return ""
 
     def on_timer(self, now: float) -> list:
-        if self.state != "busy" or now < self.deadline:
+        if self.state != "sending" or now < self.deadline:
             return []
         if self._attempts >= self._retries_now():
             progress = self._progress()
@@ -476,6 +360,90 @@ class _Exchange:
 
     def _mine(self, message) -> bool:
         return int(getattr(message, "mission_type", MISSION)) == self.mission_type
+
+
+class MissionUpload(_Exchange):
+    """Ground-station side of a mission upload.
+
+    ``timeout`` (s) is how long to wait for the vehicle's next message before
+    sending the last message again; after ``retries`` such resends the upload
+    fails. ``state`` is ``idle``, ``sending``, ``done`` or ``failed`` (then
+    :attr:`error` says why, and :attr:`result` holds the vehicle's
+    MAV_MISSION_RESULT when it refused). ``legacy``: answer with the
+    deprecated MISSION_ITEM (for a vehicle without MAV_PROTOCOL_CAPABILITY_MISSION_INT).
+    """
+
+    def __init__(
+        self,
+        items: Sequence[MissionItem],
+        target_system: int,
+        target_component: int,
+        *,
+        timeout: float = 1.5,
+        retries: int = 5,
+        mission_type: int = MISSION,
+        legacy: bool = False,
+    ) -> None:
+        super().__init__((target_system, target_component), timeout, retries, mission_type)
+        self.legacy = legacy
+        self.items = list(items)
+        self.stats = UploadStatistics()
+        self.requested: set[int] = set()
+        self._highest = -1
+
+    @property
+    def count(self) -> int:
+        return len(self.items)
+
+    def start(self, now: float) -> list:
+        self.state = "sending"
+        count = mavlink.MAVLink_mission_count_message(*self.target, self.count, self.mission_type)
+        return self._send(count, now, "an answer to MISSION_COUNT")
+
+    def on_message(self, message, now: float) -> list:
+        if self.state != "sending":
+            return []
+        kind = message.get_type()
+        if kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST"):
+            if not self._mine(message):
+                return []
+            return self._on_request(int(message.seq), now)
+        if kind == "MISSION_ACK" and self._mine(message):
+            return self._on_ack(int(message.type))
+        return []
+
+    def _on_request(self, seq: int, now: float) -> list:
+        stats = self.stats
+        stats.requests += 1
+        if not 0 <= seq < self.count:
+            stats.invalid_requests += 1
+            return []
+        if seq in self.requested:
+            stats.repeated_requests += 1
+        if seq != self._highest + 1 and seq not in self.requested:
+            stats.out_of_order_requests += 1
+        self.requested.add(seq)
+        self._highest = max(self._highest, seq)
+        item = self.items[seq].encode(seq, *self.target, self.mission_type, legacy=self.legacy)
+        after = "MISSION_ACK" if len(self.requested) == self.count else f"the next MISSION_REQUEST_INT after item {seq}"
+        return self._send(item, now, after)
+
+    def _on_ack(self, result: int) -> list:
+        if result == ACCEPTED:
+            if len(self.requested) < self.count:
+                self.stats.stray_acks += 1
+                return []
+            return self._finish("done")
+        what = "mission" if self.mission_type == MISSION else type_name(self.mission_type)
+        return self._finish("failed", f"the vehicle rejected the {what}: {result_text(result)}", result)
+
+    def _progress(self) -> str:
+        return f"{len(self.requested)} of {self.count} items had been requested"
+
+    def on_timer(self, now: float) -> list:
+        resent = super().on_timer(now)
+        self.stats.retransmissions += len(resent)
+        return resent
 
 
 class MissionDownload(_Exchange):
@@ -509,7 +477,7 @@ class MissionDownload(_Exchange):
         return [self.received[i] for i in range(self.count or 0)]
 
     def start(self, now: float) -> list:
-        self.state = "busy"
+        self.state = "sending"
         request = mavlink.MAVLink_mission_request_list_message(*self.target, self.mission_type)
         return self._send(request, now, "MISSION_COUNT")
 
@@ -534,7 +502,7 @@ class MissionDownload(_Exchange):
         return max(self.retries, math.ceil(self.timeout * (self.retries + 1) / self.item_timeout) - 1)
 
     def on_message(self, message, now: float) -> list:
-        if self.state != "busy" or not self._mine(message):
+        if self.state != "sending" or not self._mine(message):
             return []
         kind = message.get_type()
         if kind == "MISSION_COUNT" and self.count is None:
@@ -572,12 +540,12 @@ class MissionClear(_Exchange):
         super().__init__((target_system, target_component), timeout, retries, mission_type)
 
     def start(self, now: float) -> list:
-        self.state = "busy"
+        self.state = "sending"
         clear = mavlink.MAVLink_mission_clear_all_message(*self.target, self.mission_type)
         return self._send(clear, now, "MISSION_ACK")
 
     def on_message(self, message, now: float) -> list:
-        if self.state != "busy" or message.get_type() != "MISSION_ACK" or not self._mine(message):
+        if self.state != "sending" or message.get_type() != "MISSION_ACK" or not self._mine(message):
             return []
         if int(message.type) == ACCEPTED:
             return self._finish("done")
