@@ -156,19 +156,24 @@ def test_the_guard_refuses_and_reports_a_non_loopback_send(tmp_path, monkeypatch
     import surgiplan_netguard as guard
 
     monkeypatch.setenv("SURGIPLAN_NETGUARD_LOG", str(tmp_path / "log"))
-    # multicast TTL 0: should the guard ever fail, the datagram still could not leave this host
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock, pytest.raises(guard.NetworkPolicyError):
-        sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0)
+    # every attempt is made on a socket already closed: the audit hook sees the call (and refuses it) before
+    # the descriptor is used, and should the guard ever fail the call ends in EBADF, so nothing can leave
+    # this host or listen on it whatever happens (the refusal is still asserted: OSError is not it)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.close()
+    with pytest.raises(guard.NetworkPolicyError):
         sock.sendto(b"x", ("239.74.163.2", 43113))
     code = (
-        "import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); "
-        "s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 0); s.sendto(b'x', ('239.74.163.2', 43113))"
+        "import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.close(); "
+        "s.sendto(b'x', ('239.74.163.2', 43113))"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
     assert result.returncode != 0 and "network guard" in result.stderr
     log = (tmp_path / "log").read_text()
     assert log.count("socket.sendto to ('239.74.163.2', 43113)") == 2
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock, pytest.raises(guard.NetworkPolicyError):
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.close()
+    with pytest.raises(guard.NetworkPolicyError):
         sock.bind(("0.0.0.0", 0))  # listening on every interface is refused too
 
 
