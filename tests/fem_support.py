@@ -72,3 +72,14 @@ def uniaxial_stvk(stretch: float, youngs: float, poisson: float, kappa: float) -
 def on(m: StVKModel, region: dict) -> np.ndarray:
     """The nodes of ``m`` in a region given as ``{"min": ..., "max": ...}``."""
     return m.nodes_in_region(region["min"], region["max"])
+
+
+def lifted(m: StVKModel, dz: float, tilt: float = 0.0):
+    """The grasp constraints that lift a model's jaws by ``dz`` (m) and tilt them by ``tilt`` (rad) about y,
+    about the jaws' centre."""
+    pose = np.eye(4)
+    c, s = np.cos(tilt), np.sin(tilt)
+    pose[:3, :3] = [[c, 0, -s], [0, 1, 0], [s, 0, c]]
+    centre = m.rest_nodes[m.grasped_nodes()].mean(axis=0)
+    pose[:3, 3] = centre + np.array([0.0, 0.0, dz]) - pose[:3, :3] @ centre
+    return m.grasp_constraints(m.grasped_nodes(), pose)

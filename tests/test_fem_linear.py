@@ -20,6 +20,7 @@ import gc
 
 import numpy as np
 import pytest
+from fem_support import lifted
 from surgiplan.plugins.fem import StVKModel, StVKSettings, linear
 
 needs_pardiso = pytest.mark.skipif(
@@ -47,15 +48,6 @@ def flap(linear_solver="auto", origin=(0.0, 0.0, 0.0), tolerance=1e-6):
             }
         )
     )
-
-
-def lifted(m, dz, tilt=0.0):
-    pose = np.eye(4)
-    c, s = np.cos(tilt), np.sin(tilt)
-    pose[:3, :3] = [[c, 0, -s], [0, 1, 0], [s, 0, c]]
-    centre = m.rest_nodes[m.grasped_nodes()].mean(axis=0)
-    pose[:3, 3] = centre + np.array([0.0, 0.0, dz]) - pose[:3, :3] @ centre
-    return m.grasp_constraints(m.grasped_nodes(), pose)
 
 
 @needs_pardiso

@@ -24,7 +24,7 @@ import pickle
 
 import numpy as np
 import pytest
-from fem_support import face, model, on
+from fem_support import face, lifted, model, on
 from surgiplan.deformable import Constraints
 from surgiplan.plugins.fem import AxisConstraints
 from surgiplan.plugins.fem.newton import EquilibriumSolver
@@ -42,15 +42,6 @@ def flap(**settings):
         base_plane={},
         **settings,
     )
-
-
-def lifted(m, dz, tilt=0.0):
-    pose = np.eye(4)
-    c, s = np.cos(tilt), np.sin(tilt)
-    pose[:3, :3] = [[c, 0, -s], [0, 1, 0], [s, 0, c]]
-    centre = m.rest_nodes[m.grasped_nodes()].mean(axis=0)
-    pose[:3, 3] = centre + np.array([0.0, 0.0, dz]) - pose[:3, :3] @ centre
-    return m.grasp_constraints(m.grasped_nodes(), pose)
 
 
 def test_an_element_crushed_flat_gives_a_state_not_an_exception():
