@@ -187,3 +187,54 @@ def test_compiled_energy_and_forces_match_the_numpy_kernel_from_positions(cube):
     assert not kernel.evaluate((crushed - mesh.nodes).ravel(), displacement=True).valid
     assert not kernel.evaluate(crushed).valid
     assert kernel.evaluate((crushed - mesh.nodes).ravel(), displacement=True).energy == np.inf
+
+
+@pytest.mark.parametrize("definite", [False, True], ids=["exact", "surrogate"])
+def test_compiled_assembled_tangent_matches_the_numpy_kernel_and_finite_differences(cube, definite):
+    """The Newton solve's tangent (energy, forces and the assembled tangent in one compiled pass over the
+    elements, from the displacements) against the numpy kernel's element matrices assembled by ``np.bincount``
+    and, for the exact tangent, against central differences of the forces."""
+    mesh, kernel = cube
+    rng = np.random.default_rng(8)
+    # compressed along x: the stress has a negative principal value, where the surrogate differs from the exact
+    x = mesh.nodes @ np.array([[0.7, 0.1, 0.0], [-0.05, 1.1, 0.1], [0.02, 0.0, 1.2]]).T
+    x += 2e-4 / mesh.order * rng.standard_normal(x.shape)
+    u = (x - mesh.nodes).ravel()
+    pattern = TangentPattern(kernel.dofs, 3 * mesh.n_nodes)
+    compiled = kernel.evaluate(
+        u, hessian=True, definite=definite, displacement=True, element_map=pattern.element_map, nnz=pattern.nnz
+    )
+    reference = kernel.evaluate(x, hessian=True, definite=definite)
+    element_matrices = reference.hessian.copy()  # a work buffer: the next evaluation overwrites it
+    assembled = pattern.assemble(element_matrices)
+    assert compiled.valid and compiled.hessian is None
+    assert np.abs(compiled.assembled - assembled).max() < 1e-12 * np.abs(assembled).max()
+    assert compiled.energy == pytest.approx(reference.energy, rel=1e-12)
+    assert np.abs(compiled.gradient - reference.gradient).max() < 1e-11 * np.abs(reference.gradient).max()
+    exact = kernel.evaluate(x, hessian=True).hessian
+    differs = np.abs(element_matrices - exact).max() > 1e-3 * np.abs(exact).max()
+    assert differs == definite  # the state exercises the surrogate's shift
+    if not definite:
+        h = 1e-9
+        k = pattern.matrix(compiled.assembled).toarray()[np.ix_(pattern.new_of_old, pattern.new_of_old)]
+        columns = rng.choice(len(u), 12, replace=False)
+        for c in columns:
+            step = np.zeros_like(u)
+            step[c] = h
+            fd = (
+                kernel.evaluate(u + step, displacement=True).gradient
+                - kernel.evaluate(u - step, displacement=True).gradient
+            ) / (2 * h)
+            assert np.abs(fd - k[:, c]).max() < 1e-5 * np.abs(k).max()
+    # an inverted element: no tangent, the state is refused
+    crushed = x.copy()
+    corner = int(np.argmax(mesh.nodes[:, 2] + mesh.nodes[:, 0]))
+    crushed[corner, 2] -= 3 * mesh.nodes[:, 2].max()
+    refused = kernel.evaluate(
+        (crushed - mesh.nodes).ravel(),
+        hessian=True,
+        displacement=True,
+        element_map=pattern.element_map,
+        nnz=pattern.nnz,
+    )
+    assert not refused.valid and refused.energy == np.inf and refused.assembled is None

@@ -113,7 +113,9 @@ def test_one_symbolic_analysis_serves_every_solve_and_factors_are_released():
     del state
     gc.collect()
     for handle in solver.cholesky + solver.handles:
-        assert len(handle.free) == linear.SLOTS  # every factorisation released
+        # every factorisation released: its slot free, the memory of at most KEPT of them kept for reuse
+        assert len(handle.free) + len(handle.kept) == linear.SLOTS and len(handle.kept) <= linear.KEPT
+        assert sorted(handle.free + handle.kept) == list(range(1, linear.SLOTS + 1))
 
 
 @needs_pardiso

@@ -369,6 +369,16 @@ class EquilibriumSolver:
                     if not newton:  # the reused tangent may be to blame: retry with a fresh one
                         refresh = True
                         continue
+                    if residual <= options.residual_tol * scale and last_step <= step_limit:
+                        # within the tolerance, and not even a Newton step on a fresh tangent reduces Π or the
+                        # residual: the forces are at their rounding floor (the margin asked of quasi-Newton
+                        # steps cannot be met, and needs no meeting: this is a Newton step's verdict)
+                        result.converged = True
+                        result.message = (
+                            f"converged in {result.iterations} Newton iterations (residual {residual:.2g} N at "
+                            "the rounding floor: a Newton step could not reduce it)"
+                        )
+                        break
                     result.message = (
                         f"the line search failed after {result.iterations} Newton iterations: residual force "
                         f"{residual:.3g} N, tolerance {options.residual_tol * scale:.3g} N"

@@ -258,6 +258,8 @@ class StVKElements:
         """
         if displacement and not hessian:  # the Newton solve's energy and forces: the compiled kernel
             return self._evaluate_compiled(x, gradient)
+        if displacement and element_map is not None:  # the Newton solve's tangent: compiled, assembled at once
+            return self._assemble_compiled(x, definite, element_map, nnz)
         ue = self._element_displacements(x, displacement)
         xe = None if displacement else self._element_positions(x)
         kinematics = []
@@ -301,11 +303,8 @@ class StVKElements:
                 result.assembled = self._tangent(terms, element_map, nnz)
         return result
 
-    def _evaluate_compiled(self, u: np.ndarray, gradient: bool) -> ElementEvaluation:
-        """Energy and gradient from the displacements (3n,) by :func:`.kernels.energy_and_gradient` (the
-        same closed forms as the numpy path below, element by element)."""
-        from .kernels import energy_and_gradient
-
+    def _compiled_inputs(self) -> tuple:
+        """The compiled kernels' constant inputs, element-major, laid out once."""
         if getattr(self, "_compiled", None) is None:  # the kernel's constant inputs, element-major, laid out once
             k = self.nodes_per_element
             grads = np.stack([p.grad for p in self.points]).transpose(3, 0, 1, 2)  # (m, P, k, 3)
@@ -315,7 +314,14 @@ class StVKElements:
             self._compiled = tuple(
                 np.ascontiguousarray(a) for a in (grads, checks.transpose(3, 0, 1, 2), weights, dofs)
             )
-        grads, checks, weights, dofs = self._compiled
+        return self._compiled
+
+    def _evaluate_compiled(self, u: np.ndarray, gradient: bool) -> ElementEvaluation:
+        """Energy and gradient from the displacements (3n,) by :func:`.kernels.energy_and_gradient` (the
+        same closed forms as the numpy path below, element by element)."""
+        from .kernels import energy_and_gradient
+
+        grads, checks, weights, dofs = self._compiled_inputs()
         out = np.zeros(3 * self.n_nodes)
         energy, valid = energy_and_gradient(
             np.ascontiguousarray(u, dtype=float).ravel(),
@@ -332,6 +338,39 @@ class StVKElements:
         if not valid:
             return ElementEvaluation(np.inf, False)
         return ElementEvaluation(float(energy), True, out if gradient else None)
+
+    def _assemble_compiled(self, u: np.ndarray, definite: bool, element_map: np.ndarray, nnz: int) -> ElementEvaluation:
+        """Energy, gradient and assembled tangent from the displacements (3n,) by
+        :func:`.kernels.assembled_tangent`: the same terms as the numpy path (:meth:`_tangent_terms` and
+        :func:`.kernels.element_tangents`), element by element, without their per-point arrays."""
+        from .kernels import assembled_tangent
+
+        grads, checks, weights, dofs = self._compiled_inputs()
+        cached = getattr(self, "_positions", None)
+        if cached is None or cached[0] is not element_map:
+            size = 3 * self.nodes_per_element
+            # element-major: one element's entries contiguous (32 bits: half the memory traffic of the map)
+            major = np.asarray(element_map).reshape(size * size, self.n_elements).T
+            cached = self._positions = (element_map, np.ascontiguousarray(major, dtype=np.uint32))
+        data = np.zeros(nnz)
+        out = np.zeros(3 * self.n_nodes)
+        energy, valid = assembled_tangent(
+            np.ascontiguousarray(u, dtype=float).ravel(),
+            grads,
+            weights,
+            checks,
+            self.lam,
+            self.mu,
+            self.kappa,
+            dofs,
+            cached[1],
+            data,
+            out,
+            definite,
+        )
+        if not valid:
+            return ElementEvaluation(np.inf, False)
+        return ElementEvaluation(float(energy), True, out, assembled=data)
 
     def _tangent_terms(self, f, s, inv_t, log_j, definite: bool, point: QuadraturePoint) -> tuple:
         """What the tangent of one quadrature point is built from (see :func:`.kernels.element_tangents`).
@@ -389,6 +428,7 @@ class StVKElements:
         state["_work"] = None
         state["_weights"] = None
         state["_compiled"] = None
+        state["_positions"] = None
         return state
 
     # ------------------------------------------------------------------ stress
