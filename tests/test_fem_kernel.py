@@ -238,3 +238,28 @@ def test_compiled_assembled_tangent_matches_the_numpy_kernel_and_finite_differen
         nnz=pattern.nnz,
     )
     assert not refused.valid and refused.energy == np.inf and refused.assembled is None
+
+
+def test_compiled_state_summary_matches_the_numpy_methods(cube):
+    """A solved state's volume ratios, largest principal stresses and elastic energy in one compiled pass,
+    against :meth:`volume_ratio`, :meth:`max_principal_stress` and the numpy energy; inverted and
+    not-a-number states included."""
+    mesh, kernel = cube
+    rng = np.random.default_rng(9)
+    x = mesh.nodes @ np.array([[0.8, 0.1, 0.0], [-0.05, 1.1, 0.1], [0.02, 0.0, 1.15]]).T
+    x += 2e-4 / mesh.order * rng.standard_normal(x.shape)
+    ratio, stress, energy = kernel.summary(x)
+    assert np.array_equal(ratio, kernel.volume_ratio(x))
+    reference = kernel.max_principal_stress(x)
+    assert np.abs(stress - reference).max() <= 1e-12 * reference.max()
+    assert energy == pytest.approx(kernel.evaluate(x, gradient=False).energy, rel=1e-13)
+    crushed = x.copy()
+    corner = int(np.argmax(mesh.nodes[:, 2] + mesh.nodes[:, 0]))
+    crushed[corner, 2] -= 3 * mesh.nodes[:, 2].max()
+    ratio, _, energy = kernel.summary(crushed)
+    assert np.array_equal(ratio, kernel.volume_ratio(crushed)) and ratio.min() < 0 and energy == np.inf
+    broken = x.copy()
+    broken[corner] = np.nan
+    ratio, _, energy = kernel.summary(broken)
+    assert np.array_equal(np.isnan(ratio), np.isnan(kernel.volume_ratio(broken))) and np.isnan(ratio).any()
+    assert not energy < np.inf

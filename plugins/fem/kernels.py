@@ -375,3 +375,113 @@ def assembled_tangent(  # pragma: no cover
         for t in range(size * size):
             data[where[t]] += flat[t]
     return energy, True
+
+
+@njit(cache=True, inline="always")
+def _smaller(a, b):  # pragma: no cover
+    """min(a, b), NaN when either is (as ``np.min``)."""
+    if a != a or b != b:
+        return np.nan
+    return a if a < b else b
+
+
+@njit(cache=True, nogil=True)
+def state_summary(x, u, grads, weights, checks, lam, mu, kappa, dofs, ratio, stress):  # pragma: no cover
+    """What a solved state reports per element, in one pass: the volume ratio ``ratio`` (m,) (the smallest
+    det F over the quadrature points and, quadratic, the vertices), the largest principal stress magnitude
+    ``stress`` (m,) in Pa (of S with the volume penalty's kappa ln J C^-1, over the points; inf where S is not
+    finite) and the elastic energy (returned; inf when an element is inverted or flat).
+
+    As the numpy path (:meth:`.stvk.StVKElements.volume_ratio`, :meth:`~.stvk.StVKElements.max_principal_stress`,
+    ``evaluate(x, gradient=False)``): F from the positions ``x`` (3n,) (the determinant of an element crushed to
+    a sliver stays resolved), the strain from the displacements ``u`` (3n,) without cancellation.
+    """
+    m, n_points, k, _ = grads.shape
+    n_checks = checks.shape[1]
+    xe = np.empty((3, k))
+    ue = np.empty((3, k))
+    h = np.empty((3, 3))
+    f = np.empty((3, 3))
+    cof = np.empty((3, 3))
+    e_ = np.empty((3, 3))
+    s_ = np.empty((3, 3))
+    energy = 0.0
+    for el in range(m):
+        for a in range(k):
+            for i in range(3):
+                xe[i, a] = x[dofs[el, a, i]]
+                ue[i, a] = u[dofs[el, a, i]]
+        lowest = np.inf
+        for c in range(n_checks):
+            for i in range(3):
+                for l in range(3):
+                    total = 0.0
+                    for a in range(k):
+                        total += xe[i, a] * checks[el, c, a, l]
+                    f[i, l] = total
+            lowest = _smaller(lowest, _determinant(f))
+        largest = 0.0
+        for q in range(n_points):
+            for i in range(3):
+                for l in range(3):
+                    t_h = 0.0
+                    t_f = 0.0
+                    for a in range(k):
+                        t_h += ue[i, a] * grads[el, q, a, l]
+                        t_f += xe[i, a] * grads[el, q, a, l]
+                    h[i, l] = t_h
+                    f[i, l] = t_f
+            det = _cofactor(f, cof)
+            lowest = _smaller(lowest, det)
+            for i in range(3):
+                for j in range(3):
+                    total = 0.0
+                    for l in range(3):
+                        total += h[l, i] * h[l, j]
+                    e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
+            tr = e_[0, 0] + e_[1, 1] + e_[2, 2]
+            tr_h = h[0, 0] + h[1, 1] + h[2, 2]
+            square = 0.0
+            e_square = 0.0
+            for i in range(3):
+                for j in range(3):
+                    square += h[i, j] * h[j, i]
+                    e_square += e_[i, j] * e_[i, j]
+            excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)  # J - 1
+            if abs(excess) < 0.5:
+                log_j = np.log1p(excess)
+            elif det > 0.0:
+                log_j = np.log(det)
+            else:
+                log_j = np.nan
+            energy += weights[el, q] * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
+            # S = lam tr E I + 2 mu E + kappa ln J C^-1, C^-1 = F^-1 F^-T = (cof / det)^T (cof / det)
+            penalty = kappa[el] * log_j / (det * det)
+            finite = True
+            for i in range(3):
+                for j in range(3):
+                    total = 0.0
+                    for l in range(3):
+                        total += cof[l, i] * cof[l, j]
+                    s_[i, j] = 2.0 * mu[el] * e_[i, j] + (lam[el] * tr if i == j else 0.0) + penalty * total
+                    if not np.isfinite(s_[i, j]):
+                        finite = False
+            if not finite:
+                largest = np.inf
+                continue
+            low = _lowest_eigenvalue(s_)
+            trace = s_[0, 0] + s_[1, 1] + s_[2, 2]
+            # the highest eigenvalue: the lowest of -S
+            for i in range(3):
+                for j in range(3):
+                    s_[i, j] = -s_[i, j]
+            high = -_lowest_eigenvalue(s_)
+            value = max(abs(low), abs(high))
+            if not np.isfinite(value) or not np.isfinite(trace):
+                value = np.inf
+            largest = max(largest, value)
+        ratio[el] = lowest
+        stress[el] = largest
+        if not lowest > 0.0:
+            energy = np.inf
+    return energy

@@ -484,19 +484,19 @@ class StVKModel(DeformableModel):
         self, x: np.ndarray, prescribed: np.ndarray, result: NewtonResult, constraints: Constraints
     ) -> EquilibriumState:
         finite = bool(np.all(np.isfinite(x)))
-        ratio = self.kernel.volume_ratio(x)
+        ratio, stress, elastic = self.kernel.summary(x)  # one compiled pass over the elements
         degenerate = ~(ratio > 0)  # inverted, flat, or not a number
         inverted = int(np.count_nonzero(degenerate))
         crossings = 0
         if self.settings.self_intersection and finite:
             crossings = len(self_intersections(x, self.surface_triangles))
-        elastic = self.kernel.evaluate(x, gradient=False).energy
         loads = self.loads.evaluate(x, gradient=False)
         grad = result.gradient
         reactions = np.zeros((self.mesh.n_nodes, 3))
         if grad is not None:
             reactions.ravel()[prescribed] = grad[prescribed]
-        stress = self.kernel.max_principal_stress(x) if inverted == 0 else np.full(len(ratio), np.inf)
+        if inverted:
+            stress = np.full(len(ratio), np.inf)
         message = result.message
         if not finite:
             message += "; positions that are not finite numbers"

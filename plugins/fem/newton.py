@@ -326,6 +326,8 @@ class EquilibriumSolver:
                     break
             given = False
             if direction is None:
+                # the old factor is done with: released first, so the new one reuses its memory
+                factor = None
                 factor, shift = self._factor(x, prescribed, options, result, shift)
                 if factor is None:
                     result.message = "the tangent stiffness matrix is singular even after regularisation"

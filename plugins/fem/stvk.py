@@ -339,6 +339,22 @@ class StVKElements:
             return ElementEvaluation(np.inf, False)
         return ElementEvaluation(float(energy), True, out if gradient else None)
 
+    def summary(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """What a solved state reports, in one compiled pass (:func:`.kernels.state_summary`): the volume
+        ratio (m,) as :meth:`volume_ratio`, the largest principal stress magnitude (m,) in Pa as
+        :meth:`max_principal_stress` (meaningful where no element is inverted) and the elastic energy in J
+        (inf when an element is inverted or flat), at positions x (n, 3) or (3n,)."""
+        from .kernels import state_summary
+
+        grads, checks, weights, dofs = self._compiled_inputs()
+        flat = np.ascontiguousarray(x, dtype=float).ravel()
+        ratio = np.empty(self.n_elements)
+        stress = np.empty(self.n_elements)
+        energy = state_summary(
+            flat, flat - self.rest, grads, weights, checks, self.lam, self.mu, self.kappa, dofs, ratio, stress
+        )
+        return ratio, stress, float(energy)
+
     def _assemble_compiled(self, u: np.ndarray, definite: bool, element_map: np.ndarray, nnz: int) -> ElementEvaluation:
         """Energy, gradient and assembled tangent from the displacements (3n,) by
         :func:`.kernels.assembled_tangent`: the same terms as the numpy path (:meth:`_tangent_terms` and
