@@ -211,7 +211,7 @@ def _lowest_eigenvalue(s):  # pragma: no cover
 
 @njit(cache=True, nogil=True)
 def assembled_tangent(  # pragma: no cover
-    u, grads, weights, checks, lam, mu, kappa, dofs, positions, data, gradient, definite
+    u, grads, weights, checks, lam, mu, kappa, dofs, positions, data, gradient, definite, want_gradient
 ):
     """Energy, gradient and the tangent assembled, in one pass over the elements from the displacements ``u``.
 
@@ -229,7 +229,9 @@ def assembled_tangent(  # pragma: no cover
                     + mu (F g_a)_j (F g_b)_i + kappa (q_ai q_bj - ln J q_aj q_bi) ],  q_a = F^-T g_a
 
     ``definite``: the surrogate (S shifted by its most compressive
-    principal stress, no swapped penalty term). Returns (energy, valid); an
+    principal stress, no swapped penalty term); ``want_gradient``: add the
+    forces into ``gradient`` (3n,) (a Newton step's factorisation has them
+    from its line search already). Returns (energy, valid); an
     inverted element (det F <= 0 at a point or, quadratic, at a vertex)
     leaves ``data`` and ``gradient`` partly written and valid False.
     """
@@ -302,20 +304,20 @@ def assembled_tangent(  # pragma: no cover
             for i in range(3):
                 for j in range(3):
                     s_[i, j] = 2.0 * mu_e * e_[i, j] + (lam_e * tr if i == j else 0.0)
-            # the forces: V P = V (F S) + kappa V ln J F^-T
-            penalty = kappa_e * vol * log_j / det
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += f[i, l] * s_[l, j]
-                    fft[i, j] = vol * total + penalty * cof[i, j]  # (V P, kept in fft until the forces are added)
-            for a in range(k):
+            if want_gradient:  # the forces: V P = V (F S) + kappa V ln J F^-T
+                penalty = kappa_e * vol * log_j / det
                 for i in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += fft[i, l] * g[a, l]
-                    gradient[dofs[el, a, i]] += total
+                    for j in range(3):
+                        total = 0.0
+                        for l in range(3):
+                            total += f[i, l] * s_[l, j]
+                        fft[i, j] = vol * total + penalty * cof[i, j]  # (V P, in fft until the forces are added)
+                for a in range(k):
+                    for i in range(3):
+                        total = 0.0
+                        for l in range(3):
+                            total += fft[i, l] * g[a, l]
+                        gradient[dofs[el, a, i]] += total
             swapped = log_j
             if definite:
                 lowest = _lowest_eigenvalue(s_)

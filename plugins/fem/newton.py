@@ -192,13 +192,13 @@ class EquilibriumSolver:
         return elastic.energy + loads.energy, elastic.gradient + loads.gradient
 
     def tangent(
-        self, x: np.ndarray, definite: bool, displacement: bool = False
-    ) -> tuple[float, np.ndarray, np.ndarray]:
-        """Π, its gradient (3n,) and the assembled tangent's values (pattern order)."""
+        self, x: np.ndarray, definite: bool, displacement: bool = False, forces: bool = True
+    ) -> tuple[float, np.ndarray | None, np.ndarray]:
+        """Π, its gradient (3n,) (None without ``forces``) and the assembled tangent's values (pattern order)."""
         xs = x.reshape(-1, 3)
         elastic = self.elements.evaluate(
             xs,
-            gradient=True,
+            gradient=forces,
             hessian=True,
             definite=definite,
             displacement=displacement,
@@ -211,7 +211,8 @@ class EquilibriumSolver:
         data = elastic.assembled
         if len(loads.contact_nodes):
             self.pattern.add_node_blocks(data, loads.contact_nodes, loads.contact_blocks)
-        return elastic.energy + loads.energy, elastic.gradient + loads.gradient, data
+        gradient = elastic.gradient + loads.gradient if forces else None
+        return elastic.energy + loads.energy, gradient, data
 
     # the solve iterates on the displacements u = x - X: rounding stays relative to u (see _rounding)
     def _energy(self, u: np.ndarray) -> float:
@@ -220,8 +221,9 @@ class EquilibriumSolver:
     def _gradient(self, u: np.ndarray) -> tuple[float, np.ndarray | None]:
         return self.gradient(u, displacement=True)
 
-    def _tangent(self, u: np.ndarray, definite: bool) -> tuple[float, np.ndarray, np.ndarray]:
-        return self.tangent(u, definite, displacement=True)
+    def _tangent(self, u: np.ndarray, definite: bool) -> tuple[float, np.ndarray | None, np.ndarray]:
+        """The tangent for a factorisation: the forces there are known already (not computed again)."""
+        return self.tangent(u, definite, displacement=True, forces=False)
 
     # ------------------------------------------------------------------ the solve
     def solve(

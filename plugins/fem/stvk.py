@@ -259,7 +259,7 @@ class StVKElements:
         if displacement and not hessian:  # the Newton solve's energy and forces: the compiled kernel
             return self._evaluate_compiled(x, gradient)
         if displacement and element_map is not None:  # the Newton solve's tangent: compiled, assembled at once
-            return self._assemble_compiled(x, definite, element_map, nnz)
+            return self._assemble_compiled(x, definite, element_map, nnz, gradient)
         ue = self._element_displacements(x, displacement)
         xe = None if displacement else self._element_positions(x)
         kinematics = []
@@ -355,7 +355,9 @@ class StVKElements:
         )
         return ratio, stress, float(energy)
 
-    def _assemble_compiled(self, u: np.ndarray, definite: bool, element_map: np.ndarray, nnz: int) -> ElementEvaluation:
+    def _assemble_compiled(
+        self, u: np.ndarray, definite: bool, element_map: np.ndarray, nnz: int, gradient: bool = True
+    ) -> ElementEvaluation:
         """Energy, gradient and assembled tangent from the displacements (3n,) by
         :func:`.kernels.assembled_tangent`: the same terms as the numpy path (:meth:`_tangent_terms` and
         :func:`.kernels.element_tangents`), element by element, without their per-point arrays."""
@@ -383,10 +385,11 @@ class StVKElements:
             data,
             out,
             definite,
+            gradient,
         )
         if not valid:
             return ElementEvaluation(np.inf, False)
-        return ElementEvaluation(float(energy), True, out, assembled=data)
+        return ElementEvaluation(float(energy), True, out if gradient else None, assembled=data)
 
     def _tangent_terms(self, f, s, inv_t, log_j, definite: bool, point: QuadraturePoint) -> tuple:
         """What the tangent of one quadrature point is built from (see :func:`.kernels.element_tangents`).
