@@ -12,7 +12,7 @@ flap, linear 20x20x2, 3,969 unknowns; the flap with quadratic tetrahedra
   with the inertia from the factorisation where Cholesky fails; one
   symbolic analysis per pattern and matrix type, then numerical
   factorisations only;
-* qdldl and cholespy when installed (``pip install qdldl cholespy``: they
+* qdldl and cholespy when installed (``pip install '.[bench]'``: they
   are not dependencies): qdldl's numerical refactorisation, cholespy's
   analysis and factorisation (it has no refactorisation).
 
