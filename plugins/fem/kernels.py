@@ -32,6 +32,65 @@ from . import closed_forms
 _determinant = njit(cache=True, inline="always")(closed_forms.determinant)
 _cofactor = njit(cache=True, inline="always")(closed_forms.cofactor)
 
+
+@njit(cache=True, inline="always")
+def _vertices_upright(ue, checks, el, f):  # pragma: no cover
+    """det F > 0 at the vertices of a quadratic element (``checks[el]``: the shape gradients there)."""
+    k = ue.shape[1]
+    for c in range(checks.shape[1]):
+        for i in range(3):
+            for l in range(3):
+                total = 1.0 if i == l else 0.0
+                for a in range(k):
+                    total += ue[i, a] * checks[el, c, a, l]
+                f[i, l] = total
+        if not _determinant(f) > 0.0:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _displacement_gradient(ue, g, h, f):  # pragma: no cover
+    """H = grad u (into ``h``) and F = I + H (into ``f``) from the element's displacements and shape gradients."""
+    k = ue.shape[1]
+    for i in range(3):
+        for l in range(3):
+            total = 0.0
+            for a in range(k):
+                total += ue[i, a] * g[a, l]
+            h[i, l] = total
+            f[i, l] = total + (1.0 if i == l else 0.0)
+
+
+@njit(cache=True, inline="always")
+def _strain(h, e_):  # pragma: no cover
+    """Green strain E = (H + H^T + H^T H) / 2 from H without cancellation (into ``e_``); returns tr E, E : E and
+    J - 1 = tr H + (tr^2 H - tr H^2) / 2 + det H (accurate for small strains)."""
+    for i in range(3):
+        for j in range(3):
+            total = 0.0
+            for l in range(3):
+                total += h[l, i] * h[l, j]
+            e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
+    tr_h = h[0, 0] + h[1, 1] + h[2, 2]
+    square = 0.0
+    e_square = 0.0
+    for i in range(3):
+        for j in range(3):
+            square += h[i, j] * h[j, i]
+            e_square += e_[i, j] * e_[i, j]
+    excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)
+    return e_[0, 0] + e_[1, 1] + e_[2, 2], e_square, excess
+
+
+@njit(cache=True, inline="always")
+def _log_volume_ratio(excess, det):  # pragma: no cover
+    """ln J: log1p(J - 1) near J = 1, ln det F where J is far from 1 (NaN where det F <= 0)."""
+    if abs(excess) < 0.5:
+        return np.log1p(excess)
+    return np.log(det) if det > 0.0 else np.nan
+
+
 #: elements per block: the block's rows of the inputs (about fifteen of 8 kB each) stay in cache
 CHUNK = 1024
 
@@ -121,7 +180,6 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
     without cancellation, ln J by log1p near J = 1); element by element.
     """
     m, n_points, k, _ = grads.shape
-    n_checks = checks.shape[1]
     ue = np.empty((3, k))
     h = np.empty((3, 3))
     f = np.empty((3, 3))
@@ -133,43 +191,15 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
         for a in range(k):
             for i in range(3):
                 ue[i, a] = u[dofs[el, a, i]]
-        for c in range(n_checks):
-            for i in range(3):
-                for l in range(3):
-                    total = 1.0 if i == l else 0.0
-                    for a in range(k):
-                        total += ue[i, a] * checks[el, c, a, l]
-                    f[i, l] = total
-            if not _determinant(f) > 0.0:
-                return np.inf, False
+        if not _vertices_upright(ue, checks, el, f):
+            return np.inf, False
         for q in range(n_points):
-            for i in range(3):
-                for l in range(3):
-                    total = 0.0
-                    for a in range(k):
-                        total += ue[i, a] * grads[el, q, a, l]
-                    h[i, l] = total
-                    f[i, l] = total + (1.0 if i == l else 0.0)
+            _displacement_gradient(ue, grads[el, q], h, f)
             det = _cofactor(f, cof)
             if not det > 0.0:
                 return np.inf, False
-            # Green strain from H without cancellation: E = (H + H^T + H^T H) / 2
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += h[l, i] * h[l, j]
-                    e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
-            tr = e_[0, 0] + e_[1, 1] + e_[2, 2]
-            tr_h = h[0, 0] + h[1, 1] + h[2, 2]
-            square = 0.0
-            e_square = 0.0
-            for i in range(3):
-                for j in range(3):
-                    square += h[i, j] * h[j, i]
-                    e_square += e_[i, j] * e_[i, j]
-            excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)  # J - 1
-            log_j = np.log1p(excess) if abs(excess) < 0.5 else np.log(det)
+            tr, e_square, excess = _strain(h, e_)
+            log_j = _log_volume_ratio(excess, det)
             vol = weights[el, q]
             energy += vol * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
             if not want_gradient:
@@ -236,7 +266,6 @@ def assembled_tangent(  # pragma: no cover
     leaves ``data`` and ``gradient`` partly written and valid False.
     """
     m, n_points, k, _ = grads.shape
-    n_checks = checks.shape[1]
     size = 3 * k
     ke = np.empty((size, size))
     ue = np.empty((3, k))
@@ -258,47 +287,20 @@ def assembled_tangent(  # pragma: no cover
         for a in range(k):
             for i in range(3):
                 ue[i, a] = u[dofs[el, a, i]]
-        for c in range(n_checks):
-            for i in range(3):
-                for l in range(3):
-                    total = 1.0 if i == l else 0.0
-                    for a in range(k):
-                        total += ue[i, a] * checks[el, c, a, l]
-                    f[i, l] = total
-            if not _determinant(f) > 0.0:
-                return np.inf, False
+        if not _vertices_upright(ue, checks, el, f):
+            return np.inf, False
         for r in range(size):
             for c in range(r, size):
                 ke[r, c] = 0.0
         mu_e, lam_e, kappa_e = mu[el], lam[el], kappa[el]
         for q in range(n_points):
             g = grads[el, q]
-            for i in range(3):
-                for l in range(3):
-                    total = 0.0
-                    for a in range(k):
-                        total += ue[i, a] * g[a, l]
-                    h[i, l] = total
-                    f[i, l] = total + (1.0 if i == l else 0.0)
+            _displacement_gradient(ue, g, h, f)
             det = _cofactor(f, cof)
             if not det > 0.0:
                 return np.inf, False
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += h[l, i] * h[l, j]
-                    e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
-            tr = e_[0, 0] + e_[1, 1] + e_[2, 2]
-            tr_h = h[0, 0] + h[1, 1] + h[2, 2]
-            square = 0.0
-            e_square = 0.0
-            for i in range(3):
-                for j in range(3):
-                    square += h[i, j] * h[j, i]
-                    e_square += e_[i, j] * e_[i, j]
-            excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)  # J - 1
-            log_j = np.log1p(excess) if abs(excess) < 0.5 else np.log(det)
+            tr, e_square, excess = _strain(h, e_)
+            log_j = _log_volume_ratio(excess, det)
             vol = weights[el, q]
             energy += vol * (0.5 * lam_e * tr * tr + mu_e * e_square + 0.5 * kappa_e * log_j * log_j)
             for i in range(3):
@@ -435,27 +437,8 @@ def state_summary(x, u, grads, weights, checks, lam, mu, kappa, dofs, ratio, str
                     f[i, l] = t_f
             det = _cofactor(f, cof)
             lowest = _smaller(lowest, det)
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += h[l, i] * h[l, j]
-                    e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
-            tr = e_[0, 0] + e_[1, 1] + e_[2, 2]
-            tr_h = h[0, 0] + h[1, 1] + h[2, 2]
-            square = 0.0
-            e_square = 0.0
-            for i in range(3):
-                for j in range(3):
-                    square += h[i, j] * h[j, i]
-                    e_square += e_[i, j] * e_[i, j]
-            excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)  # J - 1
-            if abs(excess) < 0.5:
-                log_j = np.log1p(excess)
-            elif det > 0.0:
-                log_j = np.log(det)
-            else:
-                log_j = np.nan
+            tr, e_square, excess = _strain(h, e_)
+            log_j = _log_volume_ratio(excess, det)
             energy += weights[el, q] * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
             # S = lam tr E I + 2 mu E + kappa ln J C^-1, C^-1 = F^-1 F^-T = (cof / det)^T (cof / det)
             penalty = kappa[el] * log_j / (det * det)
