@@ -34,16 +34,31 @@ _cofactor = njit(cache=True, inline="always")(closed_forms.cofactor)
 
 
 @njit(cache=True, inline="always")
+def _gather(values, dofs, el, out):  # pragma: no cover
+    """An element's nodal values (3, k) from the flat (3n,) ``values``."""
+    for a in range(out.shape[1]):
+        for i in range(3):
+            out[i, a] = values[dofs[el, a, i]]
+
+
+@njit(cache=True, inline="always")
+def _gradient(values, g, out, diagonal):  # pragma: no cover
+    """``diagonal`` I + sum_a values[:, a] g[a]^T into ``out`` (3, 3): F = I + grad u from displacements
+    (``diagonal`` 1), grad x from positions or grad u (0); summed starting from the identity's entry."""
+    k = values.shape[1]
+    for i in range(3):
+        for l in range(3):
+            total = diagonal if i == l else 0.0
+            for a in range(k):
+                total += values[i, a] * g[a, l]
+            out[i, l] = total
+
+
+@njit(cache=True, inline="always")
 def _vertices_upright(ue, checks, el, f):  # pragma: no cover
     """det F > 0 at the vertices of a quadratic element (``checks[el]``: the shape gradients there)."""
-    k = ue.shape[1]
     for c in range(checks.shape[1]):
-        for i in range(3):
-            for l in range(3):
-                total = 1.0 if i == l else 0.0
-                for a in range(k):
-                    total += ue[i, a] * checks[el, c, a, l]
-                f[i, l] = total
+        _gradient(ue, checks[el, c], f, 1.0)
         if not _determinant(f) > 0.0:
             return False
     return True
@@ -52,14 +67,10 @@ def _vertices_upright(ue, checks, el, f):  # pragma: no cover
 @njit(cache=True, inline="always")
 def _displacement_gradient(ue, g, h, f):  # pragma: no cover
     """H = grad u (into ``h``) and F = I + H (into ``f``) from the element's displacements and shape gradients."""
-    k = ue.shape[1]
+    _gradient(ue, g, h, 0.0)
     for i in range(3):
         for l in range(3):
-            total = 0.0
-            for a in range(k):
-                total += ue[i, a] * g[a, l]
-            h[i, l] = total
-            f[i, l] = total + (1.0 if i == l else 0.0)
+            f[i, l] = h[i, l] + (1.0 if i == l else 0.0)
 
 
 @njit(cache=True, inline="always")
@@ -188,9 +199,7 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
     p_ = np.empty((3, 3))
     energy = 0.0
     for el in range(m):
-        for a in range(k):
-            for i in range(3):
-                ue[i, a] = u[dofs[el, a, i]]
+        _gather(u, dofs, el, ue)
         if not _vertices_upright(ue, checks, el, f):
             return np.inf, False
         for q in range(n_points):
@@ -284,9 +293,7 @@ def assembled_tangent(  # pragma: no cover
     swapped_qg = np.empty((k, 3))
     energy = 0.0
     for el in range(m):
-        for a in range(k):
-            for i in range(3):
-                ue[i, a] = u[dofs[el, a, i]]
+        _gather(u, dofs, el, ue)
         if not _vertices_upright(ue, checks, el, f):
             return np.inf, False
         for r in range(size):
@@ -411,30 +418,16 @@ def state_summary(x, u, grads, weights, checks, lam, mu, kappa, dofs, ratio, str
     s_ = np.empty((3, 3))
     energy = 0.0
     for el in range(m):
-        for a in range(k):
-            for i in range(3):
-                xe[i, a] = x[dofs[el, a, i]]
-                ue[i, a] = u[dofs[el, a, i]]
+        _gather(x, dofs, el, xe)
+        _gather(u, dofs, el, ue)
         lowest = np.inf
         for c in range(n_checks):
-            for i in range(3):
-                for l in range(3):
-                    total = 0.0
-                    for a in range(k):
-                        total += xe[i, a] * checks[el, c, a, l]
-                    f[i, l] = total
+            _gradient(xe, checks[el, c], f, 0.0)
             lowest = _smaller(lowest, _determinant(f))
         largest = 0.0
         for q in range(n_points):
-            for i in range(3):
-                for l in range(3):
-                    t_h = 0.0
-                    t_f = 0.0
-                    for a in range(k):
-                        t_h += ue[i, a] * grads[el, q, a, l]
-                        t_f += xe[i, a] * grads[el, q, a, l]
-                    h[i, l] = t_h
-                    f[i, l] = t_f
+            _gradient(ue, grads[el, q], h, 0.0)  # H = grad u
+            _gradient(xe, grads[el, q], f, 0.0)  # F = grad x
             det = _cofactor(f, cof)
             lowest = _smaller(lowest, det)
             tr, e_square, excess = _strain(h, e_)
