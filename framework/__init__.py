@@ -27,6 +27,7 @@ from .errors import (
 from .executors import DaskExecutor, Executor, InlineExecutor, LocalExecutor, TaskStore, run_tasks
 from .guidance import GuideContext, PoseSample, PoseSource, SourceStopped
 from .hookspecs import PluginSpec, hookimpl
+from .models import StrictModel
 from .pipeline import load_pipeline, load_scene
 from .planning import Planner, PlanningProblem, PlanResult
 from .progress import NullProgress, Progress
@@ -80,6 +81,7 @@ __all__ = [
     "Space",
     "StageContext",
     "StageResult",
+    "StrictModel",
     "SurgiplanError",
     "TaskStore",
     "Trajectory",

@@ -11,9 +11,7 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from pydantic import (
-    BaseModel,
     BeforeValidator,
-    ConfigDict,
     Discriminator,
     Field,
     PositiveInt,
@@ -21,20 +19,16 @@ from pydantic import (
     model_validator,
 )
 
-from .models import PoseModel, QuaternionPoseModel
+from .models import PoseModel, QuaternionPoseModel, StrictModel
 from .units import LENGTH_UNITS, Angle, Length, PositiveLength, Vec3
 
 LengthUnit = Literal[tuple(LENGTH_UNITS)]  # type: ignore[valid-type]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
 # ----------------------------------------------------------------------------- scene
 
 
-class BoundsModel(_Strict):
+class BoundsModel(StrictModel):
     min: Vec3
     max: Vec3
 
@@ -46,7 +40,7 @@ class BoundsModel(_Strict):
         return self
 
 
-class BoxModel(_Strict):
+class BoxModel(StrictModel):
     """Either ``min``/``max`` corners or a ``size`` centred on the obstacle's pose."""
 
     min: Vec3 | None = None
@@ -67,18 +61,18 @@ class BoxModel(_Strict):
         return self
 
 
-class SphereModel(_Strict):
+class SphereModel(StrictModel):
     radius: PositiveLength
 
 
-class CylinderModel(_Strict):
+class CylinderModel(StrictModel):
     """A solid cylinder along the obstacle's local z axis, centred on its pose."""
 
     radius: PositiveLength
     length: PositiveLength
 
 
-class CapsuleModel(_Strict):
+class CapsuleModel(StrictModel):
     """``radius`` with either a ``length`` along local z (centred) or end points ``a`` and ``b``."""
 
     radius: PositiveLength
@@ -100,7 +94,7 @@ def _mesh_shorthand(value: Any) -> Any:
     return {"file": value} if isinstance(value, str) else value
 
 
-class MeshModel(_Strict):
+class MeshModel(StrictModel):
     """A mesh file (STL, OBJ, PLY, GLB, ...), relative to the file that names it.
 
     ``unit``: the unit of the coordinates in the mesh file (default: the
@@ -112,7 +106,7 @@ class MeshModel(_Strict):
     scale: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.0
 
 
-class ObstacleModel(_Strict):
+class ObstacleModel(StrictModel):
     name: str = Field(min_length=1)
     box: BoxModel | None = None
     sphere: SphereModel | None = None
@@ -137,7 +131,7 @@ class ObstacleModel(_Strict):
 SHAPES = ("box", "sphere", "cylinder", "capsule", "mesh")
 
 
-class SceneModel(_Strict):
+class SceneModel(StrictModel):
     """A scene file, or the ``scene:`` block of a pipeline file."""
 
     name: str | None = None
@@ -158,7 +152,7 @@ class SceneModel(_Strict):
 # ----------------------------------------------------------------------------- pipeline
 
 
-class GimbalConfigurationModel(_Strict):
+class GimbalConfigurationModel(StrictModel):
     """An explicit CAST gimbal configuration."""
 
     yaw: Angle
@@ -190,14 +184,14 @@ Endpoint = Annotated[
 ]
 
 
-class TraineeModel(_Strict):
+class TraineeModel(StrictModel):
     """Whose attempt a guide stage records, at which task (``trainee: {name, task}``)."""
 
     name: str = Field(min_length=1)
     task: str = Field(min_length=1)
 
 
-class StageModel(_Strict):
+class StageModel(StrictModel):
     """One stage of a pipeline; which keys apply depends on ``stage``."""
 
     stage: Literal["plan", "simulate", "execute", "guide"]
@@ -239,7 +233,7 @@ class StageModel(_Strict):
         return self
 
 
-class ExecutorModel(_Strict):
+class ExecutorModel(StrictModel):
     """``local`` (process pool, ``workers``) or ``dask`` (scheduler ``address``)."""
 
     kind: Literal["local", "dask"] = "local"
@@ -255,14 +249,14 @@ class ExecutorModel(_Strict):
         return self
 
 
-class OutputModel(_Strict):
+class OutputModel(StrictModel):
     #: output directory, relative to the current directory; default out/<name>
     dir: str | None = None
     figures: bool = True
     gltf: bool = True
 
 
-class PipelineModel(_Strict):
+class PipelineModel(StrictModel):
     name: str = Field(min_length=1)
     description: str | None = None
     length_unit: LengthUnit = "m"

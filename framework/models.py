@@ -1,4 +1,8 @@
-"""Small pydantic models shared by the scene, spaces and plugins (SI after validation)."""
+"""Small pydantic models shared by the scene, spaces and plugins (SI after validation).
+
+:class:`StrictModel` is the one settings base of the core and of every plugin: it forbids unknown keys, so a
+misspelt key in a file is an error naming it (with the valid keys) instead of being silently ignored.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +13,22 @@ from .geometry.transforms import Pose
 from .units import Angle, Finite, Vec3
 
 
-class PoseModel(BaseModel):
-    """A rigid pose: position ``xyz`` (length unit of the file) and ``rpy`` (radians, or '30 deg')."""
+class StrictModel(BaseModel):
+    """Base of every settings model: unknown keys are errors (``extra="forbid"``).
+
+    Plugin authors subclass it for their ``Settings``; the registry refuses a plugin whose settings (at any
+    level) accept unknown keys::
+
+        class Settings(StrictModel):
+            margin: Length = 0.0
+    """
 
     model_config = ConfigDict(extra="forbid")
+
+
+class PoseModel(StrictModel):
+    """A rigid pose: position ``xyz`` (length unit of the file) and ``rpy`` (radians, or '30 deg')."""
+
     xyz: Vec3 = (0.0, 0.0, 0.0)
     rpy: tuple[Angle, Angle, Angle] = (0.0, 0.0, 0.0)
 
@@ -20,10 +36,9 @@ class PoseModel(BaseModel):
         return Pose.from_xyz_rpy(self.xyz, self.rpy)
 
 
-class QuaternionPoseModel(BaseModel):
+class QuaternionPoseModel(StrictModel):
     """A pose by position and either ``rpy`` or a scalar-last ``quaternion`` (qx, qy, qz, qw)."""
 
-    model_config = ConfigDict(extra="forbid")
     xyz: Vec3 = (0.0, 0.0, 0.0)
     rpy: tuple[Angle, Angle, Angle] | None = None
     quaternion: tuple[Finite, Finite, Finite, Finite] | None = None
@@ -37,10 +52,9 @@ class QuaternionPoseModel(BaseModel):
         return self
 
 
-class AngleRange(BaseModel):
+class AngleRange(StrictModel):
     """Joint limits in radians (``[min, max]``; '60 deg' accepted)."""
 
-    model_config = ConfigDict(extra="forbid")
     min: Angle
     max: Angle
 

@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,7 +49,7 @@ from .planning import PlanningProblem, PlanResult
 from .progress import NullProgress, Progress, StageProgress
 from .results import StageContext, StageResult
 from .status import PLUGIN_STATUSES, RunOutcomeStatus, RunStatus
-from .storage import to_jsonable, write_json_atomic
+from .storage import prepare_output_dir, to_jsonable, write_json_atomic
 from .units import LENGTH_UNITS
 from .verify import InvalidResult, verify_plan_result
 
@@ -71,18 +70,6 @@ class RunOutcome:
     @property
     def ok(self) -> bool:
         return self.status is RunOutcomeStatus.SUCCEEDED and all(r.succeeded for r in self.results)
-
-
-def prepare_output_dir(path: Path) -> Path:
-    """Create the output directory and prove it is writable, before any work starts."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
-            pass
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise OutputError(f"cannot write to output directory {path}: {reason}", location="output.dir") from None
-    return path
 
 
 def begin_run(out: Path, pipeline_file: Path) -> Path:

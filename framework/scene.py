@@ -32,15 +32,13 @@ import numpy as np
 from .geometry import primitives as prim
 from .geometry.groups import ShapeGroup, centre_inside, group_obstacles
 from .geometry.shapes import Obstacle
+from .units import LENGTH_UNITS
 
 
 def meets_margin(clearance, margin: float) -> np.ndarray:
     """``clearance > 0`` when ``margin`` is 0 (touching is a collision), else ``clearance >= margin``."""
     clearance = np.asarray(clearance)
     return clearance > 0.0 if margin <= 0.0 else clearance >= margin
-
-
-_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}
 
 
 @dataclass
@@ -239,12 +237,12 @@ class Scene:
 
     def describe_point(self, point) -> str:
         """``(x, y, z) mm`` for messages, in the scene's :attr:`unit`."""
-        k = 1.0 / _UNITS.get(self.unit, 1e-3)
+        k = 1.0 / LENGTH_UNITS.get(self.unit, 1e-3)
         return "(" + ", ".join(f"{k * c:.4g}" for c in np.asarray(point).reshape(3)) + f") {self.unit}"
 
     def describe_length(self, value: float) -> str:
         """``3.5 mm`` for messages, in the scene's :attr:`unit`."""
-        return f"{value / _UNITS.get(self.unit, 1e-3):.3g} {self.unit}"
+        return f"{value / LENGTH_UNITS.get(self.unit, 1e-3):.3g} {self.unit}"
 
 
 def resolve_point(scene: Scene, value, points: Mapping[str, np.ndarray] | None = None) -> np.ndarray:

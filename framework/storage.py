@@ -24,6 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from .errors import OutputError
+
 _META = "__meta__"
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
@@ -104,3 +106,15 @@ def load_bundle(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"metadata is not valid JSON ({exc})") from None
     return arrays, meta
+
+
+def prepare_output_dir(path: Path) -> Path:
+    """Create the output directory and prove it is writable, before any work starts."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-test-"):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise OutputError(f"cannot write to output directory {path}: {reason}", location="output.dir") from None
+    return path

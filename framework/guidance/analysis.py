@@ -46,7 +46,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
 
 from ..scene import Scene
 from ..spaces.base import Space
-from ..units import Length, PositiveLength
+from ..units import LENGTH_UNITS, Length, PositiveLength
 from .source import PoseSample
 
 #: spacing (m) at which the recommended path is densified before the closest-point search
@@ -144,7 +144,7 @@ class Guide:
         self.threshold = settings.threshold if settings.threshold is not None else (threshold or 0.0)
         self.critical = [(float(a), float(b)) for a, b in critical]
         self.unit = unit
-        self.k = 1.0 / {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6}.get(unit, 1e-3)
+        self.k = 1.0 / LENGTH_UNITS.get(unit, 1e-3)
         dense = space.densify(np.asarray(path, float), PATH_RESOLUTION)
         self.tips = space.tip(dense)
         self.a = self.tips[:-1]

@@ -121,7 +121,7 @@ class OptMIS(Planner):
 
     def _check_outputs(self) -> None:
         """Fail before the offline work when the figure cannot be written."""
-        from surgiplan.runner import prepare_output_dir
+        from surgiplan.storage import prepare_output_dir
 
         if getattr(self.settings, "figure", None):  # OptMISSettings alone (no figure) is accepted too
             try:

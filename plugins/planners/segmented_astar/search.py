@@ -125,7 +125,7 @@ class SegmentedAStar(Planner):
     # ------------------------------------------------------------------ offline
     def _check_outputs(self) -> None:
         """Fail before any work when the report or figure cannot be written (not after an hour of it)."""
-        from surgiplan.runner import prepare_output_dir
+        from surgiplan.storage import prepare_output_dir
 
         targets = []
         if self.settings.report is not None:

@@ -28,12 +28,9 @@ import math
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
+from pydantic import BaseModel
 from surgiplan.plugins.devices.mavlink.link import mavlink
-
-if TYPE_CHECKING:  # settings imports this module's table to validate its ``params``
-    from .settings import SimSettings
 
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 INT32 = mavlink.MAV_PARAM_TYPE_INT32
@@ -171,9 +168,10 @@ def validate_overrides(values: dict) -> dict:
 
 
 class ParameterStore:
-    """The vehicle's parameters over ``settings`` (a private, mutable copy the simulation reads)."""
+    """The vehicle's parameters over ``settings`` (a :class:`~.settings.SimSettings`: a private, mutable copy the
+    simulation reads; typed as its base, since that module imports this one's table)."""
 
-    def __init__(self, settings: SimSettings, on_change: Callable[[Parameter, float | int], None] | None = None):
+    def __init__(self, settings: BaseModel, on_change: Callable[[Parameter, float | int], None] | None = None):
         self.settings = settings
         self.on_change = on_change or (lambda parameter, value: None)
         for name, value in settings.params.items():
