@@ -149,8 +149,8 @@ def robot(tmp: Path, name: str) -> Path:
             {
                 "stage": "plan",
                 "name": "plan",
-                "plugin": "via_point",
-                "settings": {"via_points": 300, "seed": 2, "margin": 1},
+                "plugin": "safe_prm",  # keeps the 4 mm threshold except where no detour exists: red stretches
+                "settings": {"milestones": 800, "seed": 2},
                 "space": {"kind": "r3", "tip_radius": 0.5},
                 "start": "entry",
                 "goal": "target",

@@ -22,8 +22,8 @@ import numpy as np
 from pydantic import BaseModel
 
 from .errors import ArtifactError
+from .hookspecs import PluginInfo
 from .planning import Planner, PlanningProblem
-from .registry import PluginInfo
 from .storage import load_bundle, save_bundle, to_jsonable
 
 log = logging.getLogger(__name__)
@@ -41,6 +41,7 @@ def artifact_key(plugin: PluginInfo, settings: BaseModel, problem: PlanningProbl
         "settings": settings.model_dump(mode="json"),
         "scene": problem.scene.spec(),
         "space": problem.space.spec(),
+        "clearance_threshold": None if problem.clearance_threshold is None else problem.clearance_threshold.value,
     }
     return hashlib.sha256(json.dumps(identity, sort_keys=True, default=str).encode()).hexdigest()
 

@@ -101,6 +101,7 @@ def _cmd_run(args) -> int:
     from .units import LENGTH_UNITS
 
     pipeline = load_pipeline(args.file, output_dir=args.out)
+    _print_warnings(pipeline)
     progress = NullProgress() if args.quiet else RichProgress()
     live = _live_feed(args.live, pipeline)
     ended = "error"
@@ -136,6 +137,12 @@ def _cmd_run(args) -> int:
     return 0 if outcome.ok else 1
 
 
+def _print_warnings(pipeline) -> None:
+    """Deprecated spellings and the like: said once, with the file and line, on stderr."""
+    for warning in pipeline.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+
+
 def _cmd_validate(args) -> int:
     from .pipeline import load_pipeline, load_scene, looks_like_scene
     from .yamlio import load_yaml
@@ -149,7 +156,8 @@ def _cmd_validate(args) -> int:
         )
         return 0
     pipeline = load_pipeline(args.file)
-    stages = ", ".join(f"{s.kind} {s.name} ({s.plugin.name})" for s in pipeline.stages)
+    _print_warnings(pipeline)
+    stages = ", ".join(f"{s.kind} {s.name}" + (f" ({s.plugin.name})" if s.plugin else "") for s in pipeline.stages)
     scene = pipeline.scene
     print(
         f"{args.file}: ok: pipeline '{pipeline.name}': {stages}; scene: {len(scene.obstacles)} obstacles, "
@@ -243,6 +251,18 @@ def _cmd_plugins(args) -> int:
         }
         for p in registry.all()
     ]
+    rows += [
+        {
+            "name": info.name,
+            "kind": "stage kind",
+            "package": info.package,
+            "version": info.version,
+            "description": info.kind.description,
+            "available": True,
+            "unavailable": "",
+        }
+        for info in sorted(registry.stage_kinds.values(), key=lambda i: i.name)
+    ]
     if args.json:
         print(json.dumps({"plugins": rows, "failures": [f.__dict__ for f in registry.failures]}, indent=2))
         return 0
@@ -329,7 +349,13 @@ def _live_feed(url, pipeline):
     feed = WebSocketFeed(url)
     unit = pipeline.model.length_unit
     stages = [
-        {"name": s.name, "kind": s.kind, "plugin": s.plugin.name, "path_from": s.path_from} for s in pipeline.stages
+        {
+            "name": s.name,
+            "kind": s.kind,
+            "plugin": s.plugin.name if s.plugin else "",
+            "path_from": getattr(s, "path_from", None),
+        }
+        for s in pipeline.stages
     ]
     run = {"name": pipeline.name, "pipeline_file": str(pipeline.file), "length_unit": unit, "stages": stages}
     feed.publish("run", {**run, "unit_scale": LENGTH_UNITS[unit]})

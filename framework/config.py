@@ -184,55 +184,6 @@ Endpoint = Annotated[
 ]
 
 
-class TraineeModel(StrictModel):
-    """Whose attempt a guide stage records, at which task (``trainee: {name, task}``)."""
-
-    name: str = Field(min_length=1)
-    task: str = Field(min_length=1)
-
-
-class StageModel(StrictModel):
-    """One stage of a pipeline; which keys apply depends on ``stage``."""
-
-    stage: Literal["plan", "simulate", "execute", "guide"]
-    plugin: str = Field(min_length=1)
-    name: str | None = Field(default=None, min_length=1)
-    settings: dict[str, Any] = Field(default_factory=dict)
-    # plan stages
-    space: dict[str, Any] | None = None
-    start: Endpoint | None = None
-    goal: Endpoint | None = None
-    artifact: str | None = None
-    bounds: BoundsModel | None = None
-    clearance_threshold: Length | None = None
-    # execute and guide stages
-    path_from: str | None = None
-    # guide stages: the analysis (surgiplan.guidance.GuidanceSettings, validated in pass 2) and the record
-    guidance: dict[str, Any] | None = None
-    trainee: TraineeModel | None = None
-
-    @model_validator(mode="after")
-    def _keys_for_stage(self):
-        guide_only = [k for k in ("guidance", "trainee") if getattr(self, k) is not None]
-        if guide_only and self.stage != "guide":
-            raise ValueError(f"{', '.join(guide_only)} apply to guide stages only, not to {self.stage} stages")
-        plan_only = ("space", "start", "goal", "artifact", "bounds", "clearance_threshold")
-        if self.stage == "plan":
-            # goal: checked in pass 2, where the planner is known (Planner.requires_goal)
-            missing = [k for k in ("start",) if getattr(self, k) is None]
-            if missing:
-                raise ValueError(f"a plan stage needs {' and '.join(missing)}")
-            if self.path_from is not None:
-                raise ValueError("path_from applies to execute and guide stages only")
-        else:
-            extra = [k for k in plan_only if getattr(self, k) is not None]
-            if self.stage == "simulate" and self.path_from is not None:
-                extra.append("path_from")
-            if extra:
-                raise ValueError(f"{', '.join(extra)} apply to plan stages only, not to {self.stage} stages")
-        return self
-
-
 class ExecutorModel(StrictModel):
     """``local`` (process pool, ``workers``) or ``dask`` (scheduler ``address``)."""
 
@@ -265,7 +216,8 @@ class PipelineModel(StrictModel):
         Annotated[SceneModel, Tag("inline")] | Annotated[str, Tag("file")],
         Discriminator(lambda v: "file" if isinstance(v, str) else "inline"),
     ]
-    pipeline: list[StageModel] = Field(min_length=1)
+    #: the stages, each validated against the keys of its kind (surgiplan.kinds)
+    pipeline: list[dict[str, Any]] = Field(min_length=1)
     executor: ExecutorModel = Field(default_factory=ExecutorModel)
     output: OutputModel = Field(default_factory=OutputModel)
     #: the trainee record (SQLite) guide stages write to and proficiency: {trainee: ...} reads; relative to the

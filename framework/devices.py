@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from .clearance import ClearanceThreshold, CriticalRegion
 from .errors import SurgiplanError
 from .resources import ResourceEstimate
 
@@ -48,12 +49,16 @@ class LifecycleError(SurgiplanError):
 
 @dataclass
 class Trajectory:
-    """What an execute stage hands to a device: the planned path and its space."""
+    """What an execute stage hands to a device: the planned path, its space, and what the plan keeps."""
 
     path: np.ndarray
     space: Space
     #: the stage that planned it
     source: str = ""
+    #: the clearance the plan keeps (m; :mod:`surgiplan.clearance`), None when it has none
+    clearance_threshold: ClearanceThreshold | None = None
+    #: where the plan passes below it because no detour exists (arc lengths along the planned tip path)
+    critical_regions: list[CriticalRegion] = field(default_factory=list)
 
 
 @dataclass

@@ -1,4 +1,11 @@
-"""Hook specifications: how a package adds planners, models, devices, spaces and pose sources.
+"""Hook specifications: how a package adds stage kinds, spaces, and the plugins stages run.
+
+The core declares two hooks here: ``surgiplan_register_stage_kinds`` (what a
+``stage:`` can be, :mod:`surgiplan.kinds`) and ``surgiplan_register_spaces``.
+Each stage kind declares the hook of the plugins it runs
+(``surgiplan_register_planners`` for ``plan`` stages, ...,
+:mod:`surgiplan.stages`), and the registry adds it when the kind registers,
+so a third-party stage kind brings its own plugin hook.
 
 A plugin is a module (or object) named by an entry point in the
 ``surgiplan`` group. It implements one or more of these hooks, marked with
@@ -25,6 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import pluggy
+from pydantic import BaseModel
 
 #: the project name: entry-point group and pluggy project
 NAME = "surgiplan"
@@ -52,42 +60,33 @@ class PluginSpec:
     unavailable: str = ""
 
 
-@hookspec
-def surgiplan_register_planners() -> list[PluginSpec]:
-    """Planner plugins (subclasses of :class:`surgiplan.Planner`) this package provides.
+@dataclass(frozen=True)
+class PluginInfo:
+    """A plugin as the registry knows it: what it is and where it came from."""
 
-    Used by ``stage: plan``. Return a list of :class:`PluginSpec`.
+    name: str
+    kind: str
+    cls: type[Any] | None
+    description: str
+    package: str
+    version: str
+    entry_point: str
+    unavailable: str = ""
+
+    @property
+    def settings_model(self) -> type[BaseModel]:
+        return self.cls.Settings
+
+
+@hookspec
+def surgiplan_register_stage_kinds() -> list[Any]:
+    """Stage kinds (instances of subclasses of :class:`surgiplan.kinds.StageKind`) this package provides.
+
+    A stage kind is what a pipeline's ``stage:`` names: its YAML keys, the plugins it runs (and their hook),
+    its statuses, how it runs, and what the summary and the report show of it.
     """
-
-
-@hookspec
-def surgiplan_register_deformable_models() -> list[PluginSpec]:
-    """Deformable-model plugins (subclasses of :class:`surgiplan.DeformableModel`).
-
-    Used by ``stage: simulate`` and by planners that deform tissue.
-    """
-
-
-@hookspec
-def surgiplan_register_devices() -> list[PluginSpec]:
-    """Device plugins (subclasses of :class:`surgiplan.Device`). Used by ``stage: execute``."""
 
 
 @hookspec
 def surgiplan_register_spaces() -> list[PluginSpec]:
     """Configuration spaces (subclasses of :class:`surgiplan.Space`), chosen by ``space: {kind: name}``."""
-
-
-@hookspec
-def surgiplan_register_sources() -> list[PluginSpec]:
-    """Pose sources (subclasses of :class:`surgiplan.PoseSource`): the instrument followed by ``stage: guide``."""
-
-
-#: plugin kind -> (hook name, stage kind that uses it)
-KINDS: dict[str, tuple[str, str | None]] = {
-    "planner": ("surgiplan_register_planners", "plan"),
-    "deformable_model": ("surgiplan_register_deformable_models", "simulate"),
-    "device": ("surgiplan_register_devices", "execute"),
-    "space": ("surgiplan_register_spaces", None),
-    "source": ("surgiplan_register_sources", "guide"),
-}

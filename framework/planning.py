@@ -8,6 +8,11 @@ does OMPL's PRM. :class:`Planner` makes the split explicit:
   stored (``artifact:`` in a plan stage) so that many queries reuse it;
 * ``query(artifact, start, goal) -> PlanResult`` — the online answer.
 
+The stage's clearance threshold (paper 000's d_thresh, :mod:`surgiplan.clearance`) reaches the planner in
+``PlanningProblem.clearance_threshold``; :meth:`Planner.planning_threshold` is the value to plan with.
+A planner declares how it keeps it (:attr:`Planner.clearance_policy`) and, when its settings ask for one
+(safe_prm's ``proficiency``), says which in :meth:`Planner.clearance_threshold_from`.
+
 A planner that stores its artifact implements :meth:`Planner.save_artifact`
 and :meth:`Planner.load_artifact` with plain arrays and JSON values (never
 pickle: a stored file must not be able to run code when loaded). The
@@ -26,6 +31,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from .clearance import ClearancePolicy, ClearanceThreshold
 from .executors import Executor, InlineExecutor
 from .progress import NullProgress, Progress
 from .resources import ResourceEstimate
@@ -51,6 +57,9 @@ class PlanningProblem:
     goal: np.ndarray | None = None
     #: the run's output directory, for planners that write files of their own (see PlanResult.files)
     output_dir: Path | None = None
+    #: the clearance the path keeps (paper 000's d_thresh), resolved from the stage or the planner's settings;
+    #: None when the stage has none
+    clearance_threshold: ClearanceThreshold | None = None
 
 
 @dataclass
@@ -59,10 +68,12 @@ class PlanResult:
 
     ``path``: waypoints (n, space.dimension) in SI; consecutive waypoints are
     joined by the space's local planner (straight lines in R3).
-    ``metrics``: plugin-specific numbers (JSON-able); the framework adds the
-    common ones (``length_m``, ``min_clearance_m``, ...) when absent.
-    ``clearance_threshold``: the clearance (m) the planner aims to keep, if
-    any; figures highlight the parts of the path below it.
+    ``metrics``: plugin-specific numbers (JSON-able); the framework measures the
+    common ones (``length_m``, ``min_clearance_m``, ...) itself.
+    ``clearance_threshold``: deprecated and ignored (the threshold goes *into* the
+    planner, ``PlanningProblem.clearance_threshold``); a value that differs from
+    the stage's is reported as a warning. The framework measures the path's
+    critical regions itself (:func:`surgiplan.clearance.critical_regions`).
     """
 
     status: PlanStatus
@@ -70,7 +81,7 @@ class PlanResult:
     metrics: dict[str, Any] = field(default_factory=dict)
     message: str = ""
     clearance_threshold: float | None = None
-    #: extra data for figures, e.g. {"critical_regions": [...]} (JSON-able)
+    #: extra data for figures and readers of result.json, e.g. {"detours": [...]} (JSON-able)
     annotations: dict[str, Any] = field(default_factory=dict)
     #: files the planner wrote into ``PlanningProblem.output_dir`` (relative to it)
     files: list[str] = field(default_factory=list)
@@ -91,7 +102,7 @@ class PlanResult:
 class Planner(ABC):
     """Base class of planner plugins.
 
-    Subclasses set ``Settings`` (a pydantic model with ``extra="forbid"``) and
+    Subclasses set ``Settings`` (a :class:`~surgiplan.models.StrictModel`: unknown keys are errors) and
     implement :meth:`build` and :meth:`query`.
     """
 
@@ -102,9 +113,45 @@ class Planner(ABC):
     #: planner's goal is "the area of interest is visible"): a plan stage may then omit ``goal``,
     #: and ``query`` gets ``goal=None``
     requires_goal: ClassVar[bool] = True
+    #: how the planner keeps the stage's clearance threshold (:class:`~surgiplan.clearance.ClearancePolicy`):
+    #: ``everywhere`` (a margin every motion keeps) or ``except_critical`` (paper 000: except where no detour
+    #: exists); None for planners that cannot plan with one (a stage that gives one is then refused)
+    clearance_policy: ClassVar[ClearancePolicy | None] = ClearancePolicy.EVERYWHERE
+    #: the name of a setting that is an older spelling of the stage's ``clearance_threshold`` (``margin``):
+    #: read as the threshold when the stage gives none, reported as deprecated, and set to the stage's
+    #: threshold by :meth:`bind`, so code that reads the setting plans with the one threshold
+    threshold_setting: ClassVar[str | None] = None
 
     def __init__(self, settings: BaseModel) -> None:
         self.settings = settings
+
+    @classmethod
+    def clearance_threshold_from(cls, settings: BaseModel) -> tuple[ClearanceThreshold | None, bool]:
+        """The clearance threshold these settings ask for, and whether the user chose it (False for a default).
+
+        safe_prm derives it from ``proficiency``; a planner with a :attr:`threshold_setting` reads that
+        setting. The framework resolves the stage's threshold from this and the stage's
+        ``clearance_threshold``: two explicit values that differ are refused at validation.
+        """
+        name = cls.threshold_setting
+        value = float(getattr(settings, name, 0.0) or 0.0) if name else 0.0
+        if value > 0:
+            return ClearanceThreshold(value, f"settings.{name}"), name in settings.model_fields_set
+        return None, False
+
+    def bind(self, problem: PlanningProblem) -> None:
+        """Called by the framework before :meth:`build`, :meth:`load_artifact` and :meth:`query`: a planner with
+        a :attr:`threshold_setting` plans with the problem's threshold through it."""
+        name = self.threshold_setting
+        if name and problem.clearance_threshold is not None:
+            self.settings = self.settings.model_copy(update={name: problem.clearance_threshold.value})
+
+    def planning_threshold(self, problem: PlanningProblem | None) -> float:
+        """The threshold (m) to plan with: the problem's, else what the settings ask for, else 0."""
+        if problem is not None and problem.clearance_threshold is not None:
+            return problem.clearance_threshold.value
+        threshold, _ = self.clearance_threshold_from(self.settings)
+        return threshold.value if threshold is not None else 0.0
 
     @abstractmethod
     def build(self, problem: PlanningProblem) -> Any:

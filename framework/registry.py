@@ -1,8 +1,11 @@
 """The plugin registry: a small typed facade over pluggy's PluginManager.
 
 It finds plugins through the ``surgiplan`` entry-point group (ours included),
-calls each plugin's registration hooks one plugin at a time (so an error
-names the plugin and its package), and answers ``get(kind, name)``.
+first collects the **stage kinds** they register (:mod:`surgiplan.kinds`: the
+built-in plan, simulate, execute and guide, and any third party's), adds the
+hook each kind declares for its plugins, then calls each plugin's
+registration hooks one plugin at a time (so an error names the plugin and its
+package), and answers ``get(kind, name)`` and ``stage_kind(name)``.
 
 Environment variables:
 
@@ -33,27 +36,30 @@ from pydantic import BaseModel
 
 from . import hookspecs
 from .errors import PluginError, choices_hint
-from .hookspecs import KINDS, NAME, PluginSpec
+from .hookspecs import NAME, PluginInfo, PluginSpec
+from .kinds import PluginKind, StageKind
+from .spaces.base import Space
 
 log = logging.getLogger(__name__)
 
+__all__ = ["LoadFailure", "PluginInfo", "PluginRegistry", "StageKindInfo", "default_registry", "plugin_class_problem"]
+
+#: the plugin kind the core itself declares (spaces serve every stage kind that plans)
+SPACE = PluginKind("space", "surgiplan_register_spaces", Space)
+
 
 @dataclass(frozen=True)
-class PluginInfo:
-    """A plugin as the registry knows it: what it is and where it came from."""
+class StageKindInfo:
+    """A registered stage kind and where it came from."""
 
-    name: str
-    kind: str
-    cls: type[Any] | None
-    description: str
+    kind: StageKind
     package: str
     version: str
     entry_point: str
-    unavailable: str = ""
 
     @property
-    def settings_model(self) -> type[BaseModel]:
-        return self.cls.Settings
+    def name(self) -> str:
+        return self.kind.name
 
 
 @dataclass
@@ -89,6 +95,8 @@ class PluginRegistry:
     packages: set[str] | None = None
 
     plugins: dict[tuple[str, str], PluginInfo] = field(default_factory=dict, init=False)
+    stage_kinds: dict[str, StageKindInfo] = field(default_factory=dict, init=False)
+    plugin_kinds: dict[str, PluginKind] = field(default_factory=dict, init=False)
     failures: list[LoadFailure] = field(default_factory=list, init=False)
     skipped: list[str] = field(default_factory=list, init=False)
 
@@ -141,8 +149,7 @@ class PluginRegistry:
             if manager.is_registered(obj) or manager.has_plugin(plugin_name):
                 continue
             try:
-                manager.register(obj, name=plugin_name)
-                manager.check_pending()
+                manager.register(obj, name=plugin_name)  # hooks of stage kinds not yet known are checked below
             except (pluggy.PluginValidationError, ValueError) as exc:
                 if manager.has_plugin(plugin_name):
                     manager.unregister(name=plugin_name)
@@ -154,18 +161,21 @@ class PluginRegistry:
                 continue
             owners[plugin_name] = (package, version, ep.name)
 
-        for kind, (hook_name, _) in KINDS.items():
-            caller = getattr(manager.hook, hook_name)
+        self._load_stage_kinds(manager, owners)
+        self.plugin_kinds.setdefault(SPACE.name, SPACE)  # after the stages' kinds: names are looked up in this order
+        self._refuse_unknown_hooks(manager, owners)
+        for kind in self.plugin_kinds.values():
+            caller = getattr(manager.hook, kind.hook)
             for impl in caller.get_hookimpls():  # registration order
                 package, version, ep_name = owners[impl.plugin_name]
                 try:
                     specs = impl.function()
                     if self._trace:
                         print(
-                            f"surgiplan hook: {impl.plugin_name}.{hook_name}() -> {[s.name for s in specs or []]}",
+                            f"surgiplan hook: {impl.plugin_name}.{kind.hook}() -> {[s.name for s in specs or []]}",
                             file=sys.stderr,
                         )
-                    self._add(kind, specs or [], package, version, ep_name)
+                    self._add(kind.name, specs or [], package, version, ep_name)
                 except PluginError:
                     raise
                 except Exception as exc:
@@ -173,8 +183,81 @@ class PluginRegistry:
                         ep_name,
                         package,
                         f"plugin entry point '{ep_name}' from package '{package}' "
-                        f"failed in {hook_name}: {type(exc).__name__}: {exc}",
+                        f"failed in {kind.hook}: {type(exc).__name__}: {exc}",
                     )
+
+    def _load_stage_kinds(self, manager: pluggy.PluginManager, owners: dict[str, tuple[str, str, str]]) -> None:
+        """Collect the stage kinds, and add the hook each declares for its plugins."""
+        for impl in manager.hook.surgiplan_register_stage_kinds.get_hookimpls():
+            package, version, ep_name = owners[impl.plugin_name]
+            where = f"plugin entry point '{ep_name}' from package '{package}'"
+            try:
+                kinds = list(impl.function() or [])
+            except Exception as exc:
+                self._fail(ep_name, package, f"{where} failed in surgiplan_register_stage_kinds: {exc}")
+                continue
+            if self._trace:
+                names = [getattr(k, "name", k) for k in kinds]
+                hook = f"{impl.plugin_name}.surgiplan_register_stage_kinds()"
+                print(f"surgiplan hook: {hook} -> {names}", file=sys.stderr)
+            for kind in kinds:
+                problem = self._stage_kind_problem(kind, manager)
+                if problem:
+                    label = getattr(kind, "name", kind)
+                    self._fail(ep_name, package, f"{where}: stage kind {label!r} is refused: {problem}")
+                    continue
+                if kind.name in self.disabled:
+                    self.skipped.append(f"{kind.name} ({package})")
+                    continue
+                self.stage_kinds[kind.name] = StageKindInfo(kind, package, version, ep_name)
+                if kind.plugin_kind is not None:
+                    self.plugin_kinds[kind.plugin_kind.name] = kind.plugin_kind
+
+    def _stage_kind_problem(self, kind: Any, manager: pluggy.PluginManager) -> str:
+        """Why ``kind`` cannot be registered ('' if it can); adds its plugin hook to ``manager`` when it can."""
+        if not isinstance(kind, StageKind):
+            return f"it is a {type(kind).__name__}, not an instance of a surgiplan.kinds.StageKind subclass"
+        name = getattr(kind, "name", None)
+        if not isinstance(name, str) or not name.isidentifier():
+            return f"its name {name!r} is not an identifier"
+        if name in self.stage_kinds:
+            other = self.stage_kinds[name]
+            return f"stage kind '{name}' is already registered by package '{other.package}'"
+        if not (isinstance(kind.model, type) and issubclass(kind.model, BaseModel)):
+            return "its model is not a pydantic model (a subclass of surgiplan.kinds.StageModel)"
+        permissive = permissive_models(kind.model)
+        if permissive:
+            return f"its model {', '.join(permissive)} accepts unknown keys; declare extra='forbid'"
+        plugin_kind = kind.plugin_kind
+        if plugin_kind is None:
+            return ""
+        known = self.plugin_kinds.get(plugin_kind.name)
+        if known is not None and known != plugin_kind:
+            return f"its plugin kind '{plugin_kind.name}' differs from the one already declared ({known.hook})"
+        if not _declared(manager, plugin_kind.hook):
+            if kind.hookspecs is None:
+                return f"it declares plugin kind '{plugin_kind.name}' but no hookspecs with {plugin_kind.hook}"
+            try:
+                manager.add_hookspecs(kind.hookspecs)
+            except (pluggy.PluginValidationError, ValueError) as exc:
+                return f"its hook {plugin_kind.hook} does not match what plugins implement: {exc}"
+            if not _declared(manager, plugin_kind.hook):
+                return f"its hookspecs do not declare {plugin_kind.hook}"
+        return ""
+
+    def _refuse_unknown_hooks(self, manager: pluggy.PluginManager, owners: dict[str, tuple[str, str, str]]) -> None:
+        """A plugin implementing a hook nobody declares (a misspelt hook, a stage kind not installed) is refused."""
+        for plugin_name, plugin in list(manager.list_name_plugin()):
+            unknown = sorted(caller.name for caller in (manager.get_hookcallers(plugin) or []) if not caller.has_spec())
+            if unknown:
+                package, _, ep_name = owners[plugin_name]
+                manager.unregister(name=plugin_name)
+                self._fail(
+                    ep_name,
+                    package,
+                    f"plugin entry point '{ep_name}' from package '{package}' is not a valid surgiplan plugin: it "
+                    f"implements {', '.join(unknown)}, which no installed stage kind declares",
+                )
 
     def _add(self, kind: str, specs: Iterable[PluginSpec], package: str, version: str, ep_name: str) -> None:
         for spec in specs:
@@ -190,7 +273,7 @@ class PluginRegistry:
                 self.skipped.append(f"{spec.name} ({package})")
                 continue
             if not spec.unavailable:
-                problem = plugin_class_problem(kind, spec.cls)
+                problem = plugin_class_problem(self.plugin_kinds[kind], spec.cls)
                 if problem:
                     self._fail(
                         ep_name,
@@ -219,6 +302,21 @@ class PluginRegistry:
     def all(self) -> list[PluginInfo]:
         return sorted(self.plugins.values(), key=lambda p: (p.kind, p.name))
 
+    def stage_kind(self, name: str, *, location: str | None = None) -> StageKind:
+        """The stage kind ``name``; a :class:`PluginError` that lists the choices otherwise."""
+        info = self.stage_kinds.get(name)
+        if info is not None:
+            return info.kind
+        message = f"unknown stage kind '{name}'"
+        if any(name in entry for entry in self.skipped):
+            message += " (it is disabled by SURGIPLAN_DISABLE_PLUGINS)"
+        raise PluginError(f"{message}; {choices_hint(name, self.stage_kinds)}", location=location)
+
+    def kinds_of(self, names) -> dict[str, StageKind]:
+        """The registered stage kinds among ``names`` (a report of a run made with a kind since uninstalled
+        shows that stage plainly)."""
+        return {n: self.stage_kinds[n].kind for n in names if n in self.stage_kinds}
+
     def get(self, kind: str, name: str, *, location: str | None = None) -> PluginInfo:
         """The plugin ``name`` of ``kind``; a :class:`PluginError` that lists the choices otherwise."""
         info = self.plugins.get((kind, name))
@@ -240,30 +338,19 @@ class PluginRegistry:
         raise PluginError(message, location=location)
 
 
-def _interfaces() -> dict[str, type]:
-    from .deformable import DeformableModel
-    from .devices import Device
-    from .guidance.source import PoseSource
-    from .planning import Planner
-    from .spaces.base import Space
-
-    return {
-        "planner": Planner,
-        "deformable_model": DeformableModel,
-        "device": Device,
-        "space": Space,
-        "source": PoseSource,
-    }
+def _declared(manager: pluggy.PluginManager, hook: str) -> bool:
+    caller = getattr(manager.hook, hook, None)
+    return caller is not None and caller.has_spec()
 
 
-def plugin_class_problem(kind: str, cls: Any) -> str:
+def plugin_class_problem(kind: PluginKind, cls: Any) -> str:
     """Why ``cls`` cannot be a plugin of ``kind`` (empty if it can).
 
     It must subclass the interface of its kind (:class:`~surgiplan.Planner`, ...) and declare a pydantic
     ``Settings`` model that forbids unknown keys (``extra="forbid"``) at every level, so that a misspelt
     setting is an error naming it rather than silently ignored.
     """
-    interface = _interfaces()[kind]
+    interface = kind.interface
     if not (isinstance(cls, type) and issubclass(cls, interface)):
         what = cls.__name__ if isinstance(cls, type) else type(cls).__name__
         return f"{what} is not a subclass of surgiplan.{interface.__name__}"

@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 
+from .clearance import ClearanceThreshold, CriticalRegion
 from .executors import Executor, InlineExecutor
 from .live import LiveFeed
 from .progress import NullProgress, Progress
 from .scene import Scene
-from .status import SUCCESS
+from .status import succeeded as status_succeeded
 from .storage import to_jsonable
 
 
@@ -58,12 +59,16 @@ class StageResult:
     tip_path: np.ndarray | None = None
     #: the space the path is in (kind), for readers of result.json
     space: str | None = None
-    clearance_threshold: float | None = None
+    #: the clearance the stage's path keeps or is judged against (m), as resolved for its plan stage
+    clearance_threshold: ClearanceThreshold | float | None = None
+    #: the stretches of the path below that threshold where no detour exists, measured by the framework
+    #: (written as ``annotations.critical_regions``)
+    critical_regions: list[CriticalRegion] = field(default_factory=list)
     annotations: dict[str, Any] = field(default_factory=dict)
 
     @property
     def succeeded(self) -> bool:
-        return self.status in SUCCESS.get(self.stage, set())
+        return status_succeeded(self.stage, self.status)
 
     def to_json(self) -> dict[str, Any]:
         entry: dict[str, Any] = {
@@ -82,6 +87,13 @@ class StageResult:
             entry["message"] = self.message
         if self.files:
             entry["files"] = list(self.files)
-        if self.annotations:
-            entry["annotations"] = to_jsonable(self.annotations)
+        if self.clearance_threshold is not None:
+            threshold = {"value_m": float(self.clearance_threshold)}
+            source = getattr(self.clearance_threshold, "source", "")
+            entry["clearance_threshold"] = {**threshold, "source": source} if source else threshold
+        annotations = dict(self.annotations)
+        if self.critical_regions:
+            annotations["critical_regions"] = [r.to_json() for r in self.critical_regions]
+        if annotations:
+            entry["annotations"] = to_jsonable(annotations)
         return entry

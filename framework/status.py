@@ -1,8 +1,9 @@
 """Every status a stage or a device can report, in one place.
 
 A stage's ``status`` in ``result.json`` (and in the summary table) is one of
-these values. Plugins return the first three kinds; the framework sets the
-last one when it must speak for a plugin.
+these values. Plugins return the first four kinds; the framework sets the
+last one when it must speak for a plugin. A stage kind registered by a third
+party (:mod:`surgiplan.kinds`) declares its own statuses the same way.
 
 =====================  ==============================================================  ==========
 enum                   values                                                          succeeded
@@ -86,18 +87,15 @@ class RunOutcomeStatus(enum.StrEnum):
     INTERRUPTED = "interrupted"
 
 
-#: statuses that count as success, per stage kind
-SUCCESS: dict[str, frozenset[str]] = {
-    "plan": frozenset({PlanStatus.SOLVED}),
-    "simulate": frozenset({SimulateStatus.CONVERGED, SimulateStatus.COMPLETED}),
-    "execute": frozenset({ExecuteStatus.COMPLETED}),
-    "guide": frozenset({GuideStatus.COMPLETED}),
-}
+#: the statuses that count as success, per stage kind: each kind declares its own (surgiplan.kinds.StageKind)
+_SUCCEEDED: dict[str, frozenset[str]] = {}
 
-#: the statuses a plugin of each stage kind may return
-PLUGIN_STATUSES: dict[str, frozenset[str]] = {
-    "plan": frozenset(PlanStatus),
-    "simulate": frozenset(SimulateStatus),
-    "execute": frozenset(ExecuteStatus),
-    "guide": frozenset(GuideStatus),
-}
+
+def declare_statuses(kind: str, succeeded: frozenset[str] | set[str]) -> None:
+    """Record which statuses of stage kind ``kind`` count as success (done by every StageKind subclass)."""
+    _SUCCEEDED[kind] = frozenset(str(s) for s in succeeded)
+
+
+def succeeded(kind: str, status: str) -> bool:
+    """Whether a ``kind`` stage that ended ``status`` succeeded (never, for a kind nobody declared)."""
+    return status in _SUCCEEDED.get(kind, frozenset())

@@ -10,8 +10,7 @@ metres once, when the file is validated. A string with an explicit unit
 Plugin authors type their settings with these aliases and get the conversion
 for free::
 
-    class Settings(BaseModel):
-        model_config = ConfigDict(extra="forbid")
+    class Settings(StrictModel):
         clearance: Length = 0.004   # m
 
 The conversion reads the scale from pydantic's validation context

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import SurgiplanError
 from .planning import PlanResult
 from .spaces.base import Space
 from .status import PlanStatus
@@ -37,8 +38,11 @@ from .status import PlanStatus
 ENDPOINT_TOLERANCE = 1e-6
 
 
-class InvalidResult(Exception):
-    """A plugin's answer the framework refuses; the message says what is wrong with it."""
+class InvalidResult(SurgiplanError):
+    """A plugin's answer the framework refuses; the message says what is wrong with it (the stage becomes
+    ``invalid_result``)."""
+
+    exit_code = 1
 
 
 class _Units:

@@ -387,7 +387,7 @@ TABLE = [
         "unknown-stage-kind",
         "validate",
         _change(_set(["pipeline", 0, "stage"], "planx")),
-        ["pipeline[0].stage:", "'plan', 'simulate', 'execute' or 'guide'"],
+        ["pipeline[0].stage:", "unknown stage kind 'planx'; did you mean 'plan'? choose one of: execute, guide, plan"],
     ),
     (
         "unknown-plugin",

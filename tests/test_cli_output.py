@@ -22,7 +22,7 @@ def via_point_pipeline(tmp_path, stages=None, **output):
                 "settings": {"via_points": 100, "seed": 3},
                 "start": "entry",
                 "goal": "target",
-                "clearance_threshold": 4,
+                "clearance_threshold": 1,  # via_point keeps it on every motion
             },
         ],
         "output": {"dir": str(tmp_path / "out"), **output},

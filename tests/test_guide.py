@@ -422,7 +422,7 @@ def test_guide_stage_keys_are_checked(tmp_path, cli):
     data["pipeline"][1].pop("guidance")
     path.write_text(yaml.safe_dump(data))
     code, _, err = cli("validate", path)
-    assert code == 2 and "trainee apply to guide stages only, not to plan stages" in err
+    assert code == 2 and "trainee applies to guide stages only, not to plan stages" in err
 
 
 def test_live_feed_gets_every_sample_and_each_event(block_world, tmp_path):

@@ -13,15 +13,10 @@ import pytest
 import yaml
 from conftest import CONFIGS, assert_error_record
 from surgiplan.outputs.report import page, write_report
-from surgiplan.outputs.report.data import (
-    _surface,
-    face_owner,
-    pack,
-    pvd_entries,
-    report_data,
-    states_mesh,
-    timeline_data,
-)
+from surgiplan.outputs.report.data import report_data
+from surgiplan.outputs.report.meshes import _surface, face_owner, pvd_entries, states_mesh
+from surgiplan.outputs.report.packing import pack
+from surgiplan.outputs.report.timeline import timeline_data
 from surgiplan.storage import save_bundle
 
 
@@ -47,8 +42,8 @@ def robot_file(tmp_path: Path, **robot) -> Path:
             {
                 "stage": "plan",
                 "name": "plan",
-                "plugin": "via_point",
-                "settings": {"via_points": 300, "seed": 2, "margin": 1},
+                "plugin": "safe_prm",  # keeps the 4 mm threshold except where no detour exists: red stretches
+                "settings": {"milestones": 800, "seed": 2},
                 "space": {"kind": "r3", "tip_radius": 0.5},
                 "start": "entry",
                 "goal": "target",
@@ -187,7 +182,7 @@ def test_an_execution_csv_is_the_timeline_of_a_device_without_one(tmp_path):
 
 
 def _notes():
-    from surgiplan.outputs.report.data import Notes
+    from surgiplan.outputs.report.packing import Notes
 
     return Notes()
 

@@ -68,8 +68,8 @@ def robot_pipeline(tmp: Path, name: str, realtime: bool, speed: float = 60.0) ->
             {
                 "stage": "plan",
                 "name": "plan",
-                "plugin": "via_point",
-                "settings": {"via_points": 300, "seed": 2, "margin": 1},
+                "plugin": "safe_prm",  # keeps the 4 mm threshold except where no detour exists: red stretches
+                "settings": {"milestones": 800, "seed": 2},
                 "space": {"kind": "r3", "tip_radius": 0.5},
                 "start": "entry",
                 "goal": "target",

@@ -42,8 +42,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+from pydantic import Field, PositiveFloat
 
+from ..models import StrictModel
 from ..scene import Scene
 from ..spaces.base import Space
 from ..units import LENGTH_UNITS, Length, PositiveLength
@@ -55,10 +56,9 @@ PATH_RESOLUTION = 2.5e-4
 EVENT_KINDS = ("contact", "below_threshold", "deviation", "wrong_way", "stalled")
 
 
-class GuidanceSettings(BaseModel):
+class GuidanceSettings(StrictModel):
     """The ``guidance:`` block of a guide stage (lengths in the pipeline's unit)."""
 
-    model_config = ConfigDict(extra="forbid")
     #: a deviation from the recommended path above this is an event
     deviation_tolerance: PositiveLength = 0.005
     #: progress this far behind the furthest so far is going the wrong way
@@ -68,7 +68,8 @@ class GuidanceSettings(BaseModel):
     stall_distance: PositiveLength = 0.001
     #: the goal is reached within this of the path's end
     goal_tolerance: PositiveLength = 0.003
-    #: d_thresh; default: the plan stage's clearance threshold
+    #: deprecated: the attempt is judged against the plan stage's clearance_threshold; a value here still
+    #: overrides it for one release (with a warning)
     threshold: Length | None = None
     #: radius of the tip when a sample has only the tip position; default: the space's tip radius (r3), else 0
     tip_radius: Length | None = None
@@ -142,7 +143,7 @@ class Guide:
         self.scene = scene
         self.settings = settings
         self.threshold = settings.threshold if settings.threshold is not None else (threshold or 0.0)
-        self.critical = [(float(a), float(b)) for a, b in critical]
+        self.critical = [(float(a), float(b)) for a, b in (getattr(r, "interval", r) for r in critical)]
         self.unit = unit
         self.k = 1.0 / LENGTH_UNITS.get(unit, 1e-3)
         dense = space.densify(np.asarray(path, float), PATH_RESOLUTION)

@@ -25,6 +25,8 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from ..clearance import CriticalRegion
+from ..errors import SurgiplanError
 from ..resources import ResourceEstimate
 
 if TYPE_CHECKING:
@@ -33,8 +35,12 @@ if TYPE_CHECKING:
     from ..spaces.base import Space
 
 
-class SourceStopped(Exception):
-    """The source stopped sending (a lost bus, a silent tracker, an attempt abandoned); the message says why."""
+class SourceStopped(SurgiplanError):
+    """The source stopped sending (a lost bus, a silent tracker, an attempt abandoned); the message says why.
+
+    Raised by a source's ``samples()``; the guide stage ends ``stopped`` with the reason."""
+
+    exit_code = 1
 
 
 @dataclass
@@ -63,6 +69,9 @@ class GuideContext:
     critical: list[tuple[float, float]] = field(default_factory=list)
     #: the stage stops the attempt when no sample arrives for this long (s)
     silence_timeout: float = 2.0
+    #: the recommended path's critical regions (:class:`~surgiplan.clearance.CriticalRegion`: where it passes
+    #: below ``threshold`` because no detour exists), as the plan stage measured them
+    critical_regions: list[CriticalRegion] = field(default_factory=list)
 
 
 class PoseSource(ABC):

@@ -28,8 +28,9 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat
+from pydantic import Field, NonNegativeFloat, PositiveFloat
 
+from ..models import StrictModel
 from ..units import Length, PositiveLength
 
 #: parameters per level (SI)
@@ -40,10 +41,9 @@ LEVELS: dict[str, dict[str, float]] = {
 }
 
 
-class TraineeModel(BaseModel):
+class TraineeModel(StrictModel):
     """A synthetic trainee's parameters (lengths in the pipeline's unit)."""
 
-    model_config = ConfigDict(extra="forbid")
     level: Literal["expert", "intermediate", "beginner"] = "intermediate"
     speed: PositiveLength | None = None
     deviation: Length | None = None

@@ -24,7 +24,7 @@ from ..scene import Scene, meets_margin
 class Space(ABC):
     """A configuration space over a scene.
 
-    Subclasses declare ``Settings`` (a pydantic model, ``extra="forbid"``) and
+    Subclasses declare ``Settings`` (a :class:`~surgiplan.models.StrictModel`: unknown keys are errors) and
     are built with ``Space.from_settings(settings, scene)``.
     """
 
@@ -44,6 +44,11 @@ class Space(ABC):
     @abstractmethod
     def dimension(self) -> int:
         """Number of coordinates of a configuration."""
+
+    @property
+    def coordinate_names(self) -> tuple[str, ...]:
+        """The coordinates' names, in order (for files robots read: joint names); default q0, q1, ..."""
+        return tuple(f"q{i}" for i in range(self.dimension))
 
     @property
     @abstractmethod

@@ -20,16 +20,15 @@ import math
 from typing import ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
 from ..errors import PlanningInputError
-from ..models import AngleRange, PoseModel
+from ..models import AngleRange, PoseModel, StrictModel
 from ..units import Length, PositiveLength
 from .base import Space
 
 
-class InsertionRange(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class InsertionRange(StrictModel):
     min: Length
     max: PositiveLength
 
@@ -44,14 +43,13 @@ def _deg(lo: float, hi: float) -> AngleRange:
     return AngleRange(min=math.radians(lo), max=math.radians(hi))
 
 
-class CastGimbalSettings(BaseModel):
+class CastGimbalSettings(StrictModel):
     """The gimbal's fulcrum pose, joint limits and shaft.
 
     Defaults are those of a laparoscopic box trainer: ±60° yaw, -10° to 80°
     pitch, 20-300 mm insertion, full roll, a 5 mm instrument shaft.
     """
 
-    model_config = ConfigDict(extra="forbid")
     fulcrum: PoseModel
     yaw: AngleRange = Field(default_factory=lambda: _deg(-60, 60))
     pitch: AngleRange = Field(default_factory=lambda: _deg(-10, 80))
@@ -86,6 +84,10 @@ class CastGimbalSpace(Space):
     @property
     def dimension(self):
         return 4
+
+    @property
+    def coordinate_names(self) -> tuple[str, ...]:
+        return ("yaw", "pitch", "insertion", "roll")
 
     @property
     def low(self):

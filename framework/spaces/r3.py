@@ -5,17 +5,17 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel
 
 from ..errors import PlanningInputError
+from ..models import StrictModel
 from ..units import Length
 from .base import Space
 
 
-class R3Settings(BaseModel):
+class R3Settings(StrictModel):
     """The instrument tip as a sphere of ``tip_radius`` (m); 0 plans for a point."""
 
-    model_config = ConfigDict(extra="forbid")
     tip_radius: Length = 0.0
 
 
@@ -40,6 +40,10 @@ class R3Space(Space):
     @property
     def dimension(self) -> int:
         return 3
+
+    @property
+    def coordinate_names(self) -> tuple[str, ...]:
+        return ("x", "y", "z")
 
     @property
     def low(self) -> np.ndarray:

@@ -18,37 +18,33 @@ from typing import ClassVar
 
 import coal
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from ..errors import PlanningInputError
 from ..geometry.transforms import canonical_quaternion, quaternion_angle, quaternion_to_matrix, slerp
-from ..models import PoseModel
+from ..models import PoseModel, StrictModel
 from ..units import Length, PositiveLength, Vec3
 from .base import Space
 
 
-class SphereShape(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class SphereShape(StrictModel):
     radius: Length
 
 
-class CapsuleShape(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class CapsuleShape(StrictModel):
     a: Vec3
     b: Vec3
     radius: Length
 
 
-class BoxShape(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class BoxShape(StrictModel):
     size: tuple[PositiveLength, PositiveLength, PositiveLength]
 
 
-class BodyPart(BaseModel):
+class BodyPart(StrictModel):
     """One part of the moving body: a sphere (at ``pose.xyz``), a capsule (a→b) or a box."""
 
-    model_config = ConfigDict(extra="forbid")
     name: str | None = None
     sphere: SphereShape | None = None
     capsule: CapsuleShape | None = None
@@ -67,8 +63,7 @@ def _default_body() -> list[BodyPart]:
     return [BodyPart(name="origin", sphere=SphereShape(radius=0.0))]
 
 
-class SE3Settings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class SE3Settings(StrictModel):
     body: list[BodyPart] = Field(default_factory=_default_body)
     #: metres per radian of rotation in the distance metric
     rotation_weight: PositiveLength = 0.05
@@ -115,6 +110,10 @@ class SE3Space(Space):
     @property
     def dimension(self):
         return 7
+
+    @property
+    def coordinate_names(self) -> tuple[str, ...]:
+        return ("x", "y", "z", "qx", "qy", "qz", "qw")
 
     @property
     def low(self):

@@ -23,16 +23,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationInfo, model_validator
+from pydantic import Field, PrivateAttr, ValidationInfo, model_validator
 from surgiplan.guidance import PoseSample, PoseSource
 from surgiplan.guidance.files import read_attempt_csv
+from surgiplan.models import StrictModel
 from surgiplan.units import LENGTH_SCALE_KEY
 
 from .pacing import Pacer
 
 
-class RecordedAttemptSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class RecordedAttemptSettings(StrictModel):
     #: the CSV file, relative to the pipeline file
     file: str
     #: 1: replay in real time; 2: twice as fast; 0: as fast as possible

@@ -1,4 +1,4 @@
-"""An example third-party surgiplan package: one plugin of each of the four kinds.
+"""An example third-party surgiplan package: one plugin of each kind, and a stage kind of its own.
 
 Copy it to start your own. Every plugin is small but real, and each is
 exercised by surgiplan's test suite (``tests/test_examples.py``):
@@ -13,7 +13,10 @@ exercised by surgiplan's test suite (``tests/test_examples.py``):
   stage comparing its sag with the closed form);
 * :mod:`.point_robot` — device ``point_robot``: a simulated 3-axis gantry that
   refuses paths closer to an obstacle than its safety margin, then follows
-  them at constant speed with a first-order lag and reports what it did.
+  them at constant speed with a first-order lag and reports what it did;
+* :mod:`.export` — stage kind ``export``: a planned path timed within
+  velocity and acceleration limits and written for a robot, by exporter
+  plugins of its own plugin kind (``joint_csv``, ``ros_joint_trajectory``).
 
 The whole registration is this module plus one table in ``pyproject.toml``::
 
@@ -25,12 +28,21 @@ from __future__ import annotations
 
 from surgiplan import PluginSpec, hookimpl
 
+from .export import ExportKind, JointCsv, RosJointTrajectory
 from .planar import PlanarSpace
 from .point_robot import PointRobot
 from .spring_chain import SpringChain
 from .via_point import ViaPointPlanner
 
-__all__ = ["PlanarSpace", "PointRobot", "SpringChain", "ViaPointPlanner"]
+__all__ = [
+    "ExportKind",
+    "JointCsv",
+    "PlanarSpace",
+    "PointRobot",
+    "RosJointTrajectory",
+    "SpringChain",
+    "ViaPointPlanner",
+]
 
 
 @hookimpl
@@ -51,3 +63,16 @@ def surgiplan_register_deformable_models():
 @hookimpl
 def surgiplan_register_devices():
     return [PluginSpec("point_robot", PointRobot, "a simulated 3-axis gantry with a safety margin")]
+
+
+@hookimpl
+def surgiplan_register_stage_kinds():
+    return [ExportKind()]
+
+
+@hookimpl
+def surgiplan_register_exporters():
+    return [
+        PluginSpec("joint_csv", JointCsv, "time, positions, velocities and accelerations per coordinate (CSV)"),
+        PluginSpec("ros_joint_trajectory", RosJointTrajectory, "a ROS 2 trajectory_msgs/JointTrajectory (YAML)"),
+    ]

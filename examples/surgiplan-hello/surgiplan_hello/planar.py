@@ -13,12 +13,12 @@ from __future__ import annotations
 from typing import ClassVar
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel
 from surgiplan import Coordinate, Length, PlanningInputError, Space
+from surgiplan.models import StrictModel
 
 
-class PlanarSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class PlanarSettings(StrictModel):
     #: the plane's height (z), in the pipeline's length unit
     height: Coordinate
     #: the tip sphere's radius

@@ -26,12 +26,12 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, PositiveFloat
+from pydantic import PositiveFloat
 from surgiplan import Device, ExecuteStatus, ExecutionReport, Length, PositiveLength
+from surgiplan.models import StrictModel
 
 
-class PointRobotSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class PointRobotSettings(StrictModel):
     speed: PositiveLength = 0.02  # m/s
     lag: PositiveFloat = 0.05  # s
     rate: PositiveFloat = 200.0  # Hz

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat
+from pydantic import Field, PositiveFloat
 from scipy.sparse.linalg import spsolve
 from surgiplan import (
     Constraints,
@@ -27,10 +27,10 @@ from surgiplan import (
     StageResult,
     Vec3,
 )
+from surgiplan.models import StrictModel
 
 
-class SpringChainSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class SpringChainSettings(StrictModel):
     start: Vec3
     end: Vec3
     nodes: int = Field(default=21, ge=3)

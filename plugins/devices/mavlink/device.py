@@ -59,6 +59,7 @@ from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
+from surgiplan.clearance import intervals
 from surgiplan.devices import Device, ExecutionReport, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
@@ -429,13 +430,9 @@ class MavlinkVehicle(Device):
                 f"'{trajectory.source}' planned in '{trajectory.space.kind}'"
             )
         context = self.context
-        source = context.previous.get(trajectory.source) if context is not None else None
-        threshold = source.clearance_threshold if source is not None else None
-        critical = [
-            (float(r["start_m"]), float(r["end_m"]))
-            for r in (source.annotations.get("critical_regions", []) if source is not None else [])
-            if "start_m" in r and "end_m" in r
-        ]
+        # the plan's clearance threshold and critical regions, as the plan stage measured them
+        threshold = float(trajectory.clearance_threshold) if trajectory.clearance_threshold is not None else None
+        critical = intervals(trajectory.critical_regions)
         vehicle = gcs.vehicle
         position = self.frame.from_ned(np.asarray(vehicle.position.position))
         on_ground = vehicle.on_ground or (

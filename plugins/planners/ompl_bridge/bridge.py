@@ -33,7 +33,8 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
+from pydantic import Field, PositiveFloat, PositiveInt
+from surgiplan.models import StrictModel
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 from surgiplan.resources import ResourceEstimate
 from surgiplan.units import Length
@@ -43,9 +44,7 @@ log = logging.getLogger(__name__)
 _seeded: int | None = None
 
 
-class OmplSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
+class OmplSettings(StrictModel):
     planner: Literal["PRM", "PRMstar", "RRTConnect", "RRTstar"] = "PRM"
     #: PRM and PRM*: milestones grown in the build phase
     milestones: PositiveInt = 1000
@@ -96,6 +95,8 @@ class OmplPlanner(Planner):
         return [ResourceEstimate(n * 1500, f"OMPL's roadmap of {n:,} milestones", "milestones")]
 
     Settings = OmplSettings
+    #: the older spelling of the stage's clearance_threshold: a margin every state and motion keeps
+    threshold_setting = "margin"
 
     # ------------------------------------------------------------------ conversions
     def _state_space(self, space):
@@ -245,5 +246,5 @@ class OmplPlanner(Planner):
                 "discretely checked states (motion_check: discrete)"
             )
         return PlanResult(
-            PlanStatus.SOLVED, waypoints, metrics, message, clearance_threshold=float(settings.margin) or None
+            PlanStatus.SOLVED, waypoints, metrics, message
         )

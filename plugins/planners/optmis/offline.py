@@ -11,8 +11,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, model_validator
+from pydantic import Field, PositiveInt, model_validator
 from surgiplan.errors import PlanningInputError, choices_hint
+from surgiplan.models import StrictModel
 from surgiplan.planning import PlanningProblem
 from surgiplan.units import Length, PositiveLength
 
@@ -28,10 +29,9 @@ from .repository import (
 from .search_space import SearchGraph
 
 
-class SmoothingSettings(BaseModel):
+class SmoothingSettings(StrictModel):
     """Cubic-spline smoothing of the paths (paper 001 §3.1)."""
 
-    model_config = ConfigDict(extra="forbid")
     enabled: bool = True
     #: largest spacing of the stored path points
     resolution: PositiveLength = 0.002
@@ -43,10 +43,9 @@ class SmoothingSettings(BaseModel):
     window: PositiveInt = 2
 
 
-class OptMISSettings(BaseModel):
+class OptMISSettings(StrictModel):
     """The optMIS offline planner: search space, paths and smoothing (lengths in the file's unit)."""
 
-    model_config = ConfigDict(extra="forbid")
     #: the points of interest (names of scene points); default: every point of the scene
     points: list[str] | None = None
     #: spacing of the workspace grid of the search space

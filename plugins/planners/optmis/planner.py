@@ -117,6 +117,8 @@ class OptMIS(Planner):
         return settings.estimate(problem.scene)
 
     Settings = OptMISPlanSettings
+    #: the older spelling of the stage's clearance_threshold: a margin every state and motion keeps
+    threshold_setting = "margin"
     artifact_version = 1
 
     def _check_outputs(self) -> None:
@@ -208,7 +210,7 @@ class OptMIS(Planner):
                 }
             )
         metrics["lookup_s"] = time.perf_counter() - started
-        result = PlanResult(PlanStatus.SOLVED, path, metrics, clearance_threshold=self.settings.margin or None)
+        result = PlanResult(PlanStatus.SOLVED, path, metrics)
         if getattr(self.settings, "figure", None):
             self._draw(artifact, i, j, result)
         return result

@@ -54,6 +54,8 @@ class RetractionPlanner(Planner):
     Settings = RetractionSettings
     requires_goal = False
     artifact_version = 1
+    #: it plans grasps through deforming tissue, not a clearance from obstacles (a stage threshold is refused)
+    clearance_policy = None
 
     @classmethod
     def estimate_resources(cls, settings, problem):

@@ -39,8 +39,6 @@ from typing import Any
 
 import numpy as np
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     PositiveFloat,
     PositiveInt,
@@ -48,6 +46,9 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from surgiplan.clearance import ClearancePolicy, ClearanceThreshold
+from surgiplan.clearance import critical_regions as measured_regions
+from surgiplan.models import StrictModel
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 from surgiplan.resources import ResourceEstimate
 from surgiplan.units import LENGTH_SCALE_KEY, Length, PositiveLength
@@ -58,10 +59,9 @@ from .roadmap import RoadmapPair, build_roadmaps
 from .smoothing import raise_clearance, shortcut, smooth_in_corridor
 
 
-class FromAttempts(BaseModel):
+class FromAttempts(StrictModel):
     """d_thresh from recorded attempts: the ``percentile`` of the executed tips' deviations."""
 
-    model_config = ConfigDict(extra="forbid")
     from_attempts: str
     percentile: float = Field(default=95.0, gt=0, le=100)
     # filled in from the file when the settings are validated (part of the artifact's content key)
@@ -103,11 +103,10 @@ class FromAttempts(BaseModel):
         return self
 
 
-class FromRecord(BaseModel):
+class FromRecord(StrictModel):
     """d_thresh from the trainee record: the ``percentile`` of the trainee's recorded deviations on ``task``
     (all attempts, or the ``last`` few), so the next recommended path adapts to how they actually move."""
 
-    model_config = ConfigDict(extra="forbid")
     trainee: str = Field(min_length=1)
     task: str = Field(min_length=1)
     percentile: float = Field(default=95.0, gt=0, le=100)
@@ -146,8 +145,7 @@ class FromRecord(BaseModel):
         return self
 
 
-class SmoothingSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class SmoothingSettings(StrictModel):
     enabled: bool = True
     #: tip spacing of the densified path the QP smooths
     resolution: PositiveLength = 0.001
@@ -162,8 +160,7 @@ class SmoothingSettings(BaseModel):
     shortcut: bool = True
 
 
-class SafePRMSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class SafePRMSettings(StrictModel):
     proficiency: str | float | FromAttempts | FromRecord = "intermediate"
     levels: dict[str, Length] = Field(default_factory=lambda: dict(DEFAULT_LEVELS))
     milestones: PositiveInt = 3000
@@ -252,6 +249,14 @@ class SafePRM(Planner):
 
     Settings = SafePRMSettings
     artifact_version = 1
+    #: paper 000: d_thresh is kept except in critical regions, where no detour exists
+    clearance_policy = ClearancePolicy.EXCEPT_CRITICAL
+
+    @classmethod
+    def clearance_threshold_from(cls, settings):
+        """d_thresh, from ``proficiency`` (a level, a length, recorded attempts or the trainee record)."""
+        source = f"settings.proficiency ({settings.proficiency_label})"
+        return ClearanceThreshold(settings.d_thresh, source), "proficiency" in settings.model_fields_set
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -275,7 +280,7 @@ class SafePRM(Planner):
             milestones=milestones,
             k=self.settings.k,
             s=s,
-            d_thresh=self.settings.d_thresh,
+            d_thresh=self.planning_threshold(problem),
             seed=self.settings.seed,
             progress=problem.progress,
         )
@@ -339,8 +344,9 @@ class SafePRM(Planner):
             artifact.roadmap = roadmap
             artifact.grown += 1
             outcome = prm_query.query(roadmap, start, goal)
+        from_settings = d_thresh == self.settings.d_thresh
         metrics: dict[str, Any] = {
-            "proficiency": self.settings.proficiency_label,
+            "proficiency": self.settings.proficiency_label if from_settings else "the stage's clearance_threshold",
             "d_thresh_m": d_thresh,
             **roadmap.stats,
             "k": roadmap.k,
@@ -349,7 +355,7 @@ class SafePRM(Planner):
         }
         if artifact.grown:
             metrics["roadmap_grown"] = artifact.grown
-        if isinstance(self.settings.proficiency, FromAttempts):
+        if from_settings and isinstance(self.settings.proficiency, FromAttempts):
             p = self.settings.proficiency
             metrics["attempts"] = {
                 "file": p.from_attempts,
@@ -359,7 +365,7 @@ class SafePRM(Planner):
                 "deviation_median_m": p.deviation_median,
                 "deviation_max_m": p.deviation_max,
             }
-        if isinstance(self.settings.proficiency, FromRecord):
+        if from_settings and isinstance(self.settings.proficiency, FromRecord):
             p = self.settings.proficiency
             metrics["trainee"] = {
                 "record": p.record,
@@ -415,14 +421,7 @@ class SafePRM(Planner):
             )
         detours = self._avoided_passages(space, outcome.detours, d_thresh)
         metrics["detours"] = len(detours)
-        return PlanResult(
-            PlanStatus.SOLVED,
-            path,
-            metrics,
-            message,
-            clearance_threshold=d_thresh or None,
-            annotations={"critical_regions": regions, "detours": detours},
-        )
+        return PlanResult(PlanStatus.SOLVED, path, metrics, message, annotations={"detours": detours})
 
     @staticmethod
     def _avoided_passages(space, stretches: list[np.ndarray], d_thresh: float) -> list[dict]:
@@ -488,34 +487,7 @@ def _densify(space, path: np.ndarray, kinds: list[str], resolution: float) -> tu
 
 
 def critical_regions(space, path: np.ndarray, d_thresh: float, resolution: float | None = None) -> list[dict]:
-    """The stretches of ``path`` whose clearance is below ``d_thresh``, measured densely.
-
-    Each: arc-length interval ``start_m``/``end_m`` along the tip path,
-    ``length_m``, ``min_clearance_m``, and ``obstacles`` (the nearest obstacles
-    along it, by name).
-    """
-    if d_thresh <= 0 or len(path) < 2:
-        return []
-    resolution = resolution or float(np.min(space.scene.extent)) / 2000.0
-    dense = space.densify(path, resolution)
-    clearance = space.clearance(dense)
-    nearest = space.nearest_obstacle(dense)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(space.tip(dense), axis=0), axis=1))])
-    below = clearance < d_thresh
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], below.astype(int), [0]])))
-    names = [o.name for o in space.scene.obstacles]
-    regions = []
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        # extend to the neighbouring samples: the crossing lies between them
-        lo, hi = max(a - 1, 0), min(b, len(dense) - 1)
-        involved = sorted({names[i] for i in nearest[a:b] if i >= 0})
-        regions.append(
-            {
-                "start_m": float(arc[lo]),
-                "end_m": float(arc[hi]),
-                "length_m": float(arc[hi] - arc[lo]),
-                "min_clearance_m": float(clearance[a:b].min()),
-                "obstacles": involved,
-            }
-        )
-    return regions
+    """The stretches of ``path`` below ``d_thresh`` (:func:`surgiplan.clearance.critical_regions`, the framework's
+    own measure), as the JSON records of ``metrics.critical_regions``: ``start_m``/``end_m`` along the tip path,
+    ``length_m``, ``min_clearance_m`` and the nearest ``obstacles``."""
+    return [r.to_json() for r in measured_regions(space, path, d_thresh, resolution)]

@@ -35,8 +35,9 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, field_validator
+from pydantic import Field, PositiveInt, field_validator
 from surgiplan.errors import OutputError
+from surgiplan.models import StrictModel
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 from surgiplan.plugins.planners.optmis.offline import OptMISSettings, require_r3, run_offline
 from surgiplan.plugins.planners.optmis.paths import PathOptions, paths_from_source
@@ -51,19 +52,17 @@ from .report import table1, write_report
 log = logging.getLogger(__name__)
 
 
-class ReportSettings(BaseModel):
+class ReportSettings(StrictModel):
     """Paper 001 Table 1: where to write it and for which segment sizes."""
 
-    model_config = ConfigDict(extra="forbid")
     #: directory (relative to the current directory, like artifact files)
     dir: str
     segment_points: list[PositiveInt] = Field(default_factory=lambda: [2, 3, 4, 5])
 
 
-class ReplanSettings(BaseModel):
+class ReplanSettings(StrictModel):
     """Paper 001 Fig. 6: after a fraction ``at`` of the first path, a new goal."""
 
-    model_config = ConfigDict(extra="forbid")
     #: the new goal C: a scene point's name or coordinates
     goal: str | Vec3
     at: float = Field(default=1.0, gt=0, le=1)
@@ -120,6 +119,8 @@ class SegmentedAStar(Planner):
         return settings.estimate(problem.scene)
 
     Settings = SegmentedAStarSettings
+    #: the older spelling of the stage's clearance_threshold: a margin every state and motion keeps
+    threshold_setting = "margin"
     artifact_version = 1
 
     # ------------------------------------------------------------------ offline
@@ -459,7 +460,7 @@ class SegmentedAStar(Planner):
                 "path_cost_m": straight,
             }
             return PlanResult(
-                PlanStatus.SOLVED, np.stack([start, goal]), metrics, clearance_threshold=self.settings.margin or None
+                PlanStatus.SOLVED, np.stack([start, goal]), metrics
             )
         (starts, start_kind), (goals, goal_kind) = self._attach(artifact, ends, clearance, counters)
         linked = time.perf_counter()
@@ -513,4 +514,4 @@ class SegmentedAStar(Planner):
                 "(e.g. a point of interest that was unreachable offline)",
                 **metrics,
             )
-        return PlanResult(PlanStatus.SOLVED, outcome.path, metrics, clearance_threshold=self.settings.margin or None)
+        return PlanResult(PlanStatus.SOLVED, outcome.path, metrics)

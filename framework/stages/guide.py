@@ -1,0 +1,376 @@
+"""The ``guide`` stage: follow an instrument live against an earlier plan stage's recommended path.
+
+::
+
+    - stage: guide
+      name: attempt
+      plugin: synthetic_trainee        # a pose source (hook surgiplan_register_sources): cast_gimbal, ...
+      path_from: beginner              # the plan stage whose path is recommended (default: the last one)
+      settings: {level: beginner, seed: 3}
+      guidance: {deviation_tolerance: 4 mm}        # surgiplan.guidance.GuidanceSettings
+      trainee: {name: alice, task: block-world}    # record the attempt (optional)
+
+The source runs in a thread of its own and hands samples over a queue: the
+stage measures each as it arrives (:class:`~surgiplan.guidance.analysis.Guide`)
+against the plan's clearance threshold and critical regions, publishes it on
+the live feed, and never waits on a silent source longer than
+``guidance.silence_timeout`` (the attempt then ends ``stopped`` with the
+reason). Per-sample latency is from the moment the source produced the sample
+to the end of its analysis.
+
+Writes ``<stage>.png`` and ``<stage>-samples.csv``; with ``trainee:``, the
+attempt goes into the trainee record in one transaction.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from ..clearance import ClearanceThreshold, intervals, threshold_value
+from ..errors import StageError, SurgiplanError
+from ..guidance.analysis import GuidanceSettings, Guide
+from ..guidance.record import TraineeRecord
+from ..guidance.report import attempt_figure, write_samples_csv
+from ..guidance.source import GuideContext, PoseSample, PoseSource, SourceStopped
+from ..hookspecs import PluginSpec, hookspec
+from ..kinds import (
+    FileContext,
+    PathStageModel,
+    PathStageSpec,
+    PluginKind,
+    StageKind,
+    StageRun,
+    planned,
+    resolve_path_from,
+)
+from ..models import StrictModel
+from ..outputs.report.timeline import motion_report
+from ..results import StageResult
+from ..status import GuideStatus
+from ..validation import validate_model
+
+
+class Hooks:
+    """The hook guide stages take their plugins from."""
+
+    @hookspec
+    def surgiplan_register_sources(self) -> list[PluginSpec]:
+        """Pose sources (subclasses of :class:`surgiplan.PoseSource`): the instrument followed by ``stage: guide``."""
+
+
+SOURCE = PluginKind("source", "surgiplan_register_sources", PoseSource)
+
+
+class TraineeKeys(StrictModel):
+    """Whose attempt a guide stage records, at which task (``trainee: {name, task}``)."""
+
+    name: str = Field(min_length=1)
+    task: str = Field(min_length=1)
+
+
+class GuideStageModel(PathStageModel):
+    """The keys of a guide stage."""
+
+    #: the analysis (surgiplan.guidance.GuidanceSettings, validated once the file's unit is known)
+    guidance: dict[str, Any] | None = None
+    trainee: TraineeKeys | None = None
+
+
+@dataclass
+class GuideSpec(PathStageSpec):
+    guidance: GuidanceSettings | None = None
+    trainee: TraineeKeys | None = None
+
+
+_END = object()
+
+
+class _Reader:
+    """Runs the source's iterator in a thread; samples (stamped on arrival) and its end go through a queue."""
+
+    def __init__(self, iterator, maxsize: int = 10_000) -> None:
+        self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, args=(iterator,), name="guide-source", daemon=True)
+        self.thread.start()
+
+    def _run(self, iterator) -> None:
+        try:
+            for sample in iterator:
+                if self.stop.is_set():
+                    return
+                self.queue.put((time.perf_counter(), sample))
+            self.queue.put((time.perf_counter(), _END))
+        except BaseException as exc:  # handed to the stage, which names the plugin
+            self.queue.put((time.perf_counter(), exc))
+
+
+def _check_sample(sample: Any, previous_t: float, dimension: int) -> str:
+    """Why a source's sample cannot be used ('' if it can)."""
+    if not isinstance(sample, PoseSample):
+        return f"it yielded a {type(sample).__name__}, not a PoseSample"
+    if not (isinstance(sample.t, int | float) and math.isfinite(sample.t)):
+        return f"sample time {sample.t!r} is not a finite number"
+    if sample.t < previous_t:
+        return f"sample time {sample.t:.6g} s is before the previous sample's {previous_t:.6g} s"
+    if sample.q is None and sample.tip is None:
+        return "a sample has neither q nor tip"
+    value, size = (sample.q, dimension) if sample.q is not None else (sample.tip, 3)
+    array = np.asarray(value, dtype=float)
+    if array.shape != (size,) or not np.all(np.isfinite(array)):
+        what = "q" if sample.q is not None else "tip"
+        return f"sample {what} {array.tolist()} is not {size} finite numbers"
+    return ""
+
+
+class _InvalidSample(SurgiplanError):
+    """A sample the stage refuses (the stage becomes ``invalid_result``)."""
+
+
+class GuideKind(StageKind):
+    name = "guide"
+    description = "an instrument followed live against an earlier plan stage's recommended path"
+    model = GuideStageModel
+    spec_type = GuideSpec
+    plugin_kind = SOURCE
+    hookspecs = Hooks
+    statuses = GuideStatus
+    succeeded = frozenset({GuideStatus.COMPLETED.value})
+    timed = True
+
+    def resolve(self, spec: GuideSpec, files: FileContext) -> None:
+        where = ("pipeline", spec.index, "guidance")
+        raw = spec.keys.guidance or {}
+        spec.guidance = validate_model(
+            GuidanceSettings, raw, file=files.file, lines=files.lines, prefix=where, context=files.validation
+        )
+        if "threshold" in spec.guidance.model_fields_set:
+            files.warn(
+                "guidance.threshold is deprecated: a guide stage judges the attempt against its plan stage's "
+                "clearance_threshold; set it there (this value is still used, for one release)",
+                *where,
+                "threshold",
+            )
+        spec.trainee = spec.keys.trainee
+
+    def check(self, spec: GuideSpec, files: FileContext) -> None:
+        resolve_path_from(spec, files, "whose path it recommends")
+
+    def run(self, run: StageRun) -> StageResult:
+        source = planned(run, minimum=2)
+        if isinstance(source, StageResult):
+            return source
+        source_spec, source_result = source
+        spec, context = run.spec, run.context
+        space = source_spec.space
+        path = np.asarray(source_result.path, float)
+        regions = list(source_result.critical_regions)
+        critical = intervals(regions)
+        settings = spec.guidance
+        guide = Guide(
+            space,
+            path,
+            spec.scene,
+            threshold_value(source_result.clearance_threshold),
+            critical,
+            settings,
+            unit=context.length_unit,
+        )
+        gcontext = GuideContext(
+            context,
+            path,
+            guide.tips,
+            space,
+            spec.scene,
+            guide.threshold,
+            critical,
+            settings.silence_timeout,
+            critical_regions=regions,
+        )
+        live = context.live
+        live.publish(
+            "stage",
+            {
+                "name": spec.name,
+                "kind": "guide",
+                "plugin": spec.plugin.name,
+                "path_from": spec.path_from,
+                "recommended": guide.tips.tolist(),
+                "threshold": guide.threshold,
+                "critical": critical,
+            },
+        )
+        source = run.call("construction", spec.plugin.cls, spec.settings)
+        status, message = GuideStatus.INCOMPLETE, ""
+        reader = None
+        started = time.perf_counter()
+        try:
+            run.call("open", source.open, gcontext)
+            iterator = run.call("samples", source.samples)
+            reader = _Reader(iter(iterator))
+            previous_t = -math.inf
+            with context.progress.task("following the instrument (% of the path)", total=100) as task:
+                while True:
+                    try:
+                        arrived, item = reader.queue.get(timeout=settings.silence_timeout)
+                    except queue.Empty:
+                        status = GuideStatus.STOPPED
+                        message = (
+                            f"source '{spec.plugin.name}' sent no pose for {settings.silence_timeout:g} s "
+                            f"(guidance.silence_timeout); the attempt is stopped"
+                        )
+                        break
+                    if item is _END:
+                        break
+                    if isinstance(item, SourceStopped):
+                        status, message = GuideStatus.STOPPED, f"source '{spec.plugin.name}' stopped: {item}"
+                        break
+                    if isinstance(item, BaseException):
+                        raise StageError(
+                            f"plugin '{spec.plugin.name}' ({spec.plugin.package} {spec.plugin.version}) failed in "
+                            f"samples of guide stage '{spec.name}': {type(item).__name__}: {item}",
+                            location=spec.location,
+                        ) from item
+                    problem = _check_sample(item, previous_t, space.dimension)
+                    if problem:
+                        raise _InvalidSample(problem)
+                    previous_t = float(item.t)
+                    m, changes = guide.measure(item)
+                    m.delay = time.perf_counter() - arrived
+                    if live.active:
+                        live.publish(
+                            "tip",
+                            {
+                                "t": m.t,
+                                "tip": m.tip.tolist(),
+                                "deviation": m.deviation,
+                                "clearance": m.clearance,
+                                "progress": m.progress,
+                                "critical": m.critical,
+                            },
+                        )
+                        for what, event in changes:
+                            live.publish(
+                                "event", {"t": m.t, "change": what, **event.to_json(), "message": guide.describe(event)}
+                            )
+                    task.update(100.0 * min(m.progress / max(guide.length, 1e-12), 1.0))
+        except _InvalidSample as exc:
+            return run.invalid(str(exc))
+        finally:
+            if reader is not None:
+                reader.stop.set()
+            try:
+                source.close()
+            except Exception:  # never mask the attempt's outcome with a close failure
+                pass
+        events = guide.finish()
+        if not guide.measurements:
+            return run.result(
+                GuideStatus.STOPPED.value, message=message or f"source '{spec.plugin.name}' sent no sample"
+            )
+        if status is not GuideStatus.STOPPED:
+            status = GuideStatus.COMPLETED if guide.reached_goal else GuideStatus.INCOMPLETE
+            if status is GuideStatus.INCOMPLETE:
+                message = (
+                    f"the attempt ended {guide.k * (guide.length - guide.measurements[-1].progress):.3g} {guide.unit} "
+                    "before the end of the recommended path"
+                )
+        metrics: dict[str, Any] = guide.metrics()
+        metrics["run_s"] = time.perf_counter() - started
+        out = Path(context.output_dir)
+        files = []
+        csv_name, png_name = f"{spec.name}-samples.csv", f"{spec.name}.png"
+        write_samples_csv(out / csv_name, guide)
+        files.append(csv_name)
+        attempt_figure(
+            out / png_name,
+            guide,
+            f"{spec.name} ({spec.plugin.name}): {status.value}, score {metrics['score']:.0f}, "
+            f"deviation rms {metrics['deviation_rms_m'] * guide.k:.3g} {guide.unit}, "
+            f"min clearance {metrics['min_clearance_m'] * guide.k:.3g} {guide.unit}, {len(events)} event(s)",
+        )
+        files.append(png_name)
+        if spec.trainee is not None:
+            ms = guide.measurements
+            samples = {
+                "t": np.array([m.t for m in ms]),
+                "tip": np.array([m.tip for m in ms]),
+                "deviation": np.array([m.deviation for m in ms]),
+                "progress": np.array([m.progress for m in ms]),
+                "clearance": np.array([m.clearance for m in ms]),
+                "critical": np.array([m.critical for m in ms]),
+            }
+            record_path = run.state.record
+            with TraineeRecord(record_path) as record:
+                attempt_id = record.add_attempt(
+                    spec.trainee.name,
+                    spec.trainee.task,
+                    metrics,
+                    [e.to_json() for e in events],
+                    samples,
+                    status=status.value,
+                    pipeline=run.state.pipeline_name,
+                    stage=spec.name,
+                    source=spec.plugin.name,
+                    output_dir=str(out),
+                )
+            metrics["record"] = {
+                "path": str(record_path),
+                "attempt": attempt_id,
+                "trainee": spec.trainee.name,
+                "task": spec.trainee.task,
+            }
+        live.publish("status", {"status": status.value, "message": message})
+        tips = np.array([m.tip for m in guide.measurements])
+        annotations = {
+            "timeline": guide.timeline(settings.timeline_rate),
+            "events": [e.to_json() for e in events],
+            "path_from": spec.path_from,
+            "recommended_tips": guide.tips.tolist(),
+        }
+        return run.result(
+            status.value,
+            path=tips,
+            metrics=metrics,
+            message=message,
+            files=files,
+            tip_path=tips,
+            space="r3",
+            clearance_threshold=self._judged_against(spec, source_result, guide.threshold),
+            critical_regions=regions,
+            annotations=annotations,
+        )
+
+    @staticmethod
+    def _judged_against(spec: GuideSpec, plan: StageResult, threshold: float) -> ClearanceThreshold | None:
+        """The threshold the attempt was judged against: the plan's (or a deprecated guidance.threshold)."""
+        if threshold <= 0:
+            return None
+        if threshold == threshold_value(plan.clearance_threshold):
+            return plan.clearance_threshold
+        return ClearanceThreshold(threshold, f"{spec.location}.guidance.threshold")
+
+    def details(self, result: StageResult, k: float, unit: str) -> list[str]:
+        m = result.metrics
+        if "score" not in m:
+            return []
+        events = m.get("events") or {}
+        listed = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in events.items() if n)
+        return [
+            f"score {m['score']:.0f}",
+            f"deviation rms {m['deviation_rms_m'] * k:.3g} {unit}, max {m['deviation_max_m'] * k:.3g} {unit}",
+            f"events: {listed or 'none'}",
+            f"{m.get('duration_s', 0):.3g} s",
+        ]
+
+    def report(self, stage, entry, inputs) -> None:
+        motion_report(stage, entry, inputs)
