@@ -58,9 +58,10 @@ import time
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
+from pydantic import Field, PositiveFloat, field_validator, model_validator
 from surgiplan.devices import Device, ExecutionReport, Trajectory
 from surgiplan.errors import ConfigError
+from surgiplan.models import StrictModel
 from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
 from surgiplan.processes import child_env
 from surgiplan.progress import NullProgress
@@ -99,11 +100,7 @@ NEEDS = {
 }
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class FrameSettings(_Strict):
+class FrameSettings(StrictModel):
     """Where the vehicle's local NED frame is in the scene."""
 
     #: the local origin (where the vehicle's EKF puts 0, 0, 0) in scene coordinates
@@ -112,14 +109,14 @@ class FrameSettings(_Strict):
     heading: Angle = math.pi / 2
 
 
-class HeartbeatSettings(_Strict):
+class HeartbeatSettings(StrictModel):
     #: our HEARTBEAT period (s); the vehicle's is expected at the same rate
     period: PositiveFloat = 1.0
     #: the vehicle is lost after this many missed heartbeats
     missed: int = Field(default=5, ge=2)
 
 
-class Timeouts(_Strict):
+class Timeouts(StrictModel):
     """Protocol timeouts (wall-clock s) and retries; the flight's allowance is vehicle time."""
 
     connect: PositiveFloat = 15.0
@@ -140,7 +137,7 @@ class Timeouts(_Strict):
     failsafe: PositiveFloat = 60.0
 
 
-class SigningSettings(_Strict):
+class SigningSettings(StrictModel):
     """MAVLink 2 signing: the shared secret as 64 hex digits, or a passphrase (hashed with SHA-256)."""
 
     key: str
@@ -153,7 +150,7 @@ class SigningSettings(_Strict):
         return value
 
 
-class MavlinkVehicleSettings(_Strict):
+class MavlinkVehicleSettings(StrictModel):
     #: pymavlink connection string; none: start the simulated vehicle on 127.0.0.1 (UDP)
     connection: str | None = None
     baud: int = 57600
