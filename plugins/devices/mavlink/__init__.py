@@ -6,7 +6,9 @@ distance from obstacles except in critical regions. The ground-station side:
 
 * :mod:`.link` — connections, MAVLink 2, signing, enum names;
 * :mod:`.conventions` — PX4's modes and frames, the local/global projection;
-* :mod:`.mission` — the mission protocol as state machines without I/O;
+* :mod:`.mission` — the mission protocol's items, frames and comparison;
+  :mod:`.mission_gcs` and :mod:`.mission_vehicle` — its two sides as state
+  machines without I/O (the vehicle's serves the simulator);
 * :mod:`.gcs` — the ground station: heartbeats, commands, uploads;
 * :mod:`.profile`, :mod:`.stream` — the timed offboard path and its stream;
 * :mod:`.flight` — the route, the flight and its watch (failsafes);

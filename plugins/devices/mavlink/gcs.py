@@ -7,10 +7,10 @@ mavlink.io services used:
 * *Command protocol*: COMMAND_LONG, re-sent with ``confirmation`` increased
   when no COMMAND_ACK arrives within the timeout (default 1.5 s, 5 retries);
   MAV_RESULT_IN_PROGRESS extends the wait.
-* *Mission protocol*: :class:`~.mission.MissionUpload`; a transfer
+* *Mission protocol*: :class:`~.mission_gcs.MissionUpload`; a transfer
   that fails for a lost link is started again from MISSION_COUNT up to
   ``upload_attempts`` times, a refusal (MISSION_ACK with an error) never is;
-  :class:`~.mission.MissionDownload` and :class:`~.mission.MissionClear`
+  :class:`~.mission_gcs.MissionDownload` and :class:`~.mission_gcs.MissionClear`
   likewise (a download is how an upload is verified).
 * *Parameter protocol*: :class:`ParamTransaction` reads one parameter by name
   (PARAM_REQUEST_READ) or sets it (PARAM_SET) and waits for the vehicle's
@@ -40,7 +40,8 @@ import numpy as np
 
 from .conventions import px4_mode_command, px4_mode_name
 from .link import Endpoint, VehicleError, enum_description, enum_name, is_mavlink2, mavlink
-from .mission import MISSION, MissionClear, MissionDownload, MissionItem, MissionUpload, UploadStatistics
+from .mission import MISSION, MissionItem
+from .mission_gcs import MissionClear, MissionDownload, MissionUpload, UploadStatistics
 
 log = logging.getLogger("surgiplan.devices.mavlink")
 
