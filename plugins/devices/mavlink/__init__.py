@@ -10,6 +10,8 @@ distance from obstacles except in critical regions. The ground-station side:
   :mod:`.mission_gcs` and :mod:`.mission_vehicle` — its two sides as state
   machines without I/O (the vehicle's serves the simulator);
 * :mod:`.gcs` — the ground station: heartbeats, commands, uploads;
+  :mod:`.transactions` — its command and parameter protocols without I/O;
+  :mod:`.vehicle_state` — what it knows of the vehicle;
 * :mod:`.profile`, :mod:`.stream` — the timed offboard path and its stream;
 * :mod:`.flight` — the route, the flight and its watch (failsafes);
 * :mod:`.report` — what was flown, re-measured against the scene;

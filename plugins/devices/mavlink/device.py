@@ -70,9 +70,10 @@ from surgiplan.units import Angle, Length, PositiveLength, Vec3
 
 from .conventions import LocalFrame, MapProjection
 from .flight import Flight, Refusal, build_route, check_path_clearance
-from .gcs import GroundStation, capability_names
+from .gcs import GroundStation
 from .link import Endpoint, VehicleError, check_connection_string, enum_name, mavlink, signing_key
 from .report import describe, flight_figure, flight_metrics, write_flight_csv
+from .vehicle_state import capability_names
 
 #: the PX4 parameters the flight relies on (read at configure; see MavlinkVehicle._limits)
 RELIED_ON = (
