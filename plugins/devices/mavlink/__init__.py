@@ -15,7 +15,8 @@ distance from obstacles except in critical regions. The ground-station side:
 * :mod:`.profile`, :mod:`.stream` — the timed offboard path and its stream;
 * :mod:`.flight` — the route, the flight and its watch (failsafes);
 * :mod:`.report` — what was flown, re-measured against the scene;
-* :mod:`.device` — the :class:`MavlinkVehicle` plugin.
+* :mod:`.device` — the :class:`MavlinkVehicle` plugin, its :mod:`.settings`,
+  and :mod:`.local_simulator`, which starts the simulated vehicle for it.
 
 :mod:`.sim` is the simulated PX4-like vehicle (``surgiplan-sim-vehicle``).
 """
