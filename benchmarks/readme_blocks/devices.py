@@ -1,6 +1,7 @@
 """The device blocks, which their benchmarks render themselves.
 
-The CiA 402 control loop (``bench_devices.py``) and the MAVLink flights (``bench_mavlink.py``).
+The CiA 402 control loop (``bench_devices.py``, its table in ``devices_table.py``) and the MAVLink flights
+(``bench_mavlink.py``).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from .formatting import bench_module, load
 
 def render_devices(results: Path) -> str:
     data = load(results, "devices")
-    return bench_module("bench_devices").readme_table(data)
+    return bench_module("devices_table").readme_table(data)
 
 
 def _mavlink_tables(results: Path) -> list[str]:
