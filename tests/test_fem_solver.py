@@ -224,7 +224,7 @@ def test_a_large_motion_is_predicted_in_two_steps_and_reaches_the_same_equilibri
 
 
 def test_the_cubic_interpolation_finds_the_minimiser_of_a_cubic_and_of_a_quadratic():
-    from surgiplan.plugins.fem.newton import _cubic_minimiser
+    from surgiplan.plugins.fem.line_search import _cubic_minimiser
 
     # c(t) = t^3 - 3t: minimiser 1, from its values and slopes at 0 and 2 (the cubic through them is c itself)
     assert _cubic_minimiser(0.0, 0.0, -3.0, 2.0, 2.0, 9.0) == pytest.approx(1.0, abs=1e-12)

@@ -12,18 +12,11 @@ import math
 
 import numpy as np
 import pytest
-from surgiplan.plugins.devices.mavlink.gcs import CommandTransaction
 from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_key
-from surgiplan.plugins.devices.mavlink.mission import (
-    MissionDownload,
-    MissionItem,
-    MissionReceiver,
-    MissionSender,
-    MissionUpload,
-    ReceiverFaults,
-    compare_missions,
-    result_text,
-)
+from surgiplan.plugins.devices.mavlink.mission import MissionItem, compare_missions, result_text
+from surgiplan.plugins.devices.mavlink.mission_gcs import MissionDownload, MissionUpload
+from surgiplan.plugins.devices.mavlink.mission_vehicle import MissionReceiver, MissionSender, ReceiverFaults
+from surgiplan.plugins.devices.mavlink.transactions import CommandTransaction
 
 GCS = (255, 190)
 VEHICLE = (1, 1)

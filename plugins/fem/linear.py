@@ -44,6 +44,7 @@ import weakref
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as sla
+from surgiplan.errors import SurgiplanError
 
 #: real symmetric indefinite (LDLᵀ, inertia) and positive definite (Cholesky)
 MTYPE = -2
@@ -97,11 +98,22 @@ def resolve(name: str) -> str:
     return name
 
 
-class SingularMatrix(RuntimeError):
+class FactorizationError(SurgiplanError, RuntimeError):
+    """A sparse factorisation failed: a numerical condition of the matrix, not a mistake in the user's input.
+
+    The solver catches these and tries another tangent (they stay ``RuntimeError`` for callers that catch
+    the solvers' failures as such); should one ever reach the command line, it exits with status 1, as a
+    failed stage does (:class:`~surgiplan.errors.StageError`), not 2.
+    """
+
+    exit_code = 1
+
+
+class SingularMatrix(FactorizationError):
     """The (constrained) tangent is singular: a zero pivot."""
 
 
-class NotPositiveDefinite(RuntimeError):
+class NotPositiveDefinite(FactorizationError):
     """A Cholesky factorisation met a pivot that is not positive: the matrix is not positive definite."""
 
 

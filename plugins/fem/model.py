@@ -87,9 +87,10 @@ from .intersection import self_intersections
 from .loads import BasePlane, ExternalLoads, work_equivalent_masses
 from .material import ImageMap, MaterialField
 from .mesh import TetMesh, box_mesh, read_tet_mesh, tetrahedralize_surface
-from .newton import CachedFactor, EquilibriumSolver, NewtonResult, SolverOptions
+from .newton import EquilibriumSolver, NewtonResult, SolverOptions
 from .settings import RegionModel, StVKSettings
 from .stvk import StVKElements
+from .tangent_factor import CachedFactor
 
 AXES = {"x": 0, "y": 1, "z": 2}
 

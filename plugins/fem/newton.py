@@ -77,6 +77,12 @@ handful of iterations where nonlinear CG needs hundreds:
 Linear algebra: the fixed pattern of :class:`~.assembly.TangentPattern`,
 factored by PARDISO (symbolic analysis once per pattern, inertia from the
 factorisation) or SuperLU (pre-ordered), see :mod:`.linear`.
+
+This module holds the solve itself (:class:`EquilibriumSolver`, its options
+and result); the parts it is made of live beside it: which tangent is
+factored and the rounding floor of the residual in :mod:`.tangent_factor`,
+the predictor, Newton, chord and L-BFGS directions in :mod:`.newton_steps`
+(both mix-ins of the solver), and the line search in :mod:`.line_search`.
 """
 
 from __future__ import annotations
@@ -88,9 +94,11 @@ from typing import Literal
 import numpy as np
 
 from .assembly import TangentPattern
-from .linear import PardisoFactor, SuperLUFactor
+from .line_search import MAX_TRIALS, line_search
 from .loads import ExternalLoads
+from .newton_steps import NewtonSteps
 from .stvk import StVKElements
+from .tangent_factor import CachedFactor, TangentFactoring
 
 
 @dataclass
@@ -154,7 +162,7 @@ class NewtonResult:
     seconds: float = 0.0
 
 
-class EquilibriumSolver:
+class EquilibriumSolver(NewtonSteps, TangentFactoring):
     """Newton's method on Π for a mesh's elements and loads (see the module docstring)."""
 
     def __init__(
@@ -440,290 +448,11 @@ class EquilibriumSolver:
         result.seconds = time.perf_counter() - started
         return result
 
-    @staticmethod
-    def _remember(pairs, step, change, prescribed, history: int) -> None:
-        """Keep the secant pair (s, y) of a corrector step (free dofs) when its curvature s.y is positive."""
-        y = change.copy()
-        y[prescribed] = 0.0
-        s = step.copy()
-        s[prescribed] = 0.0
-        sy = float(s @ y)
-        if sy > 1e-12 * float(np.sqrt((s @ s) * (y @ y))):  # otherwise the update would not stay definite
-            pairs.append((s, y, 1.0 / sy))
-            if len(pairs) > history:
-                pairs.pop(0)
-
-    def _factor(self, x, prescribed, options, result, shift: float) -> tuple[CachedFactor | None, float]:
-        """Factor the tangent at x (see ``tangent`` in the module docstring); ``None`` if nothing factors.
-
-        ``auto``: the exact tangent when it is positive definite (positive
-        pivots); otherwise the exact tangent plus ``tau`` times its mean free
-        diagonal, tau growing eightfold from ``shift`` until the
-        factorisation is definite (Nocedal & Wright, *Numerical
-        Optimization*, 2nd ed., Algorithm 3.3: the step keeps the exact
-        curvature where it is positive and is damped only as much as
-        needed); the surrogate tangent is the last resort. Returns the
-        factor and the shift to start from next time within this solve.
-        """
-        factor = None
-        if options.tangent == "definite":
-            factor = self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
-            return self._finish(factor, options, shift)
-        _, _, data = self._tangent(x, False)
-        constrained = self.pattern.constrain(data, prescribed)
-        exact = options.tangent == "exact"  # otherwise an indefinite factor is of no use: only definiteness counts
-        factor = self._try_factor(x, prescribed, False, data=data, constrained=constrained, definite_only=not exact)
-        if exact or (factor is not None and factor.positive_pivots()):
-            return self._finish(factor, options, shift)
-        result.definite_steps += 1
-        free_diagonal = self.pattern.diagonal[~prescribed]
-        scale = float(np.abs(constrained[free_diagonal]).mean()) if len(free_diagonal) else 1.0
-        tau = shift
-        while tau <= 1.0:
-            shifted = constrained.copy()
-            shifted[free_diagonal] += tau * scale
-            factor = self._try_factor(x, prescribed, True, data=data, constrained=shifted, definite_only=True)
-            if factor is not None and factor.positive_pivots():
-                # for a following solve: the level that was needed, or lower when it sufficed at once
-                result.shift = tau if tau > shift else max(tau / 8.0, self.MIN_SHIFT)
-                return self._finish(factor, options, max(tau / 8.0, self.MIN_SHIFT))  # the need passes: start lower
-            tau *= 8.0
-        factor = self._try_factor(x, prescribed, True) or self._try_factor(x, prescribed, True, regularise=1e-8)
-        return self._finish(factor, options, shift)
-
-    @staticmethod
-    def _finish(factor: CachedFactor | None, options: SolverOptions, shift: float) -> tuple[CachedFactor | None, float]:
-        if factor is not None:
-            factor.policy, factor.shift = options.tangent, shift
-        return factor, shift
-
-    #: smallest relative diagonal shift tried for an indefinite tangent
-    MIN_SHIFT = 1e-4
-    #: how far above eps (|K| |u| + |f|) the rounding error of the assembled forces reaches (measured: Newton
-    #: stalls at 0.1 to 2 times it on the flap and the cantilevers, linear and quadratic)
-    ROUNDING_SPREAD = 4.0
-
-    def _try_factor(
-        self,
-        x,
-        prescribed,
-        definite: bool,
-        data=None,
-        constrained=None,
-        regularise: float = 0.0,
-        definite_only: bool = False,
-    ) -> CachedFactor | None:
-        """Factor ``constrained`` (default: the tangent at x, the surrogate if ``definite``); ``None`` when it
-        is singular, or with ``definite_only`` when it is not positive definite."""
-        if data is None:
-            _, _, data = self._tangent(x, definite)
-            if regularise:
-                data[self.pattern.diagonal] += regularise * np.abs(data[self.pattern.diagonal]).max()
-        if constrained is None:
-            constrained = self.pattern.constrain(data, prescribed)
-        try:
-            lu = self.pattern.factorize(constrained, definite_only)
-        except RuntimeError:  # SingularMatrix, NotPositiveDefinite
-            return None
-        return CachedFactor(lu, data, constrained[self.pattern.diagonal], prescribed.copy(), definite, x)
-
-    def _rounding(self, factor: CachedFactor) -> float:
-        """The rounding error of the residual forces near the factor's state, about eps (|K| |u| + |f|) (N).
-
-        Relative: the solve iterates on the displacements u (not on the
-        positions, whose rounding grows with the distance from the origin),
-        the kernel computes the strain from grad u without cancellation, so
-        the forces are the sum of element forces of size about |K| |u| and
-        of the applied forces f, each rounded to eps of its size: a residual
-        below that cannot be reached. Computed when first needed (near
-        convergence), once per factor.
-        """
-        if factor.rounding is None:
-            magnitude = self.pattern.matvec(np.abs(factor.data), np.abs(factor.x))
-            magnitude += np.abs(self.loads.total_forces).ravel()
-            # eps (|K| |u| + |f|) is the error of one product; the forces sum several (elements, quadrature points)
-            factor.rounding = (
-                self.ROUNDING_SPREAD
-                * float(np.finfo(float).eps)
-                * float(np.max(magnitude[~factor.prescribed], initial=0.0))
-            )
-        return factor.rounding
-
-    def _direction(self, factor: CachedFactor, grad, prescribed, pending, pairs) -> np.ndarray | None:
-        """The step (3n,): with the pending prescribed motion, the predictor ``K_ff d_f = -(g_f + K_fc d_c)``;
-        else the L-BFGS step on top of the factored tangent (``pairs`` empty: ``K d = -g``, a Newton or
-        chord step). ``None`` when it is not finite or, in the corrector, not a descent direction."""
-        moving = bool(np.any(pending != 0.0))
-        if moving or not pairs:
-            rhs = -grad
-            if moving:
-                motion = np.zeros_like(grad)
-                motion[prescribed] = pending
-                rhs = rhs - self.pattern.matvec(factor.data, motion)
-            rhs[prescribed] = factor.diagonal[prescribed] * pending  # scaled identity rows: returns the motion
-            direction = factor.lu.solve(rhs)
-            direction[prescribed] = pending  # exactly, not as rounded by the solve
-        else:  # the two-loop recursion (Nocedal & Wright, Algorithm 7.4) with H0 = K^-1
-            q = grad.copy()
-            q[prescribed] = 0.0
-            alphas = []
-            for s, y, rho in reversed(pairs):
-                alpha = rho * float(s @ q)
-                q -= alpha * y
-                alphas.append(alpha)
-            r = factor.lu.solve(q)
-            r[prescribed] = 0.0
-            for (s, y, rho), alpha in zip(pairs, reversed(alphas), strict=True):
-                r += (alpha - rho * float(y @ r)) * s
-            direction = -r
-        if not np.all(np.isfinite(direction)):
-            return None
-        if not moving and float(np.dot(grad, direction)) >= 0.0:
-            return None
-        return direction
-
-    def _cut_to_valid(self, x, direction, prescribed, goal, pending, result):
-        """The largest fraction (halving from 1) of a predictor step that inverts no element, that state,
-        and (Π, gradient) there (computed anyway to test it, and needed next).
-
-        The prescribed dofs land exactly on ``goal - (1 - fraction) pending``
-        (the state tested is the state taken: ``x + d`` would round them).
-        """
-        fraction = 1.0
-        while fraction >= 1e-4:
-            trial = x + fraction * direction
-            trial[prescribed] = goal - (1.0 - fraction) * pending if fraction < 1.0 else goal
-            evaluated = self._gradient(trial)
-            if evaluated[1] is not None:
-                return fraction, trial, evaluated
-            fraction *= 0.5
-            result.line_search_cuts += 1
-        return None, x, None
-
-    def _split_predictor(self, x, x_full, evaluated, direction, prescribed, goal, pending, free, limit: float):
-        """Half the first predictor step when the whole one would leave a residual force above ``limit`` (N).
-
-        ``evaluated``: (Π, gradient) at ``x_full``. Returns (fraction, state, (Π, gradient) at the state if
-        computed).
-        The linearised response is poor for a large motion of the held
-        nodes (a turn of the gripper by tens of degrees, a sample several
-        edge lengths away): from the midpoint, with the tangent factored
-        there, the second half lands much closer to the equilibrium (an
-        Euler predictor with two steps). On the paper's flap this saves a
-        quarter of the Newton iterations of a retraction sample and most of
-        its indefinite tangents, at one factorisation; a small step, whose
-        linear prediction is good, is taken whole.
-        """
-        energy, grad = evaluated
-        if grad is None or float(np.abs(grad[free]).max(initial=0.0)) <= limit:
-            return 1.0, x_full, (energy, grad)
-        half = x + 0.5 * direction
-        half[prescribed] = goal - 0.5 * pending
-        if not np.isfinite(self._energy(half)):
-            return 1.0, x_full, (energy, grad)
-        return 0.5, half, None
-
     def _line_search(self, x, energy, grad, direction, free, options, result):
-        """A step along ``direction`` that decreases Π enough: the accepted fraction and (Π, gradient)
-        there, or (``None``, ``None``). Every trial computes the gradient with Π in one pass over the
-        elements (the accepted trial's is needed next, and the others' give the slope of Π).
-
-        The whole step is taken when it satisfies Armijo's condition (a
-        Newton step near the solution always does). Otherwise the minimiser
-        along the step lies in [0, 1] and is closed in on (Nocedal & Wright,
-        *Numerical Optimization*, 2nd ed., Algorithm 3.6, "zoom"): each
-        trial is the minimiser of the cubic through Π and its slope at the
-        bracket's ends (their eq. 3.59), kept within the inner 80 % of the
-        bracket, until a trial satisfies Armijo's condition and the strong
-        curvature condition ``|Π'(t)| <= curvature |Π'(0)|``. On a thin
-        cantilever bent by its tip load, Π grows like the fourth power of a
-        Newton step from rest; backtracking then stopped at a tenth of the
-        step where the minimiser lies at a fifth, and the zoom saves two of
-        seven factorisations. A trial that inverts an element (Π = inf,
-        no slope) quarters the bracket. Where Π's change is within its
-        rounding error, a step is accepted when it reduces the largest
-        residual force instead.
-        """
-        slope = float(np.dot(grad, direction))
-        residual = float(np.abs(grad[free]).max(initial=0.0))
-        low, low_value, low_slope = 0.0, energy, slope  # Armijo holds here and Π decreases beyond
-        high, high_value, high_slope = 1.0, np.inf, None  # the minimiser lies before here
-        best = None  # (fraction, Π, gradient) of the lowest trial that satisfies Armijo
-        fraction = 1.0
-        for trial_count in range(self.MAX_LINE_SEARCH_TRIALS):
-            if trial_count:
-                result.line_search_cuts += 1
-                width = high - low
-                if width < options.min_step_fraction:
-                    break
-                fraction = None
-                if high_slope is not None:
-                    fraction = _cubic_minimiser(low, low_value, low_slope, high, high_value, high_slope)
-                if fraction is None:
-                    fraction = low + 0.25 * width
-                fraction = min(max(fraction, low + 0.1 * width), high - 0.1 * width)
-            value, trial_grad = self._gradient(x + fraction * direction)
-            if np.isfinite(value) and abs(value - energy) <= 1e-12 * max(abs(energy), 1e-30) + 1e-300:
-                # near the solution Π changes less than its rounding error and cannot judge a step (its
-                # noise could pass Armijo's test): accept a step that reduces the residual, and only that
-                if trial_grad is not None and float(np.abs(trial_grad[free]).max(initial=0.0)) < residual:
-                    return fraction, (value, trial_grad)
-                high, high_value, high_slope = fraction, value, None
-                continue
-            if not np.isfinite(value) or trial_grad is None:
-                high, high_value, high_slope = fraction, np.inf, None
-                continue
-            trial_slope = float(np.dot(trial_grad, direction))
-            armijo = value <= energy + options.armijo * fraction * slope
-            if armijo and (fraction == 1.0 or abs(trial_slope) <= options.curvature * abs(slope)):
-                return fraction, (value, trial_grad)
-            if armijo and (best is None or value < best[1]):
-                best = (fraction, value, trial_grad)
-            if not armijo or value >= low_value or trial_slope > 0:
-                high, high_value, high_slope = fraction, value, trial_slope
-            else:
-                low, low_value, low_slope = fraction, value, trial_slope
-        if best is not None:
-            return best[0], (best[1], best[2])
-        return None, None
+        """:func:`~.line_search.line_search` along ``direction`` on Π (its fraction and (Π, gradient) there)."""
+        return line_search(
+            self._gradient, x, energy, grad, direction, free, options, result, self.MAX_LINE_SEARCH_TRIALS
+        )
 
     #: trials of one line search at most (the bracket shrinks by at least a tenth per trial)
-    MAX_LINE_SEARCH_TRIALS = 60
-
-
-def _cubic_minimiser(a: float, fa: float, da: float, b: float, fb: float, db: float) -> float | None:
-    """The minimiser of the cubic with values fa, fb and slopes da, db at a and b (Nocedal & Wright eq. 3.59),
-    or None when the cubic has none."""
-    d1 = da + db - 3.0 * (fa - fb) / (a - b)
-    radicand = d1 * d1 - da * db
-    if not np.isfinite(radicand) or radicand < 0.0:
-        return None
-    d2 = np.copysign(np.sqrt(radicand), b - a)
-    denominator = db - da + 2.0 * d2
-    if denominator == 0.0:
-        return None
-    value = b - (b - a) * (db + d2 - d1) / denominator
-    return float(value) if np.isfinite(value) else None
-
-
-@dataclass
-class CachedFactor:
-    """A factored, constrained tangent and what it was built from (reusable by later steps and solves)."""
-
-    lu: PardisoFactor | SuperLUFactor
-    data: np.ndarray  # the unconstrained tangent's values (pattern order), for K_fc products
-    diagonal: np.ndarray  # (3n,) diagonal of the constrained matrix, original numbering
-    prescribed: np.ndarray  # (3n,) bool
-    definite: bool
-    #: (3n,) m: the displacements from the rest positions it was factored at
-    x: np.ndarray
-    #: N: the rounding error of the internal forces near this state, a floor for the residual (when computed)
-    rounding: float | None = None
-    #: the tangent policy it was built under (``SolverOptions.tangent``)
-    policy: str = "auto"
-    #: the relative diagonal shift the next indefinite tangent starts from (see ``EquilibriumSolver._factor``)
-    shift: float = 1e-4
-
-    def positive_pivots(self) -> bool:
-        """Whether the factored matrix is positive definite, read from the factorisation (its pivots)."""
-        return self.lu.positive_pivots()
+    MAX_LINE_SEARCH_TRIALS = MAX_TRIALS

@@ -23,16 +23,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt, ValidationInfo, model_validator
-from surgiplan.models import PoseModel
+from pydantic import Field, PositiveFloat, PositiveInt, ValidationInfo, model_validator
+from surgiplan.models import PoseModel, StrictModel
 from surgiplan.units import LENGTH_SCALE_KEY, LENGTH_UNITS, Coordinate, Finite, PositiveLength, Vec3
 
 LengthUnit = Literal[tuple(LENGTH_UNITS)]  # type: ignore[valid-type]
 PoissonRatio = Annotated[float, Field(ge=-0.99, lt=0.5)]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
 
 
 def _resolve(path: str, info: ValidationInfo) -> str:
@@ -43,7 +39,7 @@ def _resolve(path: str, info: ValidationInfo) -> str:
     return str(p.resolve())
 
 
-class RegionModel(_Strict):
+class RegionModel(StrictModel):
     """An axis-aligned box of the rest configuration: the nodes (or element centroids) inside it."""
 
     min: Vec3
@@ -57,7 +53,7 @@ class RegionModel(_Strict):
         return self
 
 
-class BoxMeshModel(_Strict):
+class BoxMeshModel(StrictModel):
     """A structured box mesh: ``size`` (lengths), ``divisions`` (cells per axis), ``origin`` (lowest corner)."""
 
     size: tuple[PositiveLength, PositiveLength, PositiveLength]
@@ -67,7 +63,7 @@ class BoxMeshModel(_Strict):
     pattern: Literal["six", "five"] = "six"
 
 
-class MeshSettings(_Strict):
+class MeshSettings(StrictModel):
     """Either a ``box`` or a ``file`` (a volume mesh meshio reads, or a closed surface for TetGen).
 
     ``order: 2`` turns linear tetrahedra into quadratic (10-node) ones, which
@@ -100,7 +96,7 @@ class MeshSettings(_Strict):
         return self
 
 
-class ImageRegionModel(_Strict):
+class ImageRegionModel(StrictModel):
     """A grey-scale image laid over the x-y rectangle ``min``-``max``; pixels past ``threshold`` select."""
 
     file: str
@@ -120,7 +116,7 @@ class ImageRegionModel(_Strict):
         return self
 
 
-class MaterialRegionModel(_Strict):
+class MaterialRegionModel(StrictModel):
     """Material of the elements whose rest centroid is in ``region`` or on the ``image``'s selected pixels."""
 
     region: RegionModel | None = None
@@ -138,7 +134,7 @@ class MaterialRegionModel(_Strict):
         return self
 
 
-class MaterialSettings(_Strict):
+class MaterialSettings(StrictModel):
     """St. Venant-Kirchhoff tissue: E (Pa), nu, rho (kg/m^3), and regions that override them."""
 
     youngs_modulus: PositiveFloat = 1.0e6
@@ -149,21 +145,21 @@ class MaterialSettings(_Strict):
     regions: list[MaterialRegionModel] = Field(default_factory=list)
 
 
-class AnchorModel(_Strict):
+class AnchorModel(StrictModel):
     """Nodes in ``region`` held at their rest position along ``axes`` (all three: anchored)."""
 
     region: RegionModel
     axes: list[Literal["x", "y", "z"]] = Field(default_factory=lambda: ["x", "y", "z"], min_length=1)
 
 
-class LoadModel(_Strict):
+class LoadModel(StrictModel):
     """A dead load: ``total_force`` (N) shared equally by the nodes in ``region``."""
 
     region: RegionModel
     total_force: tuple[Finite, Finite, Finite]
 
 
-class GraspModel(_Strict):
+class GraspModel(StrictModel):
     """Nodes in ``region`` moved rigidly: ``x = pivot + xyz + R(rpy) (X - pivot)``.
 
     ``pivot`` defaults to the centroid of the grasped nodes' rest positions.
@@ -174,7 +170,7 @@ class GraspModel(_Strict):
     pivot: Vec3 | None = None
 
 
-class BasePlaneModel(_Strict):
+class BasePlaneModel(StrictModel):
     """The underlying base (penalty contact): the plane through ``point`` with upward ``normal``.
 
     ``stiffness`` N/m per node; default ``E h / 10`` (E the mean Young's
@@ -188,7 +184,7 @@ class BasePlaneModel(_Strict):
     stiffness: PositiveFloat | None = None
 
 
-class ProbeModel(_Strict):
+class ProbeModel(StrictModel):
     """A displacement a simulate stage reports: the mean displacement of the nodes in ``region`` along
     ``direction`` (a unit vector; e.g. [0, 0, -1] for a deflection downwards), optionally against a
     ``reference`` value (a length, with its ``source``): the metrics then give the relative error."""
@@ -209,7 +205,7 @@ class ProbeModel(_Strict):
         return self
 
 
-class SolverSettings(_Strict):
+class SolverSettings(StrictModel):
     """Newton's stopping rules (see ``newton.py``)."""
 
     #: largest residual force on a free node, relative to the largest applied force or reaction
@@ -237,7 +233,7 @@ class SolverSettings(_Strict):
         return self
 
 
-class StVKSettings(_Strict):
+class StVKSettings(StrictModel):
     """Settings of the ``stvk`` model and its ``simulate`` stage."""
 
     mesh: MeshSettings

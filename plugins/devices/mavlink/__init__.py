@@ -6,12 +6,17 @@ distance from obstacles except in critical regions. The ground-station side:
 
 * :mod:`.link` — connections, MAVLink 2, signing, enum names;
 * :mod:`.conventions` — PX4's modes and frames, the local/global projection;
-* :mod:`.mission` — the mission protocol as state machines without I/O;
+* :mod:`.mission` — the mission protocol's items, frames and comparison;
+  :mod:`.mission_gcs` and :mod:`.mission_vehicle` — its two sides as state
+  machines without I/O (the vehicle's serves the simulator);
 * :mod:`.gcs` — the ground station: heartbeats, commands, uploads;
+  :mod:`.transactions` — its command and parameter protocols without I/O;
+  :mod:`.vehicle_state` — what it knows of the vehicle;
 * :mod:`.profile`, :mod:`.stream` — the timed offboard path and its stream;
 * :mod:`.flight` — the route, the flight and its watch (failsafes);
 * :mod:`.report` — what was flown, re-measured against the scene;
-* :mod:`.device` — the :class:`MavlinkVehicle` plugin.
+* :mod:`.device` — the :class:`MavlinkVehicle` plugin, its :mod:`.settings`,
+  and :mod:`.local_simulator`, which starts the simulated vehicle for it.
 
 :mod:`.sim` is the simulated PX4-like vehicle (``surgiplan-sim-vehicle``).
 """

@@ -11,8 +11,9 @@ was flown, re-measured against the scene.
 Lifecycle (:class:`surgiplan.Device`, ros2_control's):
 
 * ``configure``: the simulated vehicle is started (``surgiplan-sim-vehicle``
-  on a free 127.0.0.1 UDP port) unless ``connection`` names a real one; the
-  link is opened (MAVLink 2, signed when a key is given); the first
+  on a free 127.0.0.1 UDP port, :mod:`.local_simulator`) unless
+  ``connection`` names a real one; the link is opened (MAVLink 2, signed
+  when a key is given); the first
   HEARTBEAT adopts the vehicle (no heartbeat: a clear error); its
   AUTOPILOT_VERSION says which protocols it honours (a mission needs
   MISSION_ITEM_INT or at least MISSION_ITEM, offboard needs
@@ -34,7 +35,7 @@ Lifecycle (:class:`surgiplan.Device`, ros2_control's):
 * ``cleanup``/``shutdown``: the link is closed, the simulated vehicle
   stopped.
 
-Settings (lengths in the pipeline's ``length_unit``; speeds m/s, times s)::
+Settings (:mod:`.settings`; lengths in the pipeline's ``length_unit``; speeds m/s, times s)::
 
     connection: udpin:127.0.0.1:14550   # default: none, i.e. start the simulated vehicle
     mode: mission                        # or offboard (SET_POSITION_TARGET_LOCAL_NED stream)
@@ -49,30 +50,24 @@ Settings (lengths in the pipeline's ``length_unit``; speeds m/s, times s)::
 
 from __future__ import annotations
 
-import json
 import math
-import subprocess
-import sys
-import tempfile
-import time
-from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, field_validator, model_validator
 from surgiplan.clearance import intervals
 from surgiplan.devices import Device, ExecutionReport, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
-from surgiplan.processes import child_env
 from surgiplan.progress import NullProgress
 from surgiplan.status import ExecuteStatus
-from surgiplan.units import Angle, Length, PositiveLength, Vec3
 
 from .conventions import LocalFrame, MapProjection
 from .flight import Flight, Refusal, build_route, check_path_clearance
-from .gcs import GroundStation, capability_names
-from .link import Endpoint, VehicleError, check_connection_string, enum_name, mavlink, signing_key
+from .gcs import GroundStation
+from .link import Endpoint, VehicleError, enum_name, mavlink, signing_key
+from .local_simulator import LocalSimulator
 from .report import describe, flight_figure, flight_metrics, write_flight_csv
+from .settings import MavlinkVehicleSettings
+from .vehicle_state import capability_names
 
 #: the PX4 parameters the flight relies on (read at configure; see MavlinkVehicle._limits)
 RELIED_ON = (
@@ -100,128 +95,6 @@ NEEDS = {
 }
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class FrameSettings(_Strict):
-    """Where the vehicle's local NED frame is in the scene."""
-
-    #: the local origin (where the vehicle's EKF puts 0, 0, 0) in scene coordinates
-    local_origin: Vec3 = (0.0, 0.0, 0.0)
-    #: direction of the scene's +x axis, clockwise from north (90 deg: x east, y north, z up)
-    heading: Angle = math.pi / 2
-
-
-class HeartbeatSettings(_Strict):
-    #: our HEARTBEAT period (s); the vehicle's is expected at the same rate
-    period: PositiveFloat = 1.0
-    #: the vehicle is lost after this many missed heartbeats
-    missed: int = Field(default=5, ge=2)
-
-
-class Timeouts(_Strict):
-    """Protocol timeouts (wall-clock s) and retries; the flight's allowance is vehicle time."""
-
-    connect: PositiveFloat = 15.0
-    command: PositiveFloat = 1.5
-    command_retries: int = Field(default=5, ge=0)
-    mission: PositiveFloat = 1.5
-    mission_retries: int = Field(default=5, ge=0)
-    #: a download's wait for each item, a parameter's for its value, before asking again (the vehicle
-    #: answers these at once; MAVSDK's default 0.5 s)
-    mission_item: PositiveFloat = 0.5
-    #: whole transfers tried when a mission upload is cancelled or times out
-    upload_attempts: int = Field(default=3, ge=1)
-    #: waiting for a mode or arming to show in the vehicle's HEARTBEAT
-    mode: PositiveFloat = 5.0
-    #: the flight (vehicle s); default: 3x the route at cruise speed plus 60 s
-    flight: PositiveFloat | None = None
-    #: watching a commanded failsafe (s)
-    failsafe: PositiveFloat = 60.0
-
-
-class SigningSettings(_Strict):
-    """MAVLink 2 signing: the shared secret as 64 hex digits, or a passphrase (hashed with SHA-256)."""
-
-    key: str
-    link_id: int = Field(default=0, ge=0, le=255)
-
-    @field_validator("key")
-    @classmethod
-    def _valid(cls, value: str) -> str:
-        signing_key(value)
-        return value
-
-
-class MavlinkVehicleSettings(_Strict):
-    #: pymavlink connection string; none: start the simulated vehicle on 127.0.0.1 (UDP)
-    connection: str | None = None
-    baud: int = 57600
-    #: the vehicle's system id; none: the first vehicle heard
-    system_id: int | None = Field(default=None, ge=1, le=255)
-    gcs_system_id: int = Field(default=255, ge=1, le=255)
-    gcs_component_id: int = Field(default=190, ge=1, le=255)  # MAV_COMP_ID_MISSIONPLANNER
-    mode: Literal["mission", "offboard"] = "mission"
-    #: mission items in MAV_FRAME_GLOBAL_RELATIVE_ALT (3; altitude above home) or MAV_FRAME_GLOBAL (0; AMSL),
-    #: the current frames (their _INT twins 6 and 5 are deprecated); PX4 flies no local-frame mission
-    mission_frame: Literal["global_relative_alt", "global"] = "global_relative_alt"
-    #: the planned path's certified clearance (the vehicle a sphere of the plan's tip_radius) must be at
-    #: least this everywhere, or the flight is refused before any motion (negative: always refused)
-    safety_margin: Length = Field(default=0.0, ge=0.0)
-    frame: FrameSettings = Field(default_factory=FrameSettings)
-    cruise_speed: PositiveFloat = 1.0  # m/s
-    acceleration: PositiveFloat = 1.0  # m/s^2, offboard profile
-    vertical_speed: PositiveFloat = 0.5  # m/s, offboard profile
-    #: offboard: how far the setpoint path rounds a corner of the planned path (its arcs' midpoints)
-    corner_deviation: PositiveLength = 0.05
-    #: mission waypoints' acceptance radius; also the arrival tolerance at the goal
-    acceptance_radius: PositiveLength = 0.1
-    #: Douglas-Peucker tolerance for turning the path into waypoints (0 keeps every waypoint)
-    waypoint_tolerance: Length = 0.02
-    takeoff: bool = True
-    land: bool = True
-    #: fly straight from where the vehicle is to the path's start (checked clear)
-    approach: bool = True
-    #: the unplanned legs (take-off, approach, landing) must keep this much clearance
-    approach_clearance: Length = 0.1
-    #: LOCAL_POSITION_NED rate requested from the vehicle (Hz)
-    telemetry_rate: PositiveFloat = 20.0
-    failsafe: Literal["land", "return", "hold"] = "land"
-    heartbeat: HeartbeatSettings = Field(default_factory=HeartbeatSettings)
-    timeouts: Timeouts = Field(default_factory=Timeouts)
-    signing: SigningSettings | None = None
-    #: the simulated vehicle (only without a connection); its faults rehearse the real ones
-    sim: SimSettings | None = None
-    #: run the simulated vehicle as a subprocess (the real program) or in a thread
-    sim_process: Literal["subprocess", "thread"] = "subprocess"
-    figure: bool = True
-
-    @field_validator("mission_frame", mode="before")
-    @classmethod
-    def _no_local_missions(cls, value):
-        if value == "local_ned":
-            raise ValueError(
-                "local_ned is no longer offered: PX4 refuses mission items in local frames "
-                "(MAV_MISSION_UNSUPPORTED_FRAME); use global_relative_alt (the default) or global"
-            )
-        return value
-
-    @field_validator("connection")
-    @classmethod
-    def _connection(cls, value):
-        return None if value is None else check_connection_string(value)
-
-    @model_validator(mode="after")
-    def _sim_or_connection(self):
-        if self.connection is not None and self.sim is not None:
-            raise ValueError(
-                "'sim' configures the simulated vehicle, which is started only without a 'connection'; "
-                "remove one of them"
-            )
-        return self
-
-
 class MavlinkVehicle(Device):
     """A MAVLink 2 vehicle (PX4 conventions) flying R3 paths; simulated unless a connection is given."""
 
@@ -232,11 +105,9 @@ class MavlinkVehicle(Device):
         self.frame = LocalFrame(tuple(settings.frame.local_origin), settings.frame.heading)
         self.endpoint: Endpoint | None = None
         self.gcs: GroundStation | None = None
-        self.process: subprocess.Popen | None = None
-        self.simulator = None  # the in-thread simulated vehicle
+        self.simulator: LocalSimulator | None = None
         self.geo: tuple[MapProjection, float] | None = None
         self.connection = settings.connection
-        self._stderr = None
         #: the vehicle's AUTOPILOT_VERSION capability names, its parameters read, those set
         self.capabilities: list[str] = []
         self.vehicle_params: dict[str, float | int] = {}
@@ -253,66 +124,14 @@ class MavlinkVehicle(Device):
         return sim
 
     def _start_simulator(self) -> str:
-        sim = self._sim_settings()
-        if self.settings.sim_process == "thread":
-            from surgiplan.plugins.devices.mavlink.sim.vehicle import SimulatedVehicle
-
-            self.simulator = SimulatedVehicle(sim, "udpin:127.0.0.1:0").start()
-            return f"udpout:127.0.0.1:{self.simulator.port}"
-        self._stderr = tempfile.TemporaryFile(mode="w+")
-        command = [
-            sys.executable,
-            "-m",
-            "surgiplan.plugins.devices.mavlink.sim.vehicle",
-            "udpin:127.0.0.1:0",
-            "--settings",
-            json.dumps(sim.model_dump(mode="json")),
-            "--exit-with-parent",
-        ]
-        self.process = subprocess.Popen(
-            command, stdout=subprocess.PIPE, stderr=self._stderr, text=True, env=child_env()
-        )
-        line = self._first_line(self.settings.timeouts.connect)
-        if line is None or " on udpin:" not in line:
-            self._stop_simulator()
-            self._stderr.seek(0)
-            detail = self._stderr.read().strip().splitlines()[-3:] if self._stderr else []
-            raise VehicleError(
-                f"the simulated vehicle did not start ({' / '.join(detail) or 'no output'})", step="connect"
-            )
-        return "udpout:" + line.rsplit(" on udpin:", 1)[1].strip()
-
-    def _first_line(self, timeout: float) -> str | None:
-        import selectors
-
-        with selectors.DefaultSelector() as selector:
-            selector.register(self.process.stdout, selectors.EVENT_READ)
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                if selector.select(timeout=0.1):
-                    return self.process.stdout.readline()
-                if self.process.poll() is not None:
-                    return None
-        return None
+        s = self.settings
+        self.simulator = LocalSimulator(self._sim_settings(), s.sim_process, s.timeouts.connect)
+        return self.simulator.start()
 
     def _stop_simulator(self) -> None:
         if self.simulator is not None:
             self.simulator.stop()
             self.simulator = None
-        if self.process is not None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(timeout=5)
-            for stream in (self.process.stdout,):
-                if stream is not None:
-                    stream.close()
-            self.process = None
-        if self._stderr is not None:
-            self._stderr.close()
-            self._stderr = None
 
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, context) -> None:
@@ -457,28 +276,6 @@ class MavlinkVehicle(Device):
         gcs.recording = False
         return self._report(trajectory, route, flight, log, threshold, critical)
 
-    def _simulator_link(self) -> dict | None:
-        """The simulated vehicle's own link statistics (None for a real vehicle, or when it does not say)."""
-        if self.simulator is not None:
-            return self.simulator.link_statistics()
-        if self.process is None or self.process.poll() is not None:
-            return None
-        import selectors
-        import signal
-
-        self.process.send_signal(signal.SIGUSR1)
-        with selectors.DefaultSelector() as selector:
-            selector.register(self.process.stdout, selectors.EVENT_READ)
-            deadline = time.monotonic() + 2.0
-            while time.monotonic() < deadline:
-                if selector.select(timeout=0.1):
-                    line = self.process.stdout.readline()
-                    try:
-                        return json.loads(line)["link"]
-                    except (ValueError, KeyError, TypeError):
-                        continue
-        return None
-
     def _link_metrics(self) -> dict:
         """Messages each way and how many were lost: the vehicle's by the gaps in its sequence numbers (any
         vehicle), ours as the simulated vehicle counted them (None for a real one)."""
@@ -486,7 +283,7 @@ class MavlinkVehicle(Device):
         lost_in = self.endpoint.lost_in
         link["messages_dropped_in"] = lost_in
         link["link_loss_in"] = lost_in / max(lost_in + self.endpoint.counted_in, 1)
-        sim = self._simulator_link()
+        sim = self.simulator.link_statistics() if self.simulator is not None else None
         if sim is not None:
             link["messages_dropped_out"] = sim["injected_drops_in"] + sim["lost_in"]
             link["link_loss_out"] = link["messages_dropped_out"] / max(link["messages_sent"], 1)

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from surgiplan.errors import SurgiplanError
 
 from .conventions import LocalFrame, px4_mode_command
 from .gcs import GroundStation, LinkLost
@@ -47,8 +48,13 @@ from .profile import TimedPath
 from .stream import SetpointStream
 
 
-class Refusal(Exception):
-    """The flight will not start; the message says why."""
+class Refusal(SurgiplanError):
+    """The flight will not start; the message says why.
+
+    A user error (exit status 2, :class:`~surgiplan.errors.SurgiplanError`'s): the plan or the settings ask
+    for a flight this vehicle must not fly (too little clearance, a profile beyond its limits). The device
+    reports it as a refused execution before any motion.
+    """
 
 
 def check_path_clearance(trajectory, margin: float) -> None:

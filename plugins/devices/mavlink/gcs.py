@@ -4,15 +4,16 @@ mavlink.io services used:
 
 * *Heartbeat*: both ends send HEARTBEAT at 1 Hz; a system is lost when
   ``missed`` heartbeats in a row (5 by default) do not arrive.
-* *Command protocol*: COMMAND_LONG, re-sent with ``confirmation`` increased
-  when no COMMAND_ACK arrives within the timeout (default 1.5 s, 5 retries);
+* *Command protocol*: :class:`~.transactions.CommandTransaction`,
+  COMMAND_LONG re-sent with ``confirmation`` increased when no COMMAND_ACK
+  arrives within the timeout (default 1.5 s, 5 retries);
   MAV_RESULT_IN_PROGRESS extends the wait.
-* *Mission protocol*: :class:`~.mission.MissionUpload`; a transfer
+* *Mission protocol*: :class:`~.mission_gcs.MissionUpload`; a transfer
   that fails for a lost link is started again from MISSION_COUNT up to
   ``upload_attempts`` times, a refusal (MISSION_ACK with an error) never is;
-  :class:`~.mission.MissionDownload` and :class:`~.mission.MissionClear`
+  :class:`~.mission_gcs.MissionDownload` and :class:`~.mission_gcs.MissionClear`
   likewise (a download is how an upload is verified).
-* *Parameter protocol*: :class:`ParamTransaction` reads one parameter by name
+* *Parameter protocol*: :class:`~.transactions.ParamTransaction` reads one parameter by name
   (PARAM_REQUEST_READ) or sets it (PARAM_SET) and waits for the vehicle's
   PARAM_VALUE, re-sent after each timeout; INT32 values are decoded bytewise
   when the vehicle says it encodes them so (PX4), by a C cast otherwise.
@@ -22,7 +23,7 @@ mavlink.io services used:
   MAV_CMD_REQUEST_MESSAGE) are thin helpers over the command protocol.
 
 Everything runs in the caller's thread: :meth:`GroundStation.pump` waits for
-traffic, updates :class:`VehicleState`, sends our heartbeat when due, and
+traffic, updates :class:`~.vehicle_state.VehicleState`, sends our heartbeat when due, and
 raises :class:`LinkLost` when the vehicle's heartbeats stop. Errors are
 :class:`~.mavlink_link.VehicleError` naming the step (``arming: ...``).
 """
@@ -31,233 +32,23 @@ from __future__ import annotations
 
 import logging
 import math
-import struct
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from .conventions import px4_mode_command, px4_mode_name
-from .link import Endpoint, VehicleError, enum_description, enum_name, is_mavlink2, mavlink
-from .mission import MISSION, MissionClear, MissionDownload, MissionItem, MissionUpload, UploadStatistics
+from .link import Endpoint, VehicleError, is_mavlink2, mavlink
+from .mission import MISSION, MissionItem
+from .mission_gcs import MissionClear, MissionDownload, MissionUpload, UploadStatistics
+from .transactions import RESULT_ACCEPTED, CommandTransaction, ParamTransaction, command_name, result_name
+from .vehicle_state import PositionSample, VehicleState
 
 log = logging.getLogger("surgiplan.devices.mavlink")
-
-RESULT_ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
-RESULT_IN_PROGRESS = mavlink.MAV_RESULT_IN_PROGRESS
 
 
 class LinkLost(VehicleError):
     """No heartbeat from the vehicle for longer than the liveness timeout."""
-
-
-def command_name(command: int) -> str:
-    return enum_name("MAV_CMD", command)
-
-
-def result_name(result: int) -> str:
-    text = enum_name("MAV_RESULT", result)
-    description = enum_description("MAV_RESULT", result)
-    return f"{text} ({description})" if description else text
-
-
-class _RetriedRequest:
-    """A request sent again every ``timeout`` until answered, at most ``retries`` more times, without I/O.
-
-    Subclasses set ``timeout``, ``retries`` and ``result`` and build the request in ``_message``; the
-    count of retransmissions so far is ``retransmissions`` (the command protocol's confirmation).
-    """
-
-    timeout: float
-    retries: int
-    result: object | None
-    retransmissions = 0
-    deadline = math.inf
-    timed_out = False
-
-    @property
-    def finished(self) -> bool:
-        return self.result is not None or self.timed_out
-
-    def _message(self):
-        raise NotImplementedError
-
-    def start(self, now: float) -> list:
-        self.deadline = now + self.timeout
-        return [self._message()]
-
-    def on_timer(self, now: float) -> list:
-        if self.finished or now < self.deadline:
-            return []
-        if self.retransmissions >= self.retries:
-            self.timed_out = True
-            self.deadline = math.inf
-            return []
-        self.retransmissions += 1
-        self.deadline = now + self.timeout
-        return [self._message()]
-
-
-class CommandTransaction(_RetriedRequest):
-    """One command of the command protocol, ground-station side, without I/O."""
-
-    def __init__(
-        self,
-        command: int,
-        params: Sequence[float],
-        target: tuple[int, int],
-        *,
-        timeout: float = 1.5,
-        retries: int = 5,
-        in_progress_timeout: float = 10.0,
-    ) -> None:
-        self.command = int(command)
-        self.params = [float(p) for p in params] + [0.0] * (7 - len(params))
-        self.target = target
-        self.timeout = timeout
-        self.retries = retries
-        self.in_progress_timeout = in_progress_timeout
-        self.result: int | None = None
-        self.progress: int | None = None
-
-    def _message(self):
-        return mavlink.MAVLink_command_long_message(*self.target, self.command, self.retransmissions, *self.params)
-
-    def on_message(self, message, now: float) -> list:
-        if message.get_type() != "COMMAND_ACK" or int(message.command) != self.command or self.finished:
-            return []
-        if int(message.result) == RESULT_IN_PROGRESS:
-            self.progress = int(getattr(message, "progress", 255))
-            self.deadline = now + self.in_progress_timeout
-            return []
-        self.result = int(message.result)
-        self.deadline = math.inf
-        return []
-
-
-def param_to_wire(kind: int, value: float | int, bytewise: bool) -> float:
-    """The float that carries ``value`` in PARAM_SET: bytewise (PX4) or cast (C) for an INT32."""
-    if kind == mavlink.MAV_PARAM_TYPE_INT32 and bytewise:
-        return struct.unpack("<f", struct.pack("<i", int(value)))[0]
-    return float(value)
-
-
-def param_from_wire(kind: int, carried: float, bytewise: bool) -> float | int:
-    """The value a PARAM_VALUE carries."""
-    if kind == mavlink.MAV_PARAM_TYPE_INT32:
-        return struct.unpack("<i", struct.pack("<f", carried))[0] if bytewise else round(carried)
-    return float(np.float32(carried))
-
-
-def _param_name(message) -> str:
-    name = message.param_id
-    return (name.decode("ascii", "replace") if isinstance(name, bytes) else str(name)).rstrip("\x00")
-
-
-class ParamTransaction(_RetriedRequest):
-    """Read (``value`` None) or set one parameter, ground-station side, without I/O.
-
-    Finished when a PARAM_VALUE of that name arrives (for a set: the value it
-    now has, which is the old one when the vehicle refused); re-sent after
-    each ``timeout`` up to ``retries`` times.
-    """
-
-    def __init__(
-        self,
-        name: str,
-        target: tuple[int, int],
-        *,
-        value: float | int | None = None,
-        kind: int = mavlink.MAV_PARAM_TYPE_REAL32,
-        bytewise: bool = True,
-        timeout: float = 1.5,
-        retries: int = 5,
-    ) -> None:
-        self.name = name
-        self.target = target
-        self.value = value
-        self.kind = kind
-        self.bytewise = bytewise
-        self.timeout = timeout
-        self.retries = retries
-        self.result: float | int | None = None
-        self.result_kind: int | None = None
-
-    def _message(self):
-        if self.value is None:
-            return mavlink.MAVLink_param_request_read_message(*self.target, self.name.encode(), -1)
-        wire = param_to_wire(self.kind, self.value, self.bytewise)
-        return mavlink.MAVLink_param_set_message(*self.target, self.name.encode(), wire, self.kind)
-
-    def on_message(self, message, now: float) -> list:
-        if self.finished or message.get_type() != "PARAM_VALUE" or _param_name(message) != self.name:
-            return []
-        self.result_kind = int(message.param_type)
-        self.result = param_from_wire(self.result_kind, message.param_value, self.bytewise)
-        self.deadline = math.inf
-        return []
-
-
-def capability_names(bits: int) -> list[str]:
-    """MAV_PROTOCOL_CAPABILITY names of the bits set in ``bits``."""
-    names = []
-    for value, entry in sorted(mavlink.enums["MAV_PROTOCOL_CAPABILITY"].items()):
-        if value and value & (value - 1) == 0 and bits & value and not entry.name.endswith("_ENUM_END"):
-            names.append(entry.name.removeprefix("MAV_PROTOCOL_CAPABILITY_"))
-    return names
-
-
-@dataclass
-class PositionSample:
-    """One LOCAL_POSITION_NED: vehicle time (s), position (m) and velocity (m/s) in NED."""
-
-    time: float
-    position: tuple[float, float, float]
-    velocity: tuple[float, float, float]
-
-
-@dataclass
-class VehicleState:
-    """What the ground station knows about the vehicle, from its messages."""
-
-    system_id: int = 0
-    component_id: int = 0
-    autopilot: int = 0
-    vehicle_type: int = 0
-    armed: bool = False
-    mode: str = ""
-    custom_mode: int = 0
-    landed_state: int = mavlink.MAV_LANDED_STATE_UNDEFINED
-    #: wall time (s, time.monotonic) of the last heartbeat
-    last_heartbeat: float = -math.inf
-    heartbeats: int = 0
-    position: PositionSample | None = None
-    mission_current: int = -1
-    mission_state: int = 0
-    #: (seq, vehicle time s) of every MISSION_ITEM_REACHED, in arrival order
-    reached: list[tuple[int, float]] = field(default_factory=list)
-    #: (seq, vehicle time s) whenever MISSION_CURRENT showed a new current item
-    current_changes: list[tuple[int, float]] = field(default_factory=list)
-    statustext: list[str] = field(default_factory=list)
-    #: AUTOPILOT_VERSION.capabilities (None until read)
-    capabilities: int | None = None
-    #: (vehicle time s, messages lost, messages received) of the vehicle's stream, by its sequence numbers
-    link: list[tuple[float, int, int]] = field(default_factory=list)
-
-    @property
-    def on_ground(self) -> bool:
-        return self.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
-
-    @property
-    def vehicle_time(self) -> float:
-        return self.position.time if self.position is not None else 0.0
-
-    def passed(self, seq: int) -> float:
-        """Vehicle time (s) the mission got past item ``seq``: its MISSION_ITEM_REACHED, or (that message
-        lost on a poor link) the first MISSION_CURRENT showing a later item; inf when neither came."""
-        times = [t for s, t in self.reached if s == seq] + [t for s, t in self.current_changes if s > seq]
-        return min(times, default=math.inf)
 
 
 class GroundStation:

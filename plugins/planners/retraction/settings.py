@@ -22,18 +22,14 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, ValidationError, ValidationInfo, model_validator
-from surgiplan.models import QuaternionPoseModel
+from pydantic import Field, PositiveInt, ValidationError, ValidationInfo, model_validator
+from surgiplan.models import QuaternionPoseModel, StrictModel
 from surgiplan.units import Angle, Coordinate, Length, PositiveLength, Vec3
 
 Fraction = Annotated[float, Field(gt=0, le=1)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class RegionModel(_Strict):
+class RegionModel(StrictModel):
     """An axis-aligned box (m): of the rest mesh (anchors) or of the workspace (sampling)."""
 
     min: Vec3
@@ -47,7 +43,7 @@ class RegionModel(_Strict):
         return self
 
 
-class DeformableSpec(_Strict):
+class DeformableSpec(StrictModel):
     """The deformable model: a registered ``deformable_model`` plugin and its settings.
 
     The settings are validated with the plugin's own model when the pipeline
@@ -84,7 +80,7 @@ class DeformableSpec(_Strict):
         return self
 
 
-class JawsModel(_Strict):
+class JawsModel(StrictModel):
     """The gripper jaws: a box of ``size`` centred at ``offset`` in the gripper frame.
 
     The nodes whose rest position lies inside this box when the gripper is at
@@ -95,7 +91,7 @@ class JawsModel(_Strict):
     offset: Vec3 = (0.0, 0.0, 0.0)
 
 
-class EdgeGraspModel(_Strict):
+class EdgeGraspModel(StrictModel):
     """``count`` grasps evenly spaced from ``start`` to ``end`` (e.g. along a free edge of the flap)."""
 
     start: Vec3
@@ -105,7 +101,7 @@ class EdgeGraspModel(_Strict):
     rpy: tuple[Angle, Angle, Angle] | None = None
 
 
-class GraspCandidatesModel(_Strict):
+class GraspCandidatesModel(StrictModel):
     """Objective 2 of the paper: the initial grasps to search exhaustively (§III, §VI).
 
     The stage's ``start`` is always a candidate; these are added (duplicates of it are dropped).
@@ -115,7 +111,7 @@ class GraspCandidatesModel(_Strict):
     poses: list[QuaternionPoseModel] = Field(default_factory=list)
 
 
-class SamplingModel(_Strict):
+class SamplingModel(StrictModel):
     """How gripper configurations are sampled (§IV-A).
 
     ``uniform``: positions uniform in ``region``. ``guided`` (user-guided
@@ -147,7 +143,7 @@ class SamplingModel(_Strict):
         return self
 
 
-class ReliefModel(_Strict):
+class ReliefModel(StrictModel):
     """The local optimisation of each sample's gripper rotation (§IV-A, Fig. 3).
 
     Gradient descent on the rotation, position fixed, of the equilibrium's
@@ -167,7 +163,7 @@ class ReliefModel(_Strict):
     moment_ratio: Annotated[float, Field(ge=0, lt=1)] = 0.2
 
 
-class VisibilityModel(_Strict):
+class VisibilityModel(StrictModel):
     """The area of interest A (a polygon in the plane z = ``height``) and the camera V (§IV-B).
 
     A is sampled on a square grid of ``resolution``; a point is visible when
@@ -184,7 +180,7 @@ class VisibilityModel(_Strict):
     gripper_occludes: bool = True
 
 
-class RoadmapModel(_Strict):
+class RoadmapModel(StrictModel):
     """Neighbours by the DISP distance and local planning along SE(3) interpolation (§IV-C)."""
 
     #: nearest neighbours of each state by DISP (edges are the symmetric union)
@@ -206,7 +202,7 @@ class RoadmapModel(_Strict):
         return self
 
 
-class SmoothingModel(_Strict):
+class SmoothingModel(StrictModel):
     """The C¹ trajectory: a cubic spline through the path's configurations (§IV-E), re-simulated."""
 
     enabled: bool = True
@@ -214,7 +210,7 @@ class SmoothingModel(_Strict):
     step: PositiveLength = 0.002
 
 
-class RetractionSettings(_Strict):
+class RetractionSettings(StrictModel):
     deformable: DeformableSpec
     anchored: list[RegionModel] = Field(min_length=1)
     jaws: JawsModel

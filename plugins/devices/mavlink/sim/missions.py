@@ -3,8 +3,8 @@
 PX4 (``src/modules/mavlink/mavlink_mission.cpp``) keeps three lists: the
 mission, the geofence and the rally points (MAV_MISSION_TYPE_MISSION, _FENCE,
 _RALLY), each uploaded, downloaded and cleared with the mission protocol
-(:class:`~surgiplan.plugins.devices.mavlink.mission.MissionReceiver` and
-:class:`~surgiplan.plugins.devices.mavlink.mission.MissionSender` do the
+(:class:`~surgiplan.plugins.devices.mavlink.mission_vehicle.MissionReceiver` and
+:class:`~surgiplan.plugins.devices.mavlink.mission_vehicle.MissionSender` do the
 protocol). What this module adds is PX4's judgement of each item:
 
 * frames: MAV_FRAME_GLOBAL (0) and MAV_FRAME_GLOBAL_RELATIVE_ALT (3) in

@@ -22,36 +22,33 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, field_validator, model_validator
+from pydantic import Field, NonNegativeFloat, PositiveFloat, field_validator, model_validator
+from surgiplan.models import StrictModel
 from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_key
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
-class StopAnswering(_Strict):
+class StopAnswering(StrictModel):
     """Fall silent (send nothing, ignore everything) when ``step`` begins, after ``after`` of its messages."""
 
     step: Literal["connect", "mission_upload", "arming", "mode_change", "mission_start"]
     after: int = Field(default=0, ge=0)
 
 
-class HeartbeatLoss(_Strict):
+class HeartbeatLoss(StrictModel):
     """Stop sending HEARTBEAT ``at_s`` seconds (vehicle time) after arming; ``all_telemetry``: stop everything."""
 
     at_s: NonNegativeFloat = 0.0
     all_telemetry: bool = False
 
 
-class MissionRequests(_Strict):
+class MissionRequests(StrictModel):
     """How the vehicle requests mission items: in a shuffled order, and/or some twice."""
 
     shuffle: bool = False
     repeat: float = Field(default=0.0, ge=0.0, le=1.0)
 
 
-class Wind(_Strict):
+class Wind(StrictModel):
     """Mean wind (NED, m/s) plus gusts: an Ornstein-Uhlenbeck process per axis (std m/s, correlation s)."""
 
     mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -59,7 +56,7 @@ class Wind(_Strict):
     gust_time: PositiveFloat = 2.0
 
 
-class Airframe(_Strict):
+class Airframe(StrictModel):
     """The point-mass multirotor and its position controller (PX4-like cascaded P / PI gains)."""
 
     max_speed: PositiveFloat = 5.0  # m/s horizontal
@@ -86,7 +83,7 @@ class Airframe(_Strict):
     velocity_integral_z: NonNegativeFloat = 0.4
 
 
-class SimSettings(_Strict):
+class SimSettings(StrictModel):
     """The simulated vehicle (a PX4-like quadrotor)."""
 
     system_id: int = Field(default=1, ge=1, le=255)

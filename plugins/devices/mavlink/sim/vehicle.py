@@ -54,16 +54,8 @@ import time
 import numpy as np
 from surgiplan.plugins.devices.mavlink.conventions import MapProjection, px4_custom_mode
 from surgiplan.plugins.devices.mavlink.link import Endpoint, mavlink, signing_key
-from surgiplan.plugins.devices.mavlink.mission import (
-    ALL_TYPES,
-    FENCE,
-    MISSION,
-    RALLY,
-    MissionItem,
-    MissionReceiver,
-    MissionSender,
-    ReceiverFaults,
-)
+from surgiplan.plugins.devices.mavlink.mission import ALL_TYPES, FENCE, MISSION, RALLY, MissionItem
+from surgiplan.plugins.devices.mavlink.mission_vehicle import MissionReceiver, MissionSender, ReceiverFaults
 
 from .autopilot import Autopilot
 from .commands import Commands

@@ -1,0 +1,322 @@
+"""bench_devices.py, parts 1-3 and 5: the real-time CiA 402 loop with the gimbal's 4 drives, measured.
+
+The control loop at each rate with the drives in another process or in a thread (:func:`control_loop`), the
+machine's own floor for a 1 kHz loop (:func:`scheduling_floor`), the cost of a full garbage collection in the
+loop (:func:`garbage_collection`), the bus's capacity for the cyclic frames (:func:`bus_ceiling`) and the
+simulated clock's speed (:func:`simulation_speed`). Imported by bench_devices.py, which puts benchmarks/ and
+tests/ on the import path (``common``, ``devices_support``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from common import table
+from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
+from devices_table import PRIORITY, SEPARATE, SEPARATE_RT, THREAD
+from surgiplan import load_scene
+from surgiplan.devices import Trajectory
+from surgiplan.errors import SurgiplanError
+from surgiplan.plugins.devices.canopen.bus import frame_bits, worst_case_bits
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def percentile(values, q: float) -> float:
+    return float(np.percentile(np.asarray(values), q)) if len(values) else float("nan")
+
+
+@contextlib.contextmanager
+def drives_process(initial, priority: int | None = None):
+    """Four simulated drives in another process on the loopback bus (127.0.0.1); yields the bus settings."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", "cast_gimbal"]
+    command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
+    command += ["--sync-timeout", "0.2", "--initial", *map(str, initial)]
+    if priority is not None:
+        command += ["--realtime-priority", str(priority)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+    try:
+        if process.stdout.readline().strip() != "ready":
+            raise RuntimeError("the drive simulator did not start")
+        yield {"interface": "loopback", "channel": str(port), "options": {"hub": "join"}}, process.pid
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+def process_cpu(pid) -> float:
+    """CPU seconds (user + system) a process has used so far; 0 without a process."""
+    if pid is None:
+        return 0.0
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def loop_settings(rate: float) -> dict:
+    # supervision generous enough for a shared machine: what is measured is the loop, not a stop
+    return {
+        "fulcrum": FULCRUM,
+        "control_rate": rate,
+        "heartbeat_period": 0.5,
+        "pdo_timeout_cycles": max(10, int(rate) // 20),
+        "outputs": False,
+    }
+
+
+@contextlib.contextmanager
+def gimbal(mode: str, rate: float, start):
+    """An active gimbal at ``rate`` with its drives as ``mode`` says; yields (device, drives' pid or None)."""
+    settings = loop_settings(rate)
+    if mode in (SEPARATE, SEPARATE_RT):
+        priority = PRIORITY if mode == SEPARATE_RT else None
+        context = drives_process(start, priority)
+        settings["realtime_priority"] = priority
+    else:
+        context = contextlib.nullcontext((None, None))
+        settings |= {"clock": "realtime", "simulation": {"initial": list(map(float, start)), "sync_timeout": 0.2}}
+    with context as (bus, pid):
+        if bus is not None:
+            settings["bus"] = bus
+        scene = load_scene(ROOT / "configs" / "scenes" / "block_world.yaml")
+        with active(CastGimbalDevice, settings, scene, ROOT / "out") as device:
+            yield device, pid
+
+
+def control_loop(scene, rates, runs: int, mode: str) -> list[dict]:
+    space = gimbal_space(scene)
+    path = gimbal_path(space, GAP_TIPS)
+    rows = []
+    for rate in rates:
+        periods, work, missed, missing, completed, cycles, load, worst = [], [], 0, 0, 0, 0, [], []
+        loop_cpu = drives_cpu = execute_cpu = 0.0
+        syncs = 0
+        lapses = []
+        error = ""
+        try:
+            with gimbal(mode, rate, path[0]) as (device, pid):
+                for k in range(runs):
+                    before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
+                    before_execute = time.process_time()
+                    before_lapses = len(device.controller.missed_log)
+                    report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                    execute_cpu += time.process_time() - before_execute
+                    drives_cpu += process_cpu(pid) - before_cpu
+                    syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
+                    if report.metrics.get("refused"):
+                        error = report.message
+                        break
+                    log = device.last_log
+                    loop_cpu += log.cpu_s
+                    periods += np.diff(log.wakeups).tolist()
+                    work += log.work.tolist()
+                    missed += report.metrics.get("missed_cycles", 0)
+                    missing += report.metrics.get("samples_missing", 0)
+                    cycles += report.metrics["cycles"]
+                    completed += report.status == "completed"
+                    load.append(report.metrics["bus_load_percent"])
+                    worst.append(report.metrics["bus_load_worst_case_percent"])
+                    new = device.controller.missed_log[before_lapses:]
+                    lapses += [round(late * 1e3, 1) for due, late, _ in new if log.start <= due <= log.end]
+                    if report.status != "completed":
+                        print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
+                        device.reset_faults()
+        except SurgiplanError as exc:  # on a loaded machine the drives may not even start in time
+            error = str(exc)
+        period = 1.0 / rate
+        row = {
+            "drives": mode,
+            "rate_hz": rate,
+            "runs_completed": f"{completed}/{runs}",
+            "cycles": cycles,
+            "period_p50_ms": round(percentile(periods, 50) * 1e3, 3),
+            "period_p99_ms": round(percentile(periods, 99) * 1e3, 3),
+            "period_max_ms": round(max(periods) * 1e3, 2) if periods else None,
+            "work_p50_ms": round(percentile(work, 50) * 1e3, 3),
+            "work_p99_ms": round(percentile(work, 99) * 1e3, 3),
+            "missed_cycles": missed,
+            "missed_lapses_late_ms": lapses[:20],
+            "cycles_missing_a_tpdo": missing,
+            "bus_load_percent": round(statistics.median(load), 2) if load else None,
+            "bus_load_worst_case_percent": round(statistics.median(worst), 2) if worst else None,
+            # CPU per cycle of every thread of the master's process during the loop: what a core must give it
+            "master_cpu_per_cycle_ms": round(loop_cpu / cycles * 1e3, 3) if cycles else None,
+            # as the earlier results measured it: the whole execute (inverse kinematics, timing, certification,
+            # the report) over the cycles
+            "master_cpu_per_cycle_with_preparation_ms": round(execute_cpu / cycles * 1e3, 3) if cycles else None,
+            "drives_cpu_per_sync_ms": round(drives_cpu / syncs * 1e3, 3) if syncs and mode != THREAD else None,
+            "error": error,
+        }
+        row["held"] = bool(completed == runs and missed == 0 and periods and row["period_p99_ms"] <= 1.1 * period * 1e3)
+        rows.append(row)
+        columns = ["rate_hz", "runs_completed", "period_p50_ms", "period_p99_ms", "missed_cycles", "held"]
+        columns += ["master_cpu_per_cycle_ms", "drives_cpu_per_sync_ms", "bus_load_percent"]
+        print(table([row], columns), flush=True)
+    return rows
+
+
+def scheduling_floor(seconds: float) -> list[dict]:
+    """What the machine gives any 1 kHz loop: a bare single-thread Python loop sleeping to each 1 ms deadline
+    (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling and under SCHED_FIFO."""
+    from surgiplan.plugins.devices.canopen.clock import RealTimeClock, restore_priority, set_realtime_priority
+
+    rows = []
+    for policy in ("ordinary", f"SCHED_FIFO {PRIORITY}"):
+        try:
+            previous = set_realtime_priority(PRIORITY if policy != "ordinary" else None)
+        except OSError as exc:
+            rows.append({"loop": f"bare 1 kHz sleep loop, {policy}", "error": str(exc)})
+            continue
+        RealTimeClock.precise()
+        wakes, lapses = [], []
+        try:
+            start = time.perf_counter()
+            deadline = start
+            for _ in range(int(seconds * 1000)):
+                deadline += 0.001
+                remaining = deadline - time.perf_counter()
+                if remaining > 0:
+                    time.sleep(remaining)
+                woke = time.perf_counter()
+                if woke - deadline > 0.001:  # more than a period late: a missed cycle, skipped as the loop does
+                    lapses.append(round((woke - deadline) * 1e3, 1))
+                    deadline = woke
+                wakes.append(woke)
+        finally:
+            restore_priority(previous)
+        periods = np.diff(wakes) * 1e3
+        rows.append(
+            {
+                "loop": f"bare 1 kHz sleep loop, {policy}",
+                "seconds": seconds,
+                "period_p50_ms": round(percentile(periods, 50), 3),
+                "period_p99_ms": round(percentile(periods, 99), 3),
+                "period_max_ms": round(float(periods.max()), 2),
+                "lapses_over_1_ms": len(lapses),
+                "lapses_ms": sorted(lapses, reverse=True)[:12],
+            }
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def garbage_collection(scene, runs: int) -> list[dict]:
+    """The 250 Hz missed cycles: a full collection of the master's heap, forced in mid-trajectory."""
+    rows = []
+    started = time.perf_counter()
+    gc.collect()
+    full = time.perf_counter() - started
+    objects = len(gc.get_objects())
+    rows.append(
+        {
+            "what": "full collection of this process's heap",
+            "objects": objects,
+            "pause_ms": round(full * 1e3, 1),
+            "cycles_at_250_hz": round(full / 0.004, 1),
+        }
+    )
+    print(rows[-1], flush=True)
+    space = gimbal_space(scene)
+    path = gimbal_path(space, GAP_TIPS)
+    for config in ("as before: collector on, heap not frozen", "now: collector off in the loop, heap frozen"):
+        pauses: list[float] = []
+        marks = {}
+
+        def timing(phase, info, pauses=pauses, marks=marks):
+            if phase == "start":
+                marks["t"] = time.perf_counter()
+            elif info["generation"] == 2:
+                pauses.append(time.perf_counter() - marks["t"])
+
+        gc.callbacks.append(timing)
+        missed = cycles = 0
+        try:
+            with gimbal(SEPARATE, 250, path[0]) as (device, _):
+                controller = device.controller
+                if config.startswith("as before"):
+                    gc.unfreeze()  # undo what activation does
+                    device._frozen = False
+                original = controller.run
+
+                def run(trajectory, on_start=None, original=original, config=config):
+                    # a full collection half-way through the trajectory, as one that happens to fall there
+                    timer = threading.Timer(0.5 * len(trajectory) / 250, gc.collect)
+                    timer.start()
+                    try:
+                        return original(trajectory, on_start, collect_garbage=config.startswith("as before"))
+                    finally:
+                        timer.cancel()
+
+                controller.run = run
+                for k in range(runs):
+                    report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                    missed += report.metrics.get("missed_cycles", 0)
+                    cycles += report.metrics.get("cycles", 0)
+                    if report.status != "completed":
+                        device.reset_faults()
+        finally:
+            gc.callbacks.remove(timing)
+        rows.append(
+            {
+                "what": f"250 Hz, a full collection forced mid-trajectory; {config}",
+                "runs": runs,
+                "cycles": cycles,
+                "missed_cycles": missed,
+                "full_collection_pause_ms_median": round(statistics.median(pauses) * 1e3, 1) if pauses else None,
+            }
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def bus_ceiling() -> list[dict]:
+    """Control rates at which the cyclic frames alone fill 1 Mbit/s, exact and worst case."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for drives in (4, 6):
+        # SYNC (no data) + per drive an RPDO and a TPDO of 6 bytes; typical payloads for the exact length
+        ids = [0x80] + [0x200 + n for n in range(1, drives + 1)] + [0x180 + n for n in range(1, drives + 1)]
+        payloads = [b""] + [bytes(rng.integers(0, 256, 6, dtype=np.uint8)) for _ in range(2 * drives)]
+        exact = float(np.sum(frame_bits(ids, payloads)))
+        worst = worst_case_bits(0) + 2 * drives * worst_case_bits(6)
+        rows.append(
+            {
+                "drives": drives,
+                "bits_per_cycle_typical": int(exact),
+                "bits_per_cycle_worst": worst,
+                "max_rate_hz_typical": round(1e6 / exact),
+                "max_rate_hz_worst_case": round(1e6 / worst),
+                "frames_per_s_at_worst_case_max": round((1 + 2 * drives) * 1e6 / worst),
+            }
+        )
+    rows.append({"8-byte frames per second at 1 Mbit/s": f"{1e6 / 135:.0f} (worst case) - {1e6 / 111:.0f} (unstuffed)"})
+    return rows
+
+
+def simulation_speed(scene) -> dict:
+    space = gimbal_space(scene)
+    path = gimbal_path(space, GAP_TIPS)
+    settings = {"fulcrum": FULCRUM, "outputs": False}
+    with active(CastGimbalDevice, settings, scene, ROOT / "out") as device:
+        started = time.perf_counter()
+        report = device.execute(Trajectory(path, space, "bench"))
+        wall = time.perf_counter() - started
+    return {
+        "simulated_s": round(report.metrics["duration_s"], 3),
+        "wall_s": round(wall, 3),
+        "simulated_s_per_wall_s": round(report.metrics["duration_s"] / wall, 2),
+        "cycles": report.metrics["cycles"],
+    }

@@ -1,0 +1,124 @@
+"""Formatting for the README's generated blocks: numbers as the README writes them, tables, re-flowed paragraphs.
+
+Also the loading of a benchmark's results file and of a benchmark module (for the blocks a benchmark renders
+itself), and :class:`ReadmeError`, which names the block or the file that cannot be rendered.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parent.parent
+
+
+class ReadmeError(Exception):
+    """A README or results file that cannot be rendered: the message names the block and the file."""
+
+
+def sig(x: float, n: int = 3) -> str:
+    """``x`` to ``n`` significant digits, never in exponent form, thousands separated."""
+    x = float(x)
+    if x == 0:
+        return "0"
+    s = f"{x:#.{n}g}".rstrip(".")  # trailing zeros kept: 0.40 ms, not 0.4 ms
+    if "e" in s:
+        s = f"{x:.{max(n - 1 - int(f'{x:e}'.split('e')[1]), 0)}f}"
+    if "." not in s and abs(x) >= 1000:
+        return f"{round(x):,}"
+    if abs(x) >= 1000:
+        whole, frac = s.split(".")
+        return f"{int(whole):,}.{frac}"
+    return s
+
+
+def secs(x: float) -> str:
+    """A time in seconds as the tables print it: three decimals below a second, three digits above."""
+    return f"{float(x):.3f}" if x < 1 else sig(x, 3)
+
+
+def find(pattern: str, text: str, what: str) -> re.Match:
+    match = re.search(pattern, text)
+    if match is None:
+        raise ReadmeError(f"{what}: expected {pattern!r} in {text!r}")
+    return match
+
+
+def load(results: Path, name: str) -> dict:
+    path = results / f"{name}.json"
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ReadmeError(f"{path}: missing (run benchmarks/bench_{name.split('_')[0]}.py)") from None
+    except json.JSONDecodeError as err:
+        raise ReadmeError(f"{path}: not JSON ({err})") from None
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def wrap(text: str, width: int = 78) -> str:
+    """Paragraphs (blank-line separated) re-flowed to ``width`` columns; tables and lists kept as they are."""
+    out = []
+    for para in text.strip().split("\n\n"):
+        if para.startswith(("|", "- ")):
+            out.append(para)
+            continue
+        tokens: list[str] = []
+        for token in para.split():
+            if tokens and (token[0] in "%×" or tokens[-1].count("`") % 2):  # units and code spans stay whole
+                tokens[-1] += " " + token
+            else:
+                tokens.append(token)
+        lines, line = [], ""
+        for word in tokens:
+            if line and len(line) + 1 + len(word) > width:
+                lines.append(line)
+                line = word
+            else:
+                line = f"{line} {word}" if line else word
+        lines.append(line)
+        out.append("\n".join(lines))
+    return "\n\n".join(out)
+
+
+def section(head: str, body: str, tail: str = "") -> str:
+    """A block: the conditions paragraph, the table, and the paragraph that reads it (each re-flowed)."""
+    return "\n\n".join(part for part in (wrap(head), body, wrap(tail) if tail else "") if part)
+
+
+def dims(text: str) -> str:
+    """Mesh sizes as the README writes them: 40x4x4 -> 40×4×4."""
+    return re.sub(r"(?<=\d)x(?=\d)", "×", text)
+
+
+def met(ok: bool) -> str:
+    return "met" if ok else "not met"
+
+
+def words(n: int) -> str:
+    return ["no", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine"][n] if 0 <= n < 10 else str(n)
+
+
+def span(values: list[float], fmt: Callable[[float], str] = lambda v: f"{v:g}") -> str:
+    lo, hi = fmt(min(values)), fmt(max(values))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def bench_module(name: str):
+    if str(BENCH) not in sys.path:
+        sys.path.insert(0, str(BENCH))
+    return importlib.import_module(name)
+
+
+def percent_span(fractions: list[float]) -> str:
+    """0.61, 0.76 -> '61-76 %'; one value or equal values -> '61 %'."""
+    low, high = round(100 * min(fractions)), round(100 * max(fractions))
+    return f"{low} %" if low == high else f"{low}-{high} %"
