@@ -229,6 +229,11 @@ def interpolation_period(period: float) -> tuple[int, int]:
     )
 
 
+# ----------------------------------------------------------------------------- NMT (CiA 301)
+#: NMT states as the heartbeat reports them
+NMT_INITIALISING, NMT_STOPPED, NMT_OPERATIONAL, NMT_PRE_OPERATIONAL = 0, 4, 5, 127
+
+
 # ----------------------------------------------------------------------------- PDOs
 def rpdo_cob_id(n: int, node_id: int) -> int:
     """The predefined connection set's COB-ID of RPDO n (1-4)."""
