@@ -51,8 +51,9 @@ from typing import Annotated, Any, Literal
 
 import can
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, PositiveInt, field_validator
+from pydantic import Field, NonNegativeFloat, PositiveFloat, PositiveInt, field_validator
 from surgiplan.errors import SurgiplanError
+from surgiplan.models import StrictModel
 
 
 class BusError(SurgiplanError):
@@ -60,8 +61,8 @@ class BusError(SurgiplanError):
 
 
 # ----------------------------------------------------------------------------- settings
-class _Fault(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _Fault(StrictModel):
+    """An injected fault; ``kind`` says which."""
 
 
 class HeartbeatLoss(_Fault):
@@ -102,10 +103,9 @@ class BusOff(_Fault):
 Fault = Annotated[HeartbeatLoss | FrameLoss | FollowingErrorFault | DeadNode | BusOff, Field(discriminator="kind")]
 
 
-class BusSettings(BaseModel):
+class BusSettings(StrictModel):
     """Which CAN bus: python-can's ``interface`` and ``channel``, the bit rate, and injected faults."""
 
-    model_config = ConfigDict(extra="forbid")
     #: python-can interface name: virtual (simulated drives), socketcan, pcan, kvaser, ...
     interface: str = "virtual"
     #: default for the virtual bus: a channel of its own per device, so parallel buses never meet;
