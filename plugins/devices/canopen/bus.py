@@ -4,7 +4,7 @@
 virtual bus, shared by the master and the simulated drives;
 ``{interface: loopback, channel: PORT}`` reaches simulated drives in another
 process (``surgiplan-sim-drives``) through a hub on 127.0.0.1
-(:mod:`.can_loopback`: nothing leaves the machine); any other
+(:mod:`.sim.loopback`: nothing leaves the machine); any other
 python-can interface (``{interface: socketcan, channel: can0}``,
 ``{interface: pcan, channel: PCAN_USBBUS1}``, ...) talks to real drives with
 the same code. A bus that cannot be opened is a :class:`BusError` naming the

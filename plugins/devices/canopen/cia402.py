@@ -1,9 +1,9 @@
 """CiA 301 / CiA 402 (the CANopen drive profile): object dictionary, statusword, controlword, modes.
 
 Shared by the master (:mod:`.master`) and the simulated drives
-(:mod:`.drives`). The simulated drive's object dictionary is built here, in
+(:mod:`.sim`). The simulated drive's object dictionary is built here, in
 code (:func:`drive_object_dictionary`), and that one dictionary is both what
-the simulator serves and what its EDS files say (:mod:`.eds` exports it; a
+the simulator serves and what its EDS files say (:mod:`.sim.eds` exports it; a
 test checks that the shipped files are that export). The objects are at
 their standard indices, with the standard types and access, so a master that
 speaks CiA 402 (ours, canopen's ``BaseNode402``, a PLC) works with it.
