@@ -10,6 +10,9 @@
   with bit 8;
 * profile velocity (3): ramps to 0x60FF at 0x6083 up, 0x6084 down.
 
+Any other mode is refused with abort 0x06090030; 0x6061 shows the mode in
+force. A new mode starts from rest where the reference is.
+
 Software position limits (0x607D) clamp position targets and brake the
 velocity modes at 0x6085 so as to stop at the limit (statusword bit 11).
 The references are :class:`.reference.Reference` segments.

@@ -10,7 +10,10 @@ communication is lost. The statusword reports the state, warning, remote,
 and per mode: following the command (cyclic synchronous modes), set-point
 acknowledge and target reached within 0x6067 for 0x6068 ms (profile
 position), speed zero and target reached within 0x606D for 0x606E ms
-(profile velocity), internal limit, following error.
+(profile velocity), internal limit, following error. A following error
+(outside 0x6065 for longer than 0x6066 in the position modes, watched as the
+motors are integrated, :mod:`.drives`) is a FAULT with EMCY 0x8611, the
+brake holding the axis.
 
 The state is a code per axis (its index in :data:`_STATES`).
 """
