@@ -12,13 +12,13 @@ Lifecycle (ros2_control's, :class:`surgiplan.Device`):
   position (a fault reset first where a drive is in FAULT). In real-time mode
   SYNC keeps running between trajectories.
 * ``execute``: the path is mapped to joints (inverse kinematics), refused
-  with the reason (:mod:`.refusal`) before any motion if a pose is out of reach, a waypoint
-  leaves the joint limits or the plan's workspace bounds, the approach from
-  where the device stands is not clear, or the drives are stopped from an
-  earlier fault (:meth:`Cia402Device.reset_faults` first: a stopped device
-  never restarts by itself); then time-parameterised at the control rate
-  (:mod:`.timing`), refused if the timed motion's certified clearance
-  (:mod:`.certify`, every body, between samples too) is below
+  with the reason (:mod:`.refusal`) before any motion if a pose is out of
+  reach, a waypoint leaves the joint limits or the plan's workspace bounds,
+  the approach from where the device stands is not clear, or the drives are
+  stopped from an earlier fault (:meth:`Cia402Device.reset_faults` first: a
+  stopped device never restarts by itself); then time-parameterised at the
+  control rate (:mod:`.timing`), refused if the timed motion's certified
+  clearance (:mod:`.certify`, every body, between samples too) is below
   ``safety_margin``, and run (:mod:`.control`); the report (:mod:`.report`)
   says what the hardware actually did.
 * ``deactivate``: drives disabled, brakes hold; ``cleanup``/``shutdown``:
