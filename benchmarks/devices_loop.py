@@ -43,7 +43,7 @@ def drives_process(initial, priority: int | None = None):
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", "cast_gimbal"]
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim.process", "--device", "cast_gimbal"]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "0.2", "--initial", *map(str, initial)]
     if priority is not None:

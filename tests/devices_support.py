@@ -108,9 +108,9 @@ def _read_positions(device):
 
 
 def simulator_state(simulator, i: int) -> str:
-    from surgiplan.plugins.devices.canopen import drives
+    from surgiplan.plugins.devices.canopen.sim import statemachine
 
-    return drives._STATES[simulator.state[i]]
+    return statemachine._STATES[simulator.state[i]]
 
 
 # ----------------------------------------------------------------------------- CAN frames, bit by bit

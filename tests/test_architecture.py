@@ -68,7 +68,15 @@ def test_import_contracts_are_kept(tmp_path):
     contracts = PYPROJECT["tool"]["importlinter"]["contracts"]
     assert result.returncode == 0, result.stdout + result.stderr
     assert f"Contracts: {len(contracts)} kept, 0 broken." in result.stdout
-    assert {c["id"] for c in contracts} == {"core", "plugins", "device-layers", "mavlink-sim", "public-core", "acyclic"}
+    assert {c["id"] for c in contracts} == {
+        "core",
+        "plugins",
+        "device-layers",
+        "mavlink-sim",
+        "canopen-sim",
+        "public-core",
+        "acyclic",
+    }
 
 
 @pytest.mark.parametrize(
@@ -87,6 +95,10 @@ def test_import_contracts_are_kept(tmp_path):
             "CiA 402 devices: device packages above the CANopen layer",
         ),
         (
+            {"plugins/devices/canopen/_probe.py": "from surgiplan.plugins.devices.canopen.sim import drives\n"},
+            "the CANopen master side imports nothing of the simulated drives",
+        ),
+        (
             {"plugins/fem/_probe.py": "from surgiplan.runner import run_pipeline\n"},
             "plugins use the core's public helpers, never the runner",
         ),
@@ -98,7 +110,14 @@ def test_import_contracts_are_kept(tmp_path):
             "no import cycles",
         ),
     ],
-    ids=["core-imports-plugin", "plugin-imports-plugin", "layer-upwards", "plugin-imports-runner", "cycle"],
+    ids=[
+        "core-imports-plugin",
+        "plugin-imports-plugin",
+        "layer-upwards",
+        "master-imports-simulator",
+        "plugin-imports-runner",
+        "cycle",
+    ],
 )
 def test_each_contract_catches_its_violation(tmp_path, probe, broken):
     """The contracts can fail: a module added to a view of the tree breaks exactly the contract it should."""

@@ -13,7 +13,7 @@ from pathlib import Path
 import can
 import canopen
 import pytest
-from surgiplan.plugins.devices.canopen.loopback import LoopbackError, parse_channel
+from surgiplan.plugins.devices.canopen.sim.loopback import LoopbackError, parse_channel
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -16,11 +16,13 @@ import canopen
 import numpy as np
 import pytest
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
-from surgiplan.plugins.devices.canopen import cia402, eds
+from surgiplan.plugins.devices.canopen import cia402
 from surgiplan.plugins.devices.canopen.bus import ArmedFaults, MonitoredBus
 from surgiplan.plugins.devices.canopen.clock import SimulatedClock
-from surgiplan.plugins.devices.canopen.drives import AxisHardware, DriveSimulator, MotorModel
 from surgiplan.plugins.devices.canopen.network import PumpedNetwork, SimulationLink
+from surgiplan.plugins.devices.canopen.sim import eds
+from surgiplan.plugins.devices.canopen.sim.drives import AxisHardware, DriveSimulator
+from surgiplan.plugins.devices.canopen.sim.motor import MotorModel
 
 CPU = 2**17 / (2 * math.pi)
 
@@ -252,7 +254,7 @@ def test_limits_take_effect_when_written_while_enabled(bench):
 # ----------------------------------------------------------------------------- the EDS files
 def test_the_shipped_eds_files_are_the_dictionaries_the_simulator_serves(tmp_path):
     """One source of truth: the files are today's export; a change to the dictionary without
-    regenerating them (python -m surgiplan.plugins.devices.canopen.eds --write) fails here."""
+    regenerating them (python -m surgiplan.plugins.devices.canopen.sim.eds --write) fails here."""
     devices = eds.simulated_devices()
     assert {"cast_gimbal", "gripper6"} <= set(devices)
     files = 0

@@ -151,9 +151,9 @@ def test_motor_respects_its_velocity_and_current_limits_and_faults_on_following_
 
 
 def simulator_state(device, i):
-    from surgiplan.plugins.devices.canopen import drives
+    from surgiplan.plugins.devices.canopen.sim import statemachine
 
-    return drives._STATES[device.simulator.state[i]]
+    return statemachine._STATES[device.simulator.state[i]]
 
 
 def test_position_loop_settles_a_small_step_to_within_a_count(gimbal):

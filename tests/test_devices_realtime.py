@@ -64,7 +64,7 @@ def test_drives_in_another_process_over_the_loopback_bus_with_the_real_hardware_
     space = gimbal_space(block_world)
     path = gimbal_path(space, GAP_TIPS)
     port = _free_port()
-    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", "cast_gimbal"]
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim.process", "--device", "cast_gimbal"]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     command += ["--sync-timeout", "1.0", "--initial", *map(str, path[0])]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)

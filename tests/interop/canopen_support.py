@@ -44,7 +44,7 @@ def free_port() -> int:
 def drives_process(device: str = "cast_gimbal", initial=None, node_ids=None, start_timeout: float = 120.0):
     """``surgiplan-sim-drives`` in a process of its own, hosting the loopback hub; yields the channel (port)."""
     port = free_port()
-    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim_drives", "--device", device]
+    command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim.process", "--device", device]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
     if initial is not None:
         command += ["--initial", *map(str, initial)]

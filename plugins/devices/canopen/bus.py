@@ -4,7 +4,7 @@
 virtual bus, shared by the master and the simulated drives;
 ``{interface: loopback, channel: PORT}`` reaches simulated drives in another
 process (``surgiplan-sim-drives``) through a hub on 127.0.0.1
-(:mod:`.can_loopback`: nothing leaves the machine); any other
+(:mod:`.sim.loopback`: nothing leaves the machine); any other
 python-can interface (``{interface: socketcan, channel: can0}``,
 ``{interface: pcan, channel: PCAN_USBBUS1}``, ...) talks to real drives with
 the same code. A bus that cannot be opened is a :class:`BusError` naming the
@@ -51,8 +51,9 @@ from typing import Annotated, Any, Literal
 
 import can
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, NonNegativeFloat, PositiveFloat, PositiveInt, field_validator
+from pydantic import Field, NonNegativeFloat, PositiveFloat, PositiveInt, field_validator
 from surgiplan.errors import SurgiplanError
+from surgiplan.models import StrictModel
 
 
 class BusError(SurgiplanError):
@@ -60,8 +61,8 @@ class BusError(SurgiplanError):
 
 
 # ----------------------------------------------------------------------------- settings
-class _Fault(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _Fault(StrictModel):
+    """An injected fault; ``kind`` says which."""
 
 
 class HeartbeatLoss(_Fault):
@@ -102,10 +103,9 @@ class BusOff(_Fault):
 Fault = Annotated[HeartbeatLoss | FrameLoss | FollowingErrorFault | DeadNode | BusOff, Field(discriminator="kind")]
 
 
-class BusSettings(BaseModel):
+class BusSettings(StrictModel):
     """Which CAN bus: python-can's ``interface`` and ``channel``, the bit rate, and injected faults."""
 
-    model_config = ConfigDict(extra="forbid")
     #: python-can interface name: virtual (simulated drives), socketcan, pcan, kvaser, ...
     interface: str = "virtual"
     #: default for the virtual bus: a channel of its own per device, so parallel buses never meet;

@@ -1,9 +1,9 @@
 """CiA 301 / CiA 402 (the CANopen drive profile): object dictionary, statusword, controlword, modes.
 
 Shared by the master (:mod:`.master`) and the simulated drives
-(:mod:`.drives`). The simulated drive's object dictionary is built here, in
+(:mod:`.sim`). The simulated drive's object dictionary is built here, in
 code (:func:`drive_object_dictionary`), and that one dictionary is both what
-the simulator serves and what its EDS files say (:mod:`.eds` exports it; a
+the simulator serves and what its EDS files say (:mod:`.sim.eds` exports it; a
 test checks that the shipped files are that export). The objects are at
 their standard indices, with the standard types and access, so a master that
 speaks CiA 402 (ours, canopen's ``BaseNode402``, a PLC) works with it.
@@ -227,6 +227,11 @@ def interpolation_period(period: float) -> tuple[int, int]:
     raise ValueError(
         f"control period {period * 1000:g} ms is not representable as value x 10^index s (value 1-255) in 0x60C2"
     )
+
+
+# ----------------------------------------------------------------------------- NMT (CiA 301)
+#: NMT states as the heartbeat reports them
+NMT_INITIALISING, NMT_STOPPED, NMT_OPERATIONAL, NMT_PRE_OPERATIONAL = 0, 4, 5, 127
 
 
 # ----------------------------------------------------------------------------- PDOs

@@ -3,7 +3,7 @@
 With :class:`SimulatedClock` time moves only when the control loop sleeps;
 timers (the simulated drives' heartbeat producers, watchdogs, injected
 faults) fire in time order as it does, and CAN frames are delivered at once
-(see :class:`~surgiplan.plugins.devices.canopen.cia402.SimulationLink`). A run is then
+(see :class:`~surgiplan.plugins.devices.canopen.network.SimulationLink`). A run is then
 deterministic and as fast as the computer allows: tests use it.
 
 With :class:`RealTimeClock` the loop sleeps on the monotonic clock to each

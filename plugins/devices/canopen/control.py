@@ -44,7 +44,7 @@ import numpy as np
 from . import cia402
 from .bus import BusError
 from .clock import Clock, restore_priority, set_realtime_priority
-from .master import NMT_OPERATIONAL, DriveMaster, emcy_description
+from .master import DriveMaster, emcy_description
 
 
 @dataclass
@@ -170,7 +170,7 @@ class Controller:
                     f"(timeout {self.supervision.heartbeat_timeout * 1000:.0f} ms)",
                 }
             )
-        for i in np.flatnonzero(self.master.heartbeat_state != NMT_OPERATIONAL):
+        for i in np.flatnonzero(self.master.heartbeat_state != cia402.NMT_OPERATIONAL):
             found.append(
                 {
                     "kind": "nmt_state",

@@ -2,21 +2,23 @@
 
 Lifecycle (ros2_control's, :class:`surgiplan.Device`):
 
-* ``configure``: the kinematic model is loaded, the bus opened (the simulated
-  drives started on it), every node configured by SDO and started; states are
+* ``configure``: the kinematic model is loaded, the settings resolved per
+  joint (:mod:`.joints`), the bus opened (on the virtual bus the simulated
+  drives the device class names, :attr:`Cia402Device.simulated_drives`,
+  started on it), every node configured by SDO and started; states are
   readable. A bus that cannot be opened or a node that does not answer is a
   :class:`~.bus.BusError` here, before anything moves.
 * ``activate``: every drive is brought to OPERATION ENABLED holding its
   position (a fault reset first where a drive is in FAULT). In real-time mode
   SYNC keeps running between trajectories.
 * ``execute``: the path is mapped to joints (inverse kinematics), refused
-  with the reason before any motion if a pose is out of reach, a waypoint
-  leaves the joint limits or the plan's workspace bounds, the approach from
-  where the device stands is not clear, or the drives are stopped from an
-  earlier fault (:meth:`Cia402Device.reset_faults` first: a stopped device
-  never restarts by itself); then time-parameterised at the control rate
-  (:mod:`.timing`), refused if the timed motion's certified clearance
-  (:mod:`.certify`, every body, between samples too) is below
+  with the reason (:mod:`.refusal`) before any motion if a pose is out of
+  reach, a waypoint leaves the joint limits or the plan's workspace bounds,
+  the approach from where the device stands is not clear, or the drives are
+  stopped from an earlier fault (:meth:`Cia402Device.reset_faults` first: a
+  stopped device never restarts by itself); then time-parameterised at the
+  control rate (:mod:`.timing`), refused if the timed motion's certified
+  clearance (:mod:`.certify`, every body, between samples too) is below
   ``safety_margin``, and run (:mod:`.control`); the report (:mod:`.report`)
   says what the hardware actually did.
 * ``deactivate``: drives disabled, brakes hold; ``cleanup``/``shutdown``:
@@ -35,30 +37,59 @@ import importlib.resources
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, Protocol
 
 import can
 import numpy as np
 from surgiplan.devices import Device, ExecutionReport, LifecycleError, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.plugins.devices.kinematics.model import KinematicModel
-from surgiplan.status import ExecuteStatus
 
 from . import cia402
-from .bus import ArmedFaults, BusError, MonitoredBus, open_bus, worst_case_bits
+from .bus import ArmedFaults, BusError, FrameDropper, MonitoredBus, open_bus
 from .certify import Certificate
-from .clock import RealTimeClock, SimulatedClock, restore_priority, set_realtime_priority
+from .clock import Clock, RealTimeClock, SimulatedClock, restore_priority, set_realtime_priority
 from .control import Controller, ExecutionLog, Supervision
-from .drives import AxisHardware, DriveSimulator, MotorModel
-from .master import AxisConfig, DriveMaster
+from .joints import Joints, axis_configs, check_bus_load, joint_limits, resolve_joints
+from .master import DriveMaster
 from .network import SimulationLink
-from .report import bus_metrics, execution_figure, tracking_metrics, write_log_csv
-from .settings import PRISMATIC_COUNTS, REVOLUTE_COUNTS, Cia402DeviceSettings
+from .refusal import Refusal, certification_refusal, check_path, refused
+from .report import bus_metrics, execution_figure, explain_lost_heartbeats, tracking_metrics, write_log_csv
+from .settings import Cia402DeviceSettings
 from .timing import time_parameterize
 
 
-class Refusal(Exception):
-    """A trajectory the device will not start; the message says why."""
+class SimulatedDrives(Protocol):
+    """What a device uses of the simulated drives it runs on the virtual bus (``bus: {interface: virtual}``).
+
+    The CANopen master never imports the simulator (:mod:`.sim`): a device class names its simulated drives in
+    :attr:`Cia402Device.simulated_drives` (the built-in devices: :class:`.sim.drives.DriveSimulator`).
+    """
+
+    #: frame loss injected at the drives' receivers, for the report (None: none)
+    frame_drop: FrameDropper | None
+    sync_drop: FrameDropper | None
+
+    @classmethod
+    def for_device(
+        cls, device: Cia402Device, bus: can.BusABC, clock: Clock, faults: ArmedFaults, link: SimulationLink | None
+    ) -> SimulatedDrives:
+        """The drives of ``device``'s joints on ``bus`` (``link``: the simulated clock's; None: real time)."""
+        ...
+
+    def start(self, priority: int | None = None) -> None:
+        """Real time: serve the bus in a thread of their own."""
+        ...
+
+    def arm(self, origin: float) -> None:
+        """Schedule the injected faults from ``origin`` (s)."""
+        ...
+
+    def place(self, positions) -> None:
+        """Put the still axes at ``positions`` (SI), as a hand would."""
+        ...
+
+    def close(self) -> None: ...
 
 
 @dataclass
@@ -79,13 +110,15 @@ class Cia402Device(Device):
     tip_frame: str = ""
     #: what the per-sample clearance of :meth:`clearance_along` is the clearance of (figure label)
     clearance_label: str = "executed clearance"
+    #: the simulated drives run on the virtual bus; None: this device has none (it needs a real bus)
+    simulated_drives: ClassVar[type[SimulatedDrives] | None] = None
 
     def __init__(self, settings: Cia402DeviceSettings) -> None:
         super().__init__(settings)
         self.model: KinematicModel | None = None
         self.clock = None
         self.bus: MonitoredBus | None = None
-        self.simulator: DriveSimulator | None = None
+        self.simulator: SimulatedDrives | None = None
         self.master: DriveMaster | None = None
         self.controller: Controller | None = None
         self.faults: ArmedFaults | None = None
@@ -118,20 +151,13 @@ class Cia402Device(Device):
         raise NotImplementedError
 
     # ------------------------------------------------------------------ settings
-    def _per_joint(self, values, default, what: str) -> np.ndarray:
-        nq = self.model.nq
-        if values is None:
-            return np.asarray(default, dtype=float)
-        if len(values) != nq:
-            raise ConfigError(f"{what}: give {nq} values, one per joint {self.model.joint_names}; got {len(values)}")
-        return np.asarray(values, dtype=float)
-
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
         """Velocity and acceleration limits the trajectories use (SI per joint)."""
-        s = self.settings
-        velocity = self.model.velocity_limit * s.velocity_scale
-        acceleration = self._per_joint(s.acceleration_limits, self.default_acceleration, "acceleration_limits")
-        return velocity, acceleration
+        return joint_limits(self.settings, self.model, self.default_acceleration)
+
+    def joints(self) -> Joints:
+        """The settings per joint, checked against the model (raises ConfigError): :mod:`.joints`."""
+        return resolve_joints(self.settings, self.model, self.default_acceleration)
 
     @classmethod
     def eds_folder(cls) -> Path:
@@ -156,77 +182,15 @@ class Cia402Device(Device):
                 raise ConfigError(f"eds: the EDS file of joint '{name}' does not exist: {path}")
         return files
 
-    def _axes(self) -> tuple[list[AxisConfig], list[AxisHardware]]:
-        s = self.settings
-        model = self.model
-        nq = model.nq
-        ids = s.node_ids or list(range(1, nq + 1))
-        if len(ids) != nq or len(set(ids)) != nq or not all(1 <= i <= 127 for i in ids):
-            raise ConfigError(f"node_ids: give {nq} distinct CAN node ids (1-127), one per joint {model.joint_names}")
-        if s.master_node_id in ids:
-            raise ConfigError(f"master_node_id {s.master_node_id} is also a drive's node id (node_ids: {ids})")
-        cpu = self._per_joint(
-            s.counts_per_unit, np.where(model.prismatic, PRISMATIC_COUNTS, REVOLUTE_COUNTS), "counts_per_unit"
-        )
-        window = self._per_joint(
-            s.following_error_window, np.where(model.prismatic, 0.001, 0.01), "following_error_window"
-        )
-        velocity, acceleration = self.limits()
-        initial = s.simulation.initial
-        if initial is not None:
-            initial = self._per_joint(initial, None, "simulation.initial")
-            if not model.within_limits(initial[None])[0]:
-                raise ConfigError(f"simulation.initial {list(initial)} is outside the joint limits")
-        start = initial if initial is not None else model.neutral()
-        config, hardware = [], []
-        for j in range(nq):
-            config.append(
-                AxisConfig(
-                    model.joint_names[j],
-                    ids[j],
-                    float(cpu[j]),
-                    float(model.lower[j]),
-                    float(model.upper[j]),
-                    float(window[j]),
-                    float(velocity[j] * s.simulation.velocity_factor),
-                    float(acceleration[j] * s.quick_stop_factor),
-                )
-            )
-            hardware.append(
-                AxisHardware(
-                    ids[j],
-                    float(cpu[j]),
-                    float(acceleration[j] * s.simulation.peak_acceleration_factor),
-                    float(model.velocity_limit[j] * s.simulation.velocity_factor),
-                    float(start[j]),
-                    name=model.joint_names[j],
-                    unit="m" if model.prismatic[j] else "rad",
-                    lower=float(model.lower[j]),
-                    upper=float(model.upper[j]),
-                    following_error_window=float(window[j]),
-                    profile_velocity=float(velocity[j]),
-                    profile_acceleration=float(acceleration[j]),
-                )
-            )
-        return config, hardware
-
-    def _check_bus_load(self, axes: list[AxisConfig]) -> None:
-        """Refuse a control rate whose cyclic frames alone cannot fit on the bus."""
-        s = self.settings
-        per_cycle = worst_case_bits(0) + len(axes) * 2 * worst_case_bits(6)
-        load = per_cycle * s.control_rate / s.bus.bitrate
-        if load > 1.0:
-            raise ConfigError(
-                f"control_rate {s.control_rate:g} Hz with {len(axes)} drives needs {100 * load:.0f}% of the "
-                f"{s.bus.bitrate / 1e6:g} Mbit/s bus (SYNC + RPDO + TPDO per drive, worst-case stuffing); "
-                f"lower control_rate to at most {s.control_rate / load:.0f} Hz"
-            )
-
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, context) -> None:
         s = self.settings
         if s.bus.faults and not s.bus.simulated:
             raise ConfigError("bus.faults are injected by the simulated bus: use them with interface: virtual")
+        if s.bus.simulated and self.simulated_drives is None:
+            raise ConfigError(
+                f"{type(self).__name__} has no simulated drives for the virtual bus: give a real bus (bus.interface)"
+            )
         realtime = s.clock == "realtime" or (s.clock == "auto" and not s.bus.simulated)
         if not realtime and not s.bus.simulated:
             raise ConfigError(
@@ -251,10 +215,10 @@ class Cia402Device(Device):
                 "so that a lost node is detected within two heartbeat periods"
             )
         self.model = self.build_model()
-        config, hardware = self._axes()
+        config = axis_configs(s, self.model, self.joints())
         for axis, eds in zip(config, self.eds_files(), strict=True):
             axis.eds = eds
-        self._check_bus_load(config)
+        check_bus_load(s, config)
         self.clock = RealTimeClock() if realtime else SimulatedClock()
         self.faults = ArmedFaults(s.bus.faults, self.clock.now)
         inner, self.channel = open_bus(s.bus)
@@ -263,13 +227,8 @@ class Cia402Device(Device):
         try:
             link = None if realtime else SimulationLink()
             if s.bus.simulated:
-                model = MotorModel(
-                    s.simulation.position_gain, s.simulation.velocity_gain, sync_timeout=s.simulation.sync_timeout
-                )
                 drives_bus = can.Bus(interface="virtual", channel=self.channel)
-                self.simulator = DriveSimulator(
-                    drives_bus, hardware, model, self.clock, self.faults, link, device=self.urdf_name
-                )
+                self.simulator = self.simulated_drives.for_device(self, drives_bus, self.clock, self.faults, link)
                 if realtime:
                     self.simulator.start(s.realtime_priority)
             self.master = DriveMaster(
@@ -366,56 +325,6 @@ class Cia402Device(Device):
         self.controller.start_holding()
 
     # ------------------------------------------------------------------ execution
-    def _refused(self, reason: str, metrics: dict[str, Any] | None = None) -> ExecutionReport:
-        # the execute stage's metric names stay the same whatever happened: nothing tracked, no fault
-        out = {**(metrics or {}), "cycles": 0, "refused": True, "faults": []}
-        out |= {"tracking_error_max_m": None, "tracking_error_rms_m": None}
-        return ExecutionReport(ExecuteStatus.REFUSED, out, message=f"refused before any motion: {reason}")
-
-    def _certified(self, planned, trajectory: Trajectory, metrics: dict[str, Any]) -> str | None:
-        """Certify the timed motion's clearance (every body, between the samples too); the reason to refuse it
-        if some body comes closer than the safety margin, else None. Adds the certified clearances to metrics."""
-        margin = float(self.settings.safety_margin)
-        certificates = self.certify_motion(planned.q, trajectory, margin)
-        for certificate in certificates:
-            metrics[f"certified_{certificate.body}_min_clearance_m"] = certificate.lowest
-        worst = min(certificates, key=lambda c: c.lowest)
-        metrics["certified_min_clearance_m"] = worst.lowest
-        metrics["safety_margin_m"] = margin
-        if worst.lowest >= margin:
-            return None
-        k, fraction = worst.segment, worst.fraction
-        q = planned.q[k] + fraction * (planned.q[min(k + 1, len(planned.q) - 1)] - planned.q[k])
-        tip = self.model.tip_positions(q[None])[0]
-        what = "a collision" if worst.lowest < 0 else f"closer than the safety margin {margin * 1000:g} mm"
-        return (
-            f"the timed motion's certified {worst.body} clearance is {worst.lowest * 1000:.2f} mm "
-            f"({worst.lowest:.6f} m), {what}, at t = {(k + fraction) * planned.period:.3f} s of "
-            f"{planned.duration:.3f} s with the tip at {np.round(tip * 1000, 1).tolist()} mm (certified along the "
-            "whole motion the drives would interpolate, between the samples too)"
-        )
-
-    def _check_path(self, q: np.ndarray, trajectory: Trajectory) -> None:
-        """Refuse joint waypoints outside the joint limits, or a tip leaving the workspace bounds."""
-        model = self.model
-        outside = ~model.within_limits(q, 1e-9)
-        if np.any(outside):
-            i = int(np.argmax(outside))
-            j = int(np.argmax((q[i] < model.lower - 1e-9) | (q[i] > model.upper + 1e-9)))
-            raise Refusal(
-                f"waypoint {i} needs joint '{model.joint_names[j]}' at {q[i, j]:.4g}, outside its limits "
-                f"[{model.lower[j]:.4g}, {model.upper[j]:.4g}]"
-            )
-        scene = trajectory.space.scene  # the plan's scene: its bounds are the workspace planned in
-        tips = model.tip_positions(q)
-        inside = scene.in_bounds(tips)
-        if not np.all(inside):
-            i = int(np.argmin(inside))
-            raise Refusal(
-                f"waypoint {i} puts the tip at {np.round(tips[i], 5).tolist()} m, outside the workspace bounds "
-                f"{scene.bounds_min.tolist()} to {scene.bounds_max.tolist()} m"
-            )
-
     def run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings
         self._source = trajectory.source
@@ -427,16 +336,16 @@ class Cia402Device(Device):
             pending = "; ".join(
                 f"{f['kind'].replace('_', ' ')} on node {f.get('node')}" for f in self.controller.pending_faults
             )
-            return self._refused(
+            return refused(
                 f"the drives are not ready ({what or pending}): reset_faults() (a fault reset and re-enable) first"
             )
         current = self.joint_positions()
         try:
             joint_path = self.joint_path(trajectory, current)
             q = joint_path.q
-            self._check_path(q, trajectory)
+            check_path(self.model, q, trajectory.space.scene)
         except Refusal as exc:
-            return self._refused(str(exc))
+            return refused(str(exc))
         # the simulated device starts where its first path starts, as if placed there by hand
         place = self.simulator is not None and not self.placed
         if place:
@@ -445,12 +354,12 @@ class Cia402Device(Device):
         gap = np.abs(q[0] - current)
         if np.any(gap > 1e-4 * np.maximum(1.0, np.abs(current))):
             if not s.approach:
-                return self._refused(
+                return refused(
                     f"the device is at {np.round(current, 5).tolist()}, the path starts at "
                     f"{np.round(q[0], 5).tolist()} (approach: false)"
                 )
             if not self.approach_is_clear(current, q[0], trajectory):
-                return self._refused(
+                return refused(
                     "the straight joint motion from the current configuration "
                     f"{np.round(current, 5).tolist()} to the path start is not clear of the obstacles"
                 )
@@ -464,10 +373,12 @@ class Cia402Device(Device):
         metrics["max_joint_acceleration_ratio"] = float(
             np.max(np.abs(planned.acceleration()) / acceleration, initial=0.0)
         )
-        metrics["path_deviation_max_m"] = self._path_deviation(planned)
-        refusal = self._certified(planned, trajectory, metrics)
+        metrics["path_deviation_max_m"] = planned.tip_deviation(self.model.tip_positions)
+        margin = float(s.safety_margin)
+        certificates = self.certify_motion(planned.q, trajectory, margin)
+        refusal = certification_refusal(certificates, planned, self.model, margin, metrics)
         if refusal is not None:
-            return self._refused(refusal, metrics)
+            return refused(refusal, metrics)
 
         def arm(t0: float) -> None:
             # injected faults happen once, timed from the first trajectory's start: a rehearsal of
@@ -492,23 +403,6 @@ class Cia402Device(Device):
         if log.status != "completed" and s.fault_reset:
             report.metrics["fault_reset"] = self._try_fault_reset()
         return report
-
-    def _path_deviation(self, planned) -> float:
-        """Largest distance (m) of a commanded tip sample from the straight tip segment between the
-        waypoints it lies between (and their neighbours): how far the smooth timed path rounds the
-        corners of the waypoint polyline (at most about ``path_resolution``)."""
-        if planned.waypoints is None or len(planned.waypoints) < 2:
-            return 0.0
-        corners = self.model.tip_positions(planned.waypoints)
-        tips = self.model.tip_positions(planned.q)
-        segment = planned.segment_of_samples()
-        best = np.full(len(tips), np.inf)
-        for shift in (-1, 0, 1):  # a sample near a knot may be nearest to the neighbouring segment
-            i = np.clip(segment + shift, 0, len(corners) - 2)
-            a, d = corners[i], corners[i + 1] - corners[i]
-            t = np.clip(np.sum((tips - a) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0.0, 1.0)
-            best = np.minimum(best, np.linalg.norm(tips - (a + t[:, None] * d), axis=1))
-        return float(best.max())
 
     def _try_fault_reset(self) -> dict[str, Any]:
         """After a stop: fault reset and re-enable; what came back (the rehearsal of a recovery)."""
@@ -544,35 +438,13 @@ class Cia402Device(Device):
         simulator = self.simulator
         droppers = (self.bus.dropper, getattr(simulator, "frame_drop", None), getattr(simulator, "sync_drop", None))
         metrics.update(bus_metrics(self.bus, log, s.bus.bitrate, droppers))
-        self._explain_lost_heartbeats(log)
+        explain_lost_heartbeats(log, self.bus.dropper)
         metrics["faults"] = log.faults
         message = log.reason if log.status != "completed" else ""
         report = ExecutionReport(log.status, metrics, tips if len(tips) else None, log.faults, message)
         if s.outputs and self.context is not None and len(tips):
             report.files = self._write_outputs(log, tips, reference_tips, clearance, message)
         return report
-
-    def _explain_lost_heartbeats(self, log: ExecutionLog) -> None:
-        """Say so when a heartbeat time-out followed an injected frame loss of that node's heartbeat.
-
-        A consumer cannot tell a lost heartbeat from a silent node within its time-out (1.5 periods,
-        so that a silent node stops every axis within two): with frame_loss the device then stops
-        safely although the node is alive. The simulation knows which frames it dropped.
-        """
-        dropper = self.bus.dropper
-        if dropper is None:
-            return
-        for fault in log.faults:  # times relative to the trajectory start, as the dropper's
-            if fault["kind"] != "heartbeat_timeout":
-                continue
-            since = fault.get("last_heartbeat_s", -np.inf)
-            lost = [t for t, can_id in dropper.dropped if can_id == 0x700 + fault["node"] and t >= since]
-            if lost:
-                times = ", ".join(f"{t:.3f}" for t in lost)
-                fault["cause"] = (
-                    f"injected frame_loss dropped this node's heartbeat at {times} s; a lost heartbeat cannot be "
-                    "told from a silent node within the time-out, so the device stopped safely"
-                )
 
     def _plan_threshold(self) -> float | None:
         """The clearance threshold of the plan stage this execution's path came from, if it had one."""

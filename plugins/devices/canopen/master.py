@@ -50,13 +50,11 @@ from .bus import BusError, MonitoredBus
 from .clock import Clock, Scheduler, set_realtime_priority
 from .network import PumpedNetwork, SimulationLink
 
-NMT_OPERATIONAL = 5
 #: RPDO1 (controlword, target position) and TPDO1 (statusword, position actual value)
 _RPDO1 = struct.Struct("<Hl")
 _TPDO1 = struct.Struct("<Hl")
 #: NMT command specifiers (CiA 301)
 NMT_START, NMT_RESET_COMMUNICATION = 0x01, 0x82
-PDO_INVALID = 1 << 31
 
 
 @dataclass
@@ -216,7 +214,7 @@ class DriveMaster:
             node.nmt.add_heartbeat_callback(lambda state, i=i: self._on_heartbeat(i, state))
             node.emcy.add_callback(lambda entry, i=i: self._on_emcy(i, entry))
         # 1. our heartbeat, which the drives will consume
-        beat = bytes([NMT_OPERATIONAL])
+        beat = bytes([cia402.NMT_OPERATIONAL])
         self._send(
             "starting the master's heartbeat",
             lambda: setattr(
@@ -249,9 +247,9 @@ class DriveMaster:
                 f"starting node {axis.node_id}",
                 lambda a=axis: self.network.send_message(0x000, bytes([NMT_START, a.node_id])),
             )
-            self.nodes[i].nmt._state = NMT_OPERATIONAL
+            self.nodes[i].nmt._state = cia402.NMT_OPERATIONAL
         self.last_heartbeat[:] = self.clock.now()  # a full timeout of grace from here
-        self.heartbeat_state[:] = NMT_OPERATIONAL
+        self.heartbeat_state[:] = cia402.NMT_OPERATIONAL
         self.started = True
 
     def _wait_for_boot_up(self) -> None:
@@ -354,8 +352,8 @@ class DriveMaster:
                 if other is pdo:
                     continue
                 cob = other.com_record[1].raw
-                if not cob & PDO_INVALID:
-                    other.com_record[1].raw = cob | PDO_INVALID
+                if not cob & cia402.PDO_INVALID:
+                    other.com_record[1].raw = cob | cia402.PDO_INVALID
         tpdo = node.tpdo[1]
         self._rpdo_ids.append(node.rpdo[1].cob_id)
         # the cyclic frames bypass canopen's PdoMap (its per-frame bookkeeping costs what a 1 kHz loop cannot

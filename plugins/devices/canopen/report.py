@@ -33,6 +33,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from surgiplan.storage import atomic_write, write_text_atomic
+from surgiplan.units import ANGLE_UNITS, LENGTH_UNITS
 
 from .bus import bus_load_percent
 from .control import ExecutionLog
@@ -104,7 +105,8 @@ def execution_figure(
     axes = []
     for j, name in enumerate(names):
         ax = fig.add_subplot(grid[j // columns, j % columns], sharex=axes[0] if axes else None)
-        scale, unit = (1000.0, "mm") if prismatic[j] else (180.0 / np.pi, "deg")
+        unit = "mm" if prismatic[j] else "deg"
+        scale = 1.0 / (LENGTH_UNITS[unit] if prismatic[j] else ANGLE_UNITS[unit])
         colour = colours[j % len(colours)]
         ax.plot(t, log.measured[:, j] * scale, "-", color=colour, lw=3.0, alpha=0.55, label="measured")
         ax.plot(t, log.reference[:, j] * scale, "--", color="black", lw=1.0, dashes=(4, 3), label="commanded")
@@ -177,3 +179,26 @@ def execution_figure(
             fig.savefig(handle, format="png", dpi=110)
     finally:
         plt.close(fig)
+
+
+def explain_lost_heartbeats(log: ExecutionLog, dropper) -> None:
+    """Say so (``cause``) where a heartbeat time-out followed an injected frame loss of that node's heartbeat
+    at the master (``dropper``: the master's :class:`.bus.FrameDropper`, None without frame loss).
+
+    A consumer cannot tell a lost heartbeat from a silent node within its time-out (1.5 periods,
+    so that a silent node stops every axis within two): with frame_loss the device then stops
+    safely although the node is alive. The simulation knows which frames it dropped.
+    """
+    if dropper is None:
+        return
+    for fault in log.faults:  # times relative to the trajectory start, as the dropper's
+        if fault["kind"] != "heartbeat_timeout":
+            continue
+        since = fault.get("last_heartbeat_s", -np.inf)
+        lost = [t for t, can_id in dropper.dropped if can_id == 0x700 + fault["node"] and t >= since]
+        if lost:
+            times = ", ".join(f"{t:.3f}" for t in lost)
+            fault["cause"] = (
+                f"injected frame_loss dropped this node's heartbeat at {times} s; a lost heartbeat cannot be "
+                "told from a silent node within the time-out, so the device stopped safely"
+            )

@@ -10,7 +10,8 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, PositiveInt
+from pydantic import Field, PositiveFloat, PositiveInt
+from surgiplan.models import StrictModel
 from surgiplan.units import Length, PositiveLength
 
 from .bus import BusSettings
@@ -20,10 +21,9 @@ REVOLUTE_COUNTS = 2**17 / (2 * math.pi)
 PRISMATIC_COUNTS = 1e6
 
 
-class SimulationSettings(BaseModel):
+class SimulationSettings(StrictModel):
     """The simulated drives (``bus.interface: virtual``)."""
 
-    model_config = ConfigDict(extra="forbid")
     #: joint positions at power-up (SI); None: the first trajectory's start, as if placed there by hand
     initial: list[float] | None = None
     position_gain: PositiveFloat = 150.0
@@ -36,8 +36,7 @@ class SimulationSettings(BaseModel):
     sync_timeout: PositiveFloat = 0.05
 
 
-class IKSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class IKSettings(StrictModel):
     #: position tolerance (m)
     tolerance: PositiveLength = 1e-7
     #: orientation tolerance (rad)
@@ -45,10 +44,9 @@ class IKSettings(BaseModel):
     max_iterations: PositiveInt = 100
 
 
-class Cia402DeviceSettings(BaseModel):
+class Cia402DeviceSettings(StrictModel):
     """Settings every CiA 402 device shares. Per-joint lists are in SI joint units (rad or m)."""
 
-    model_config = ConfigDict(extra="forbid")
     bus: BusSettings = Field(default_factory=BusSettings)
     #: auto: simulated for the virtual bus, real time otherwise
     clock: Literal["auto", "simulated", "realtime"] = "auto"

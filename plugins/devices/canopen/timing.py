@@ -79,6 +79,24 @@ class JointTrajectory:
         """Second differences (m-2, nq) divided by T^2."""
         return np.diff(self.q, n=2, axis=0) / self.period**2
 
+    def tip_deviation(self, tip_positions) -> float:
+        """Largest distance (m) of a commanded tip sample from the straight tip segment between the
+        waypoints it lies between (and their neighbours): how far the smooth timed path rounds the
+        corners of the waypoint polyline (at most about ``path_resolution``). ``tip_positions``: the
+        forward kinematics of joint rows to tip points."""
+        if self.waypoints is None or len(self.waypoints) < 2:
+            return 0.0
+        corners = tip_positions(self.waypoints)
+        tips = tip_positions(self.q)
+        segment = self.segment_of_samples()
+        best = np.full(len(tips), np.inf)
+        for shift in (-1, 0, 1):  # a sample near a knot may be nearest to the neighbouring segment
+            i = np.clip(segment + shift, 0, len(corners) - 2)
+            a, d = corners[i], corners[i + 1] - corners[i]
+            t = np.clip(np.sum((tips - a) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0.0, 1.0)
+            best = np.minimum(best, np.linalg.norm(tips - (a + t[:, None] * d), axis=1))
+        return float(best.max())
+
 
 def _path_parameter(waypoints: np.ndarray, velocity_limit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Waypoints without repeats, and their cumulative distance in the metric |dq / v_max|."""

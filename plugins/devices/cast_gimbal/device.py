@@ -31,8 +31,10 @@ from surgiplan.devices import Trajectory
 from surgiplan.geometry.transforms import Pose
 from surgiplan.models import PoseModel
 from surgiplan.plugins.devices.canopen.certify import Certificate, certify
-from surgiplan.plugins.devices.canopen.device import Cia402Device, JointPath, Refusal
+from surgiplan.plugins.devices.canopen.device import Cia402Device, JointPath
+from surgiplan.plugins.devices.canopen.refusal import Refusal
 from surgiplan.plugins.devices.canopen.settings import Cia402DeviceSettings
+from surgiplan.plugins.devices.canopen.sim.drives import DriveSimulator
 from surgiplan.plugins.devices.kinematics.model import DifferentialIK, KinematicModel, urdf_path
 from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace
 from surgiplan.units import Length
@@ -55,6 +57,8 @@ class CastGimbalDevice(Cia402Device):
     urdf_name = "cast_gimbal"
     tip_frame = "tip"
     clearance_label = "executed shaft clearance"
+    #: on the virtual bus: surgiplan's simulated CiA 402 drives (their EDS files ship in ``eds/``)
+    simulated_drives = DriveSimulator
 
     def __init__(self, settings: CastGimbalDeviceSettings) -> None:
         super().__init__(settings)

@@ -38,8 +38,10 @@ from surgiplan.devices import Trajectory
 from surgiplan.geometry.transforms import canonical_quaternion, quaternion_angle, slerp
 from surgiplan.models import PoseModel
 from surgiplan.plugins.devices.canopen.certify import Certificate, certify
-from surgiplan.plugins.devices.canopen.device import Cia402Device, JointPath, Refusal
+from surgiplan.plugins.devices.canopen.device import Cia402Device, JointPath
+from surgiplan.plugins.devices.canopen.refusal import Refusal
 from surgiplan.plugins.devices.canopen.settings import Cia402DeviceSettings
+from surgiplan.plugins.devices.canopen.sim.drives import DriveSimulator
 from surgiplan.plugins.devices.kinematics.model import DifferentialIK, KinematicModel, urdf_path
 from surgiplan.units import Angle, Length
 
@@ -71,6 +73,8 @@ class Gripper6Device(Cia402Device):
     urdf_name = "gripper6"
     tip_frame = "jaws"
     clearance_label = "executed jaws body clearance"
+    #: on the virtual bus: surgiplan's simulated CiA 402 drives (their EDS files ship in ``eds/``)
+    simulated_drives = DriveSimulator
 
     def build_model(self, base=None) -> KinematicModel:
         return KinematicModel(

@@ -50,6 +50,8 @@ from typing import Any
 
 import can
 
+from ..bus import BusError
+
 HEADER = struct.Struct("<dIBB")
 #: what the hub sends a bus once it is on the bus: frames sent after the bus's constructor returned reach it
 GREETING = b"SPCANHUB\x01"
@@ -58,8 +60,12 @@ _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = 1, 2, 4, 8, 16, 32
 _MAX_DATA = 64
 
 
-class LoopbackError(can.CanInitializationError):
-    """The loopback channel is malformed, not on loopback, or cannot be hosted or joined."""
+class LoopbackError(can.CanInitializationError, BusError):
+    """The loopback channel is malformed, not on loopback, or cannot be hosted or joined.
+
+    A ``can.CanInitializationError`` (python-can's contract for an interface that cannot be opened) and a
+    :class:`..bus.BusError` (surgiplan's: the CAN bus cannot be opened, a user error).
+    """
 
 
 def parse_channel(channel: Any) -> tuple[str, int]:

@@ -1,6 +1,6 @@
 """EDS files (CiA 306) of the simulated drives, exported from the object dictionary they serve.
 
-One source of truth: :func:`.cia402.drive_object_dictionary` builds the
+One source of truth: :func:`..cia402.drive_object_dictionary` builds the
 dictionary a simulated drive serves; this module writes it as an electronic
 data sheet with canopen's exporter, so that any CANopen tool (canopen's
 ``RemoteNode``/``BaseNode402``, a PLC's configurator) loads the drive's
@@ -10,7 +10,7 @@ differ per joint: travel, speed, encoder resolution); a test checks that they
 are exactly what this module writes today. Regenerate them after changing the
 dictionary::
 
-    python -m surgiplan.plugins.devices.canopen.eds --write
+    python -m surgiplan.plugins.devices.canopen.sim.eds --write
 
 Relative values use ``$NODEID`` (COB-IDs, the serial number), so a file
 serves any node id.
@@ -25,7 +25,8 @@ from pathlib import Path
 
 from canopen import objectdictionary as od
 
-from . import cia402
+from .. import cia402
+from .drives import axis_hardware, simulated_devices
 
 #: FileInfo of every exported file (fixed: the file changes only when the dictionary does)
 FILE_INFO = {
@@ -62,7 +63,7 @@ def device_eds(device_cls, device: str) -> dict[Path, str]:
     """The EDS text of each simulated drive of a CiA 402 device class (its default settings)."""
     instance = device_cls(device_cls.Settings.model_validate({}))
     instance.model = instance.build_model()
-    _, hardware = instance._axes()
+    hardware = axis_hardware(instance)
     sync = instance.settings.simulation.sync_timeout
     out = {}
     folder = instance.eds_folder()
@@ -72,19 +73,6 @@ def device_eds(device_cls, device: str) -> dict[Path, str]:
         description = f"{device} joint {axis.name}: surgiplan's simulated CiA 402 servo drive"
         out[folder / name] = eds_text(dictionary, name, description)
     return out
-
-
-def simulated_devices() -> dict[str, type]:
-    """The registered device plugins that ship simulated CiA 402 drives (they have an EDS folder)."""
-    from surgiplan.registry import default_registry
-
-    registry = default_registry()
-    found = {}
-    for name in registry.names("device"):
-        cls = registry.get("device", name).cls
-        if isinstance(cls, type) and callable(getattr(cls, "eds_folder", None)):
-            found[name] = cls
-    return found
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 stale.append(path)
     for path in stale:
-        print(f"out of date: {path} (python -m surgiplan.plugins.devices.canopen.eds --write)", file=sys.stderr)
+        print(f"out of date: {path} (python -m surgiplan.plugins.devices.canopen.sim.eds --write)", file=sys.stderr)
     return 1 if stale else 0
 
 

@@ -1,6 +1,6 @@
 """Simulated CiA 402 drives in a process of their own, on any python-can bus.
 
-``surgiplan-sim-drives`` (or ``python -m surgiplan.plugins.devices.canopen.sim_drives``)
+``surgiplan-sim-drives`` (or ``python -m surgiplan.plugins.devices.canopen.sim.process``)
 runs the drives of a device (``cast_gimbal``: 4 axes, ``gripper6``: 6) in real
 time on the bus you name, as real drives would be: outside the process of the
 master, reached only through CAN frames. A pipeline then talks to them with
@@ -30,24 +30,11 @@ import sys
 import threading
 
 from surgiplan.errors import SurgiplanError
-from surgiplan.registry import default_registry
 
-from .bus import ArmedFaults, BusSettings, open_bus
-from .clock import RealTimeClock
-from .device import Cia402Device
-from .drives import DriveSimulator, MotorModel
-
-
-def cia402_devices() -> dict[str, type[Cia402Device]]:
-    """The registered device plugins whose joints are CiA 402 drives (found by registered name, so this
-    layer never imports a device package; a third party's CiA 402 device is simulated the same way)."""
-    registry = default_registry()
-    found = {}
-    for name in registry.names("device"):
-        cls = registry.get("device", name).cls
-        if isinstance(cls, type) and issubclass(cls, Cia402Device):
-            found[name] = cls
-    return found
+from ..bus import ArmedFaults, BusSettings, open_bus
+from ..clock import RealTimeClock
+from .drives import DriveSimulator, axis_hardware, simulated_devices
+from .motor import MotorModel
 
 
 def _option(text: str) -> tuple[str, object]:
@@ -62,7 +49,7 @@ def _option(text: str) -> tuple[str, object]:
 
 def build_simulator(args: argparse.Namespace) -> DriveSimulator:
     """The drives of ``args.device`` on the bus the arguments name (raises SurgiplanError)."""
-    devices = cia402_devices()
+    devices = simulated_devices()
     if args.device not in devices:
         raise SurgiplanError(
             f"no CiA 402 device plugin named '{args.device}' (installed: {', '.join(sorted(devices))})"
@@ -78,9 +65,8 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
         settings["simulation"]["sync_timeout"] = args.sync_timeout
     device = cls(cls.Settings.model_validate(settings))
     device.model = device.build_model()
-    _, hardware = device._axes()
-    simulation = device.settings.simulation
-    model = MotorModel(simulation.position_gain, simulation.velocity_gain, sync_timeout=simulation.sync_timeout)
+    hardware = axis_hardware(device)  # the settings are checked before the bus is opened
+    model = MotorModel.of(device.settings.simulation)
     bus, _ = open_bus(BusSettings.model_validate(settings["bus"]))
     clock = RealTimeClock()
     return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None, device=args.device)

@@ -1,0 +1,372 @@
+"""Simulated CiA 402 servo drives: one CANopen node per joint, CiA 301 and CiA 402 as real drives do them.
+
+Each axis is a :class:`.node.DriveNode` (a ``canopen.LocalNode`` with its
+object dictionary from :func:`..cia402.drive_object_dictionary`, the same one
+its EDS file states, :mod:`.eds`) on the simulator's bus, and a motor.
+:class:`DriveSimulator` is the drives of one device, one concern per module:
+
+* :mod:`.node`, :mod:`.objects`, :mod:`.communication` — CiA 301: the node
+  (NMT, SDO, EMCY, PDO objects), what reading and writing each object means,
+  NMT events, heartbeat consumers, SYNC and the PDO exchange, EMCY;
+* :mod:`.statemachine`, :mod:`.modes`, :mod:`.reference` — CiA 402: the
+  state machine and statusword, the operating modes (profile position and
+  velocity, cyclic synchronous position and velocity) and the piecewise
+  quadratic reference they give the servo loops;
+* :mod:`.motor` — how that reference becomes the axes' actual positions and
+  velocities (the drive's servo cascade and the motor);
+* :mod:`.faults` — the injected faults (jams, lost heartbeats, dead nodes);
+* this module — the drives' state, time (the motors integrated up to each
+  event), and the real-time loop; :mod:`.process` runs them in a process of
+  their own.
+
+Under the simulated clock every frame is handled synchronously
+(:class:`..network.SimulationLink`); in real time the simulator runs its own
+receive-and-timer loop in a thread (:meth:`DriveSimulator.start`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import can
+import numpy as np
+from surgiplan.registry import default_registry
+
+from .. import cia402
+from ..bus import ArmedFaults
+from ..clock import Clock, Scheduler, set_realtime_priority
+from ..device import Cia402Device
+from ..network import PumpedNetwork, SimulationLink
+from .communication import TICK, Communication
+from .faults import FaultInjection
+from .modes import OperatingModes
+from .motor import MotorModel
+from .node import DriveNode
+from .objects import ObjectDictionary
+from .reference import Reference
+from .statemachine import OE, QS, SOD, Cia402StateMachine
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class AxisHardware:
+    """The simulated hardware of one joint (SI joint units: rad or m)."""
+
+    node_id: int
+    counts_per_unit: float
+    #: current limit, as the joint acceleration it allows (units/s^2)
+    peak_acceleration: float
+    #: motor speed limit (units/s)
+    max_velocity: float
+    #: position at power-up (units)
+    initial: float = 0.0
+    #: the joint's name, its kind ("rad" or "m") and travel: the EDS's product name and default limits
+    name: str = "axis"
+    unit: str = "rad"
+    lower: float | None = None
+    upper: float | None = None
+    #: following error window at power-up (units; None: off)
+    following_error_window: float | None = None
+    #: profile velocity and acceleration at power-up (units/s, units/s^2; None: the motor's limits, a third
+    #: of its current limit); the quick stop decelerates at twice the profile acceleration
+    profile_velocity: float | None = None
+    profile_acceleration: float | None = None
+
+    def defaults(self, device: str = "", sync_watchdog: float = 0.05) -> cia402.DriveDefaults:
+        """The power-on values of this axis' drive (its object dictionary's defaults, its EDS)."""
+        what = f"{device} joint '{self.name}'" if device else f"joint '{self.name}'"
+        return cia402.DriveDefaults(
+            product_name=f"surgiplan simulated CiA 402 servo drive ({what})",
+            counts_per_unit=self.counts_per_unit,
+            unit=self.unit,
+            lower=self.lower,
+            upper=self.upper,
+            max_velocity=self.max_velocity,
+            profile_velocity=self.profile_velocity if self.profile_velocity is not None else self.max_velocity,
+            acceleration=(
+                self.profile_acceleration if self.profile_acceleration is not None else self.peak_acceleration / 3
+            ),
+            following_error_window=self.following_error_window,
+            sync_watchdog=sync_watchdog,
+        )
+
+
+class DriveSimulator(ObjectDictionary, Communication, Cia402StateMachine, OperatingModes, FaultInjection):
+    """Simulated drives on a python-can ``bus`` of their own, one :class:`.node.DriveNode` per axis.
+
+    The bus is usually a second handle on the master's virtual channel; for the
+    stand-alone simulator (:mod:`.process`) any python-can interface.
+    ``link`` (simulated clock) delivers frames synchronously; without it (real
+    time) call :meth:`start`.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        axes: list[AxisHardware],
+        model: MotorModel,
+        clock: Clock,
+        faults: ArmedFaults,
+        link: SimulationLink | None,
+        device: str = "",
+    ) -> None:
+        self.axes = axes
+        self.model = model
+        self.clock = clock
+        self.faults = faults
+        self.realtime = link is None
+        self._lock = threading.RLock()
+        self.scheduler = Scheduler() if self.realtime else clock.scheduler
+        self.frame_drop = frame_drop = faults.frame_loss(stream=1)
+        self.sync_drop = faults.frame_loss(stream=2)
+        self.network = PumpedNetwork(
+            bus,
+            self.scheduler,
+            clock.now,
+            link,
+            drop=(lambda can_id: can_id != 0x80 and frame_drop.drop(can_id)) if frame_drop else None,
+        )
+        n = len(axes)
+        self.ids = [a.node_id for a in axes]
+        self.cpu = np.array([a.counts_per_unit for a in axes], dtype=float)
+        self.peak = np.array([a.peak_acceleration for a in axes], dtype=float)
+        self.hardware_vmax = np.array([a.max_velocity for a in axes], dtype=float)
+        self.vmax = self.hardware_vmax.copy()
+        self.pos = np.array([a.initial for a in axes], dtype=float)
+        self.vel = np.zeros(n)
+        self.t = clock.now()
+        self.state = np.full(n, SOD)
+        self.alive = np.array([not faults.never_answers(a.node_id) for a in axes])
+        self.controlword = np.zeros(n, dtype=np.int64)
+        self.reference = Reference(n, self.t, self.pos)
+        #: the mode in force (0x6061) per axis
+        self.mode = np.full(n, cia402.CSP)
+        # parameters in SI joint units (from the object dictionary; updated on every write)
+        self.period = np.full(n, 1e-3)
+        self.window = np.full(n, np.inf)
+        self.window_time = np.full(n, 0.01)
+        self.qs_decel = np.full(n, 1e9)
+        self.profile_velocity = np.full(n, 1.0)
+        self.profile_accel = np.full(n, 1.0)
+        self.profile_decel = np.full(n, 1.0)
+        self.limit_lo = np.full(n, -np.inf)
+        self.limit_hi = np.full(n, np.inf)
+        self.position_window = np.full(n, 0.0)
+        self.position_window_time = np.zeros(n)
+        self.velocity_window = np.full(n, 0.0)
+        self.velocity_window_time = np.zeros(n)
+        self.sync_watchdog = np.full(n, model.sync_timeout)
+        self.abort_option = np.full(n, 3)
+        self.qs_option = np.full(n, 6)
+        # state of the modes and monitoring
+        self.over_time = np.zeros(n)
+        self.following_error = np.zeros(n, dtype=bool)
+        self.load = np.zeros(n)
+        self.last_sync = np.full(n, -np.inf)
+        self.target = np.zeros(n)  # pp: the set-point being moved to (units)
+        self.target_velocity = np.zeros(n)  # pv/csv (units/s)
+        self.set_point_ack = np.zeros(n, dtype=bool)
+        self.moving_to_target = np.zeros(n, dtype=bool)  # pp: a set-point was given and not yet reached
+        self.inside_since = np.full(n, np.inf)
+        self.limit_active = np.zeros(n, dtype=bool)
+        self.qs_end = np.full(n, np.inf)  # quick stop ramps 1, 2: when to switch off
+        self.errors: list[dict[int, int]] = [{} for _ in range(n)]
+        self.error_history: list[list[int]] = [[] for _ in range(n)]
+        #: heartbeat consumer per axis: {producer node id: [time s, last heartbeat time or None]}
+        self.consumers: list[dict[int, list]] = [{} for _ in range(n)]
+        self.pending: list[dict[int, bytes]] = [{} for _ in range(n)]  # synchronous RPDOs, by COB-ID
+        #: ground truth for tests and diagnosis: (time s, node id, from state, to state)
+        self.transitions: list[tuple[float, int, str, str]] = []
+        self.nodes: dict[int, DriveNode] = {}
+        self._subscribed: dict[int, object] = {}  # heartbeat consumers' COB-IDs
+        self._rpdo_callbacks: dict[int, object] = {}
+        #: real time: the time of the frame being handled (a SYNC's arrival), else None (the clock's now)
+        self._event_time: float | None = None
+        #: simulation only: where a hand holds the unpowered axes at time t (see move_by_hand)
+        self.hand: Callable[[float], np.ndarray] | None = None
+        self.dictionaries = []
+        for i, axis in enumerate(axes):
+            dictionary = cia402.drive_object_dictionary(axis.node_id, axis.defaults(device, model.sync_timeout))
+            self.dictionaries.append(dictionary)
+            if not self.alive[i]:
+                continue
+            node = DriveNode(axis.node_id, dictionary, self, i)
+            self.network.add_node(node)
+            node.add_read_callback(lambda index, subindex, od, i=i: self.read(i, index, subindex))
+            node.add_write_callback(lambda index, subindex, od, data, i=i: self.write(i, index, subindex, od, data))
+            self.nodes[axis.node_id] = node
+            self._load_parameters(i)
+        self.network.subscribe(0x80, self._on_sync)
+        for node in self.nodes.values():  # power-up: boot-up message, then PRE-OPERATIONAL
+            node.nmt.boot(application=True)
+        self.scheduler.call_every(TICK, self._tick, self.t + TICK)
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    def _now(self) -> float:
+        return self._event_time if self._event_time is not None else self.clock.now()
+
+    @classmethod
+    def for_device(
+        cls, device: Cia402Device, bus: can.BusABC, clock: Clock, faults: ArmedFaults, link: SimulationLink | None
+    ) -> DriveSimulator:
+        """The simulated drives of a CiA 402 device (its model built): its joints' hardware
+        (:func:`axis_hardware`) and its ``simulation`` settings, on ``bus``."""
+        model = MotorModel.of(device.settings.simulation)
+        return cls(bus, axis_hardware(device), model, clock, faults, link, device=device.urdf_name)
+
+    # ------------------------------------------------------------------ time
+    def advance(self, t: float) -> None:
+        """Integrate every motor from the last call to time ``t`` (s)."""
+        with self._lock:
+            self._advance_locked(t)
+
+    def _advance_locked(self, t: float) -> None:
+        span = t - self.t
+        if span <= 0:
+            return
+        state = self.state
+        powered_mask = ((state == OE) | (state == QS)) & self.alive
+        if self.hand is not None:
+            # unpowered axes moved by hand (a trainee holding the instrument): they go where the hand takes them
+            by_hand = ~powered_mask & self.alive
+            if by_hand.any():
+                where = np.asarray(self.hand(t), dtype=float)
+                self.vel[by_hand] = (where[by_hand] - self.pos[by_hand]) / span
+                self.pos[by_hand] = where[by_hand]
+                for i in np.flatnonzero(by_hand):
+                    self.reference.hold(i, t, self.pos[i])
+        if not powered_mask.any():
+            if self.hand is not None:
+                self.t = t
+                return
+            # every brake holds: nothing moves (unpowered velocities are zero)
+            self.vel[:] = 0.0
+            self.t = t
+            return
+        m = self.model
+        steps = m.substeps(span)
+        dt = span / steps
+        powered = powered_mask.astype(float)
+        mode = self.mode
+        monitored = (state == OE) & self.alive & ((mode == cia402.PP) | (mode == cia402.CSP))
+        # the commands of every substep at once; the integration itself is sequential
+        # the loop compares the position at the start of each step with the command there
+        if steps == 1:
+            command, rate = self.reference.at(self.t)
+            command, rate = command[None], rate[None]
+        else:
+            command, rate = self.reference.at(self.t + dt * np.arange(steps)[:, None])
+        pos, vel, over_time = self.pos, self.vel, self.over_time
+        cpu, vmax, peak, load, window = self.cpu, self.vmax, self.peak, self.load, self.window
+        tripped = np.zeros(len(pos), dtype=bool)
+        for k in range(steps):
+            pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
+            # following error (position modes): outside the window 0x6065 for longer than 0x6066
+            over_time = (over_time + dt) * (monitored & (np.abs(command[k] - pos) > window))
+            tripped |= over_time > self.window_time
+        self.pos, self.vel, self.over_time = pos, vel, over_time
+        self.t = t
+        for i in np.flatnonzero(tripped & monitored):
+            self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
+        self._windows(t)
+
+    # ------------------------------------------------------------------ real time
+    def start(self, priority: int | None = None) -> None:
+        """Real-time mode: receive and run timers in a thread until :meth:`stop` (under SCHED_FIFO at
+        ``priority``, with the loopback hub's thread if this bus hosts it)."""
+        self._thread = threading.Thread(target=self._loop, name="surgiplan-simulated-drives", daemon=True)
+        self._thread.start()
+        set_realtime_priority(priority, self._thread.native_id)
+        hub = getattr(self.network.bus, "_hub", None)
+        if hub is not None:
+            set_realtime_priority(priority, hub.thread.native_id)
+
+    def _loop(self) -> None:
+        self.clock.precise()
+        while not self._stop.is_set():
+            due = self.scheduler.next_due()
+            wait = 0.005 if due is None else min(0.005, max(0.0, due - self.clock.now()))
+            # a few frames at a time: the timers (heartbeats, the SYNC watchdog) must not wait behind
+            # a backlog of frames when the process was descheduled
+            try:
+                self.network.pump(wait, limit=2 + 2 * len(self.axes))
+            except can.CanError as exc:  # the bus went away (its hub closed): nothing more to serve
+                log.warning("simulated drives: %s", exc)
+                return
+            now = self.clock.now()
+            while (timer := self.scheduler.pop_due(now)) is not None:
+                timer.action()
+
+    def move_by_hand(self, motion: Callable[[float], np.ndarray] | None) -> None:
+        """Simulation only: while an axis is unpowered (its drive not enabled, as when a trainee moves the
+        instrument by hand, the observe mode of a guide stage), its position follows ``motion(t)`` (units per
+        axis, ``t`` the clock's time); the encoders, TPDOs and SDO reads report it. None lets go."""
+        with self._lock:
+            self._advance_locked(self.clock.now())
+            self.hand = motion
+
+    def positions(self) -> np.ndarray:
+        """True joint positions (units): the simulation's ground truth, for tests."""
+        return self.pos.copy()
+
+    def place(self, positions) -> None:
+        """Simulation only: put the (still) axes at ``positions`` (units), as a hand would."""
+        with self._lock:
+            self.pos = np.asarray(positions, dtype=float).copy()
+            self.vel[:] = 0.0
+            for i in range(len(self.pos)):
+                self.reference.hold(i, self.t, self.pos[i])
+                self.pending[i].clear()  # targets sent for the old position no longer apply
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        for node in self.nodes.values():
+            node.nmt.stop_heartbeat()
+        if self.network.bus is not None:
+            self.network.bus.shutdown()
+            self.network.bus = None
+
+
+def axis_hardware(device: Cia402Device) -> list[AxisHardware]:
+    """The simulated hardware of a CiA 402 device's joints, from its settings (:meth:`..device.Cia402Device.joints`;
+    raises ConfigError) and its model (built)."""
+    s, model = device.settings, device.model
+    joints = device.joints()
+    return [
+        AxisHardware(
+            joints.node_ids[j],
+            float(joints.counts_per_unit[j]),
+            float(joints.acceleration[j] * s.simulation.peak_acceleration_factor),
+            float(model.velocity_limit[j] * s.simulation.velocity_factor),
+            float(joints.start[j]),
+            name=model.joint_names[j],
+            unit="m" if model.prismatic[j] else "rad",
+            lower=float(model.lower[j]),
+            upper=float(model.upper[j]),
+            following_error_window=float(joints.following_error_window[j]),
+            profile_velocity=float(joints.velocity[j]),
+            profile_acceleration=float(joints.acceleration[j]),
+        )
+        for j in range(model.nq)
+    ]
+
+
+def simulated_devices() -> dict[str, type[Cia402Device]]:
+    """The registered device plugins whose joints are CiA 402 drives, by name (found by registered name, so
+    the CANopen layer never imports a device package; a third party's CiA 402 device is simulated the same
+    way)."""
+    registry = default_registry()
+    found = {}
+    for name in registry.names("device"):
+        cls = registry.get("device", name).cls
+        if isinstance(cls, type) and issubclass(cls, Cia402Device):
+            found[name] = cls
+    return found
