@@ -360,8 +360,8 @@ def plugin_class_problem(kind: PluginKind, cls: Any) -> str:
     permissive = permissive_models(settings)
     if permissive:
         return (
-            f"its settings model {', '.join(permissive)} accepts unknown keys; declare "
-            'model_config = ConfigDict(extra="forbid") so a misspelt setting is an error'
+            f"its settings model {', '.join(permissive)} accepts unknown keys; "
+            "subclass surgiplan.StrictModel (extra='forbid') so a misspelt setting is an error"
         )
     return ""
 

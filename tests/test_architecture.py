@@ -188,3 +188,64 @@ def test_no_generic_top_level_import_names_are_installed():
     code = "import importlib.util as u; print(u.find_spec('framework'), u.find_spec('plugins'))"
     out = subprocess.run([sys.executable, "-c", code], cwd="/", capture_output=True, text=True)
     assert out.stdout.strip() == "None None", out.stdout + out.stderr
+
+
+# ----------------------------------------------------------------------------- smaller rooms, one of each thing
+
+PYTHON_TREES = ("framework", "plugins", "benchmarks", "tests", "examples")
+
+
+def _python_files():
+    for tree in PYTHON_TREES:
+        yield from (p for p in (ROOT / tree).rglob("*.py") if "egg-info" not in str(p))
+
+
+def test_no_module_is_over_600_lines():
+    """A module is read in one sitting (the vendored three.js is JavaScript, not counted)."""
+    long = {str(p.relative_to(ROOT)): n for p in _python_files() if (n := len(p.read_text().splitlines())) > 600}
+    assert long == {}
+
+
+def test_every_exception_surgiplan_defines_is_a_surgiplan_error():
+    """One exception family: whatever the core or a built-in plugin raises of its own is a SurgiplanError (a
+    user error exits 2; the rest declare exit_code 1), so the command line and the runner handle one root."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import surgiplan
+    import surgiplan.plugins
+    from surgiplan.errors import SurgiplanError
+
+    outside, modules = [], 0
+    names = [i.name for i in pkgutil.walk_packages(surgiplan.__path__, "surgiplan.")]
+    names += [i.name for i in pkgutil.walk_packages(surgiplan.plugins.__path__, "surgiplan.plugins.")]
+    for name in sorted(set(names)):
+        module = importlib.import_module(name)
+        modules += 1
+        for name, obj in vars(module).items():
+            if (
+                inspect.isclass(obj)
+                and issubclass(obj, BaseException)
+                and obj.__module__ == module.__name__
+                and not issubclass(obj, SurgiplanError)
+            ):
+                outside.append(f"{module.__name__}.{name}")
+    assert outside == [] and modules > 150  # the core's modules and every built-in plugin's
+
+
+def test_one_settings_base_and_one_unit_table():
+    """Settings forbid unknown keys through surgiplan.StrictModel only, and length units have one table
+    (surgiplan.units.LENGTH_UNITS): no private copies in the core or the plugins."""
+    forbid = re.compile(r"ConfigDict\([^)]*extra\s*=\s*[\"']forbid")
+    table = re.compile(r"[\"']mm[\"']\s*:\s*(1e-3|0\.001)")
+    strict, units = [], []
+    for tree in ("framework", "plugins", "examples"):
+        for path in (ROOT / tree).rglob("*.py"):
+            text = path.read_text()
+            relative = str(path.relative_to(ROOT))
+            if forbid.search(text) and relative != "framework/models.py":
+                strict.append(relative)
+            if table.search(text) and relative != "framework/units.py":
+                units.append(relative)
+    assert strict == [] and units == []

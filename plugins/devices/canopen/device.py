@@ -126,6 +126,8 @@ class Cia402Device(Device):
         #: the last execution's log (times, measured and commanded joints, faults): what the drives did
         self.last_log: ExecutionLog | None = None
         self._source: str | None = None
+        #: the clearance threshold of the plan the trajectory came from (its Trajectory carries it)
+        self._threshold = None
         self._frozen = False
         self.channel = ""
 
@@ -328,6 +330,7 @@ class Cia402Device(Device):
     def run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings
         self._source = trajectory.source
+        self._threshold = trajectory.clearance_threshold
         states = self.drive_states()
         stopped = {name: state for name, state in states.items() if state != cia402.OPERATION_ENABLED}
         if stopped or self.controller.pending_faults:
@@ -448,11 +451,7 @@ class Cia402Device(Device):
 
     def _plan_threshold(self) -> float | None:
         """The clearance threshold of the plan stage this execution's path came from, if it had one."""
-        if self.context is None or self._source is None:
-            return None
-        plan = self.context.previous.get(self._source)
-        threshold = getattr(plan, "clearance_threshold", None)
-        return float(threshold) if threshold is not None else None
+        return float(self._threshold) if self._threshold is not None else None
 
     def _write_outputs(self, log, tips, reference_tips, clearance, message: str) -> list[str]:
         name = self.context.name
