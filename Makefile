@@ -6,6 +6,10 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 MAIN_JOB ?= configs/block_world_proficiency.yaml
+# setuptools says "Editable installation. Please be careful with folders ..." on every editable install of a
+# package-dir layout; it is about editable installs in general, not this project (tests/test_packaging.py
+# builds the wheel and checks that setuptools warns of nothing)
+PIP_QUIET := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet
 
 .PHONY: run test lint bench clean browser
 
@@ -14,11 +18,11 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
 $(VENV)/.run-deps: pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[ompl]'
+	$(PIP_QUIET) -e '.[ompl]'
 	touch $@
 
 $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e '.[dev,dask,ompl,browser,pardiso,interop]' -e examples/surgiplan-hello
+	$(PIP_QUIET) -e '.[dev,dask,ompl,browser,pardiso,interop]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
 
 # The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client

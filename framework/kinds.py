@@ -216,7 +216,7 @@ class StageKind:
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if isinstance(cls.__dict__.get("name"), str):  # a concrete kind: its success statuses, for StageResult
-            declare_statuses(cls.name, cls.succeeded)
+            declare_statuses(cls.name, cls.succeeded, replace=False)
 
     # ------------------------------------------------------------------ validation
     def plugin_statuses(self) -> frozenset[str]:

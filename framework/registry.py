@@ -39,6 +39,7 @@ from .errors import PluginError, choices_hint
 from .hookspecs import NAME, PluginInfo, PluginSpec
 from .kinds import PluginKind, StageKind
 from .spaces.base import Space
+from .status import declare_statuses
 
 log = logging.getLogger(__name__)
 
@@ -210,6 +211,7 @@ class PluginRegistry:
                     self.skipped.append(f"{kind.name} ({package})")
                     continue
                 self.stage_kinds[kind.name] = StageKindInfo(kind, package, version, ep_name)
+                declare_statuses(kind.name, kind.succeeded)  # what StageResult.succeeded reads
                 if kind.plugin_kind is not None:
                     self.plugin_kinds[kind.plugin_kind.name] = kind.plugin_kind
 

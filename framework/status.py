@@ -91,9 +91,12 @@ class RunOutcomeStatus(enum.StrEnum):
 _SUCCEEDED: dict[str, frozenset[str]] = {}
 
 
-def declare_statuses(kind: str, succeeded: frozenset[str] | set[str]) -> None:
-    """Record which statuses of stage kind ``kind`` count as success (done by every StageKind subclass)."""
-    _SUCCEEDED[kind] = frozenset(str(s) for s in succeeded)
+def declare_statuses(kind: str, succeeded: frozenset[str] | set[str], *, replace: bool = True) -> None:
+    """Record which statuses of stage kind ``kind`` count as success. The registry does it for every kind it
+    registers (``replace``); a StageKind subclass does it when defined, unless the name is already declared
+    (so results made by hand know them, and a class that reuses a registered name changes nothing)."""
+    if replace or kind not in _SUCCEEDED:
+        _SUCCEEDED[kind] = frozenset(str(s) for s in succeeded)
 
 
 def succeeded(kind: str, status: str) -> bool:

@@ -128,14 +128,22 @@ def test_each_contract_catches_its_violation(tmp_path, probe, broken):
 
 
 def test_every_package_is_listed_for_the_wheel():
-    """setuptools ships only the packages pyproject lists: every directory with an ``__init__.py`` is there."""
-    listed = set(PYPROJECT["tool"]["setuptools"]["packages"])
-    found = set()
+    """setuptools ships only the packages pyproject lists: every directory with an ``__init__.py`` is there, and
+    so is every directory of data files (a data package: it has package-data and no Python)."""
+    setuptools = PYPROJECT["tool"]["setuptools"]
+    listed = set(setuptools["packages"])
+    found, data = set(), set()
     for top, name in (("framework", "surgiplan"), ("plugins", "surgiplan.plugins")):
-        for init in (ROOT / top).rglob("__init__.py"):
-            parts = init.parent.relative_to(ROOT / top).parts
-            found.add(".".join([name, *parts]))
-    assert found == listed
+        for directory in [ROOT / top, *(p for p in (ROOT / top).rglob("*") if p.is_dir())]:
+            if directory.name == "__pycache__":
+                continue
+            package = ".".join([name, *directory.relative_to(ROOT / top).parts])
+            if (directory / "__init__.py").is_file():
+                found.add(package)
+            elif any(p.is_file() for p in directory.iterdir()):
+                data.add(package)
+    assert found | data == listed
+    assert data == set(setuptools["package-data"]) - {"surgiplan"}
 
 
 def test_every_plugin_package_registers_through_its_own_entry_point_and_says_what_it_implements():
@@ -221,6 +229,8 @@ def test_every_exception_surgiplan_defines_is_a_surgiplan_error():
     names = [i.name for i in pkgutil.walk_packages(surgiplan.__path__, "surgiplan.")]
     names += [i.name for i in pkgutil.walk_packages(surgiplan.plugins.__path__, "surgiplan.plugins.")]
     for name in sorted(set(names)):
+        if name.endswith(".__main__"):  # runs its program when imported
+            continue
         module = importlib.import_module(name)
         modules += 1
         for name, obj in vars(module).items():

@@ -121,7 +121,7 @@ TABLE = [
         "unknown-stage-kind",
         "validate",
         _change(_set(["pipeline", 0, "stage"], "planx")),
-        ["pipeline[0].stage:", "unknown stage kind 'planx'; did you mean 'plan'? choose one of: execute, guide, plan"],
+        ["pipeline[0].stage:", "unknown stage kind 'planx'; did you mean 'plan'? choose one of: execute, "],
     ),
     (
         "unknown-plugin",
@@ -247,7 +247,7 @@ TABLE = [
         "path-from-on-plan",
         "validate",
         _change(_set(["pipeline", 0, "path_from"], "x")),
-        ["path_from applies to execute and guide stages only"],
+        ["path_from applies to execute, guide and export stages only, not to plan stages"],
     ),
     (
         "unknown-executor",

@@ -179,9 +179,9 @@ def test_qp_step_with_active_joint_and_velocity_bounds_matches_bounded_least_squ
 
 
 def test_urdf_files_ship_as_package_data_and_load_through_importlib_resources():
-    """Installed wheels have the URDFs: setuptools lists their directory as a package with them as data
-    (a wheel built from this configuration was checked to contain both files), and the loader finds
-    them through importlib.resources rather than a path relative to the source tree."""
+    """Installed wheels have the URDFs: setuptools lists their directory as a data package of its own
+    (tests/test_packaging.py builds and installs the wheel), and the loader finds them through
+    importlib.resources rather than a path relative to the source tree."""
     import fnmatch
     import tomllib
     from pathlib import Path
@@ -190,11 +190,11 @@ def test_urdf_files_ship_as_package_data_and_load_through_importlib_resources():
     config = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]
     for name in ("cast_gimbal", "gripper6"):
         package = f"surgiplan.plugins.devices.{name}"
-        assert package in config["packages"]
-        patterns = config["package-data"][package]
+        assert package in config["packages"] and f"{package}.urdf" in config["packages"]
+        patterns = config["package-data"][f"{package}.urdf"]
         shipped = sorted(p.name for p in (root / "plugins" / "devices" / name / "urdf").iterdir())
         assert shipped == [f"{name}.urdf"]
-        assert all(any(fnmatch.fnmatch(f"urdf/{file}", p) for p in patterns) for file in shipped)
+        assert all(any(fnmatch.fnmatch(file, p) for p in patterns) for file in shipped)
         path = urdf_path(package, name)
         assert path.is_file() and path.parent.name == "urdf"
         assert pin.buildModelFromUrdf(str(path)).nq in (4, 6)

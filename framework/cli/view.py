@@ -1,0 +1,58 @@
+"""``surgiplan view``: a run's report.html served on 127.0.0.1, or the live viewer ``run --live`` feeds."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+
+def add_parsers(sub) -> None:
+    view = sub.add_parser(
+        "view",
+        help="show a run's report.html (served on 127.0.0.1), or with --live what a running stage does",
+        description="Serve OUT_DIR's report.html on 127.0.0.1 and open it in the browser (Ctrl-C stops); "
+        "with --live, the live viewer that `surgiplan run --live` feeds.",
+    )
+    view.add_argument("out_dir", nargs="?", type=Path, metavar="OUT_DIR", help="a run's output directory")
+    view.add_argument("--live", action="store_true", help="the live viewer: watch a running execute or guide stage")
+    view.add_argument("--port", type=int, default=None, help="port on 127.0.0.1 (default: any free one; --live 8765)")
+    view.add_argument("--no-browser", action="store_true", help="print the address, do not open a browser")
+    view.add_argument("--exit-after", type=float, default=None, metavar="S", help="stop after S seconds")
+    view.set_defaults(handler=_cmd_view)
+
+
+def _cmd_view(args) -> int:
+    from ..errors import ConfigError
+
+    if args.port is not None and not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port}: choose 0 to 65535", location="--port")
+    announce = functools.partial(print, flush=True)
+    if args.live:
+        from ..live import DEFAULT_PORT
+        from ..outputs.report.server import serve_live
+
+        if args.out_dir is not None:
+            raise ConfigError("give OUT_DIR or --live, not both", location="view")
+        announce("surgiplan live view (Ctrl-C stops):")
+        serve_live(
+            port=DEFAULT_PORT if args.port is None else args.port,
+            open_browser=not args.no_browser,
+            exit_after=args.exit_after,
+            announce=announce,
+        )
+        return 0
+    if args.out_dir is None:
+        raise ConfigError("give a run's output directory (surgiplan view OUT_DIR), or --live", location="view")
+    from ..outputs.report.server import serve_directory
+    from ..outputs.report.view import ensure_report
+
+    report = ensure_report(args.out_dir, announce)
+    announce(f"{report} (Ctrl-C stops):")
+    serve_directory(
+        args.out_dir,
+        port=args.port or 0,
+        open_browser=not args.no_browser,
+        exit_after=args.exit_after,
+        announce=announce,
+    )
+    return 0
