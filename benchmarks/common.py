@@ -1,14 +1,56 @@
-"""Shared helpers for benchmarks: repeated timing with medians, and result files."""
+"""Shared helpers for benchmarks: repeated timing with medians, and result files that carry their provenance.
+
+Every results file records what produced it (:func:`provenance`): the commit and whether the tree had
+uncommitted changes, the machine and Python, the load average when the benchmark started (this module's
+import) and when it saved, and the peers it was measured against with their versions and settings.
+"""
 
 from __future__ import annotations
 
+import os
 import platform
 import statistics
+import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 RESULTS = Path(__file__).resolve().parent / "results"
+ROOT = RESULTS.parent.parent
+#: the load average (1, 5, 15 min) when the benchmark started
+START_LOAD = os.getloadavg()
+START_TIME = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+
+
+def git_state() -> dict[str, Any]:
+    """The commit the benchmark ran on and whether the tracked tree differed from it."""
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30).stdout.strip()
+
+    try:
+        commit = git("rev-parse", "HEAD")
+        dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+    return {"commit": commit or None, "dirty": dirty if commit else None}
+
+
+def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What produced a result: commit, dirty flag, machine, load before and after, the peers' versions and
+    settings (``{"OMPL": {"version": "1.7.0", "configuration": "..."}}``)."""
+    return {
+        **git_state(),
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "started": START_TIME,
+        "saved": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "load_before": [round(x, 2) for x in START_LOAD],
+        "load_after": [round(x, 2) for x in os.getloadavg()],
+        "peers": dict(peers or {}),
+    }
 
 
 def median_time(fn: Callable[[], object], repeat: int = 5, warmup: int = 1) -> tuple[float, list[float]]:
@@ -23,16 +65,19 @@ def median_time(fn: Callable[[], object], repeat: int = 5, warmup: int = 1) -> t
     return statistics.median(times), times
 
 
-def save(name: str, rows: list[dict], notes: str = "") -> Path:
+def save(name: str, rows: list[dict], notes: str = "", peers: Mapping[str, Any] | None = None) -> Path:
+    """Write ``results/<name>.json`` atomically, with its :func:`provenance`."""
     from surgiplan.storage import write_json_atomic
 
     path = RESULTS / f"{name}.json"
+    info = provenance(peers)
     write_json_atomic(
         path,
         {
             "benchmark": name,
-            "machine": platform.platform(),
-            "python": platform.python_version(),
+            "machine": info["machine"],
+            "python": info["python"],
+            "provenance": info,
             "notes": notes,
             "rows": rows,
         },
