@@ -119,7 +119,7 @@ class ExecuteKind(StageKind):
             files=list(report.files),
             tip_path=report.executed_tip_path,
             space="r3",
-            annotations=dict(report.annotations or {}),
+            annotations={**dict(report.annotations or {}), "path_from": spec.path_from},
         )
 
     def details(self, result: StageResult, k: float, unit: str) -> list[str]:
