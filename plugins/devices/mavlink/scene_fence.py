@@ -68,8 +68,10 @@ class FenceSettings(StrictModel):
     enabled: bool = True
     #: what the vehicle does on a breach (PX4 GF_ACTION)
     action: Literal["none", "warning", "hold", "return", "terminate", "land"] = "hold"
-    #: act on a breach predicted a braking distance ahead (PX4 GF_PREDICT 1), so that it stops before the fence
-    predict: bool = True
+    #: act on a breach predicted a braking distance ahead (PX4 GF_PREDICT 1), so that it stops before the fence;
+    #: off by default, as on PX4: turning into a narrow passage (a critical region) it predicts breaches that
+    #: the path does not make
+    predict: bool = False
     #: an obstacle that closes a critical region is fenced at the clearance the route keeps from it less this
     critical_tolerance: Length = 0.1
     #: rounded corners of polygon zones: at most this much turn per vertex
