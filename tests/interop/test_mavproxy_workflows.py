@@ -68,7 +68,7 @@ def test_mavproxy_mission_parameters_version_and_unsupported(tmp_path):
             current = vehicle.current
             # parameters: all fetched, an INT32 decoded as PX4 encodes it, a REAL32 set
             mavproxy.send("param fetch")
-            mavproxy.expect(r"Received 21 parameters")
+            mavproxy.expect(r"Received 26 parameters")
             mavproxy.send("param show COM_OBL_RC_ACT")
             shown_int = mavproxy.expect(r"COM_OBL_RC_ACT\s+(\S+)").group(1)
             mavproxy.send("param show MPC_XY_VEL_MAX")

@@ -289,7 +289,9 @@ class MavlinkVehicle(Device):
         self._set_failsafe_parameters(route)
         projection, home_down, _ = self.geo
         home_z = float(self.frame.from_ned(np.array([0.0, 0.0, home_down]))[2])
-        safety = upload_safety(gcs, self.frame, projection, home_z, fence, s.fence, rally, self.params_set)
+        safety = upload_safety(
+            gcs, self.frame, projection, home_z, fence, s.fence, rally, self.params_set, self.legacy_missions
+        )
         flight = Flight(gcs, s, self.frame, route, context.progress if context else NullProgress(), self.geo)
         flight.legacy_missions = self.legacy_missions
         flight.rogue = rogue

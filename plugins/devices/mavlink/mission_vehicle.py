@@ -36,11 +36,18 @@ class ReceiverFaults:
     reject: int | None = None
     #: ... when this item arrives (None: at MISSION_COUNT)
     reject_at_item: int | None = None
+    #: ... of the lists of this mission type (the mission, by default; fence and rally lists are accepted)
+    reject_type: int = MISSION
     #: request the items in a random order instead of 0, 1, 2, ...
     shuffle: bool = False
     #: probability of requesting an item again after receiving it
     repeat: float = 0.0
     seed: int | None = None
+
+
+def rejecting(faults: ReceiverFaults, mission_type: int) -> bool:
+    """Whether the injected refusal applies to a list of this type."""
+    return faults.reject is not None and mission_type == faults.reject_type
 
 
 @dataclass
@@ -166,7 +173,7 @@ class MissionReceiver:
         self.stats.transfers += 1
         self.transfer = None
         self._last_refused = None
-        if self.faults.reject is not None and self.faults.reject_at_item is None:
+        if rejecting(self.faults, mission_type) and self.faults.reject_at_item is None:
             return [self._ack(source, self.faults.reject, mission_type)]
         capacity = self.capacity.get(mission_type, 0) if isinstance(self.capacity, dict) else self.capacity
         if count > capacity:
@@ -199,7 +206,7 @@ class MissionReceiver:
             self.stats.out_of_sequence += 1
             self.stats.rerequests += 1
             return self._request(transfer, now)  # spec: drop it, request the expected one again
-        if self.faults.reject is not None and self.faults.reject_at_item == seq:
+        if rejecting(self.faults, mission_type) and self.faults.reject_at_item == seq:
             self.transfer = None
             return [self._ack(source, self.faults.reject, mission_type)]
         refusal = self.validate(item, seq, mission_type, int_form)

@@ -53,12 +53,13 @@ def to_vehicle(zone: Zone, frame: LocalFrame) -> Zone:
     return zone.mapped(transform)
 
 
-def _transfer(gcs, items, mission_type: int, what: str) -> dict[str, Any]:
-    """Upload a list, download it back, compare; the statistics (``what``: fence or rally)."""
+def _transfer(gcs, items, mission_type: int, what: str, legacy: bool) -> dict[str, Any]:
+    """Upload a list, download it back, compare; the statistics (``what``: fence or rally; ``legacy``: as the
+    deprecated MISSION_ITEM, for a vehicle without MISSION_INT)."""
     gcs.step = f"{what} upload"
     started = time.monotonic()
     try:
-        stats, transfers = gcs.upload(items, mission_type=mission_type)
+        stats, transfers = gcs.upload(items, mission_type=mission_type, legacy=legacy)
     except VehicleError as exc:
         if "NO_SPACE" in exc.detail:
             raise VehicleError(
@@ -67,8 +68,8 @@ def _transfer(gcs, items, mission_type: int, what: str) -> dict[str, Any]:
         raise
     uploaded = time.monotonic() - started
     gcs.step = f"{what} verify"
-    held = gcs.download(mission_type)
-    difference = compare_missions(items, held)
+    held = gcs.download(mission_type, legacy=legacy)
+    difference = compare_missions(items, held, legacy)
     if difference is not None:
         raise VehicleError(f"the {what} downloaded back differs from the one uploaded: {difference}", step=gcs.step)
     return {
@@ -90,9 +91,11 @@ def upload_safety(
     settings: FenceSettings,
     rally: np.ndarray,
     params_set: dict,
+    legacy: bool = False,
 ) -> dict[str, Any]:
     """Set the fence's parameters, upload the fence and the rally points (scene coordinates), each verified by
-    download; the metrics. ``params_set`` records the parameters set; ``home_z``: home's scene z."""
+    download; the metrics. ``params_set`` records the parameters set; ``home_z``: home's scene z; ``legacy``:
+    as MISSION_ITEM."""
     metrics: dict[str, Any] = {"fence": fence is not None}
     if fence is not None:
         gcs.step = "setting fence parameters"
@@ -101,7 +104,7 @@ def upload_safety(
         zones = [to_vehicle(zone, frame) for zone in fence.zones]
         items = fence_items(zones, projection)
         metrics.update(fence.describe())
-        metrics.update(_transfer(gcs, items, FENCE, "fence"))
+        metrics.update(_transfer(gcs, items, FENCE, "fence", legacy))
         metrics["geofence_action"] = settings.action
         metrics["geofence_predict"] = settings.predict
     rally = np.asarray(rally, float).reshape(-1, 3)
@@ -109,5 +112,5 @@ def upload_safety(
         ned = frame.to_ned(rally) if len(rally) else np.zeros((0, 3))
         items = rally_items(ned[:, :2], projection, rally[:, 2] - home_z)
         metrics["rally_points"] = len(items)
-        metrics.update(_transfer(gcs, items, RALLY, "rally"))
+        metrics.update(_transfer(gcs, items, RALLY, "rally", legacy))
     return metrics

@@ -222,12 +222,13 @@ class Geofence:
 
     # ------------------------------------------------------------------ telemetry and return
     def _geofence_sensor_bits(self) -> tuple[int, int, int]:
-        """SYS_STATUS present, enabled and health bits for the geofence."""
-        if not self.fence_present:
-            return 0, 0, 0
+        """SYS_STATUS present, enabled and health bits for the geofence (healthy unless breached, present or
+        not: MAVProxy reads a clear health bit as a breach)."""
         bit = C.MAV_SYS_STATUS_GEOFENCE
-        enabled = bit if self.settings.geofence_action != 0 else 0
-        return bit, enabled, 0 if self._breached else bit
+        health = 0 if self._breached else bit
+        if not self.fence_present:
+            return 0, 0, health
+        return bit, bit if self.settings.geofence_action != 0 else 0, health
 
     def _return_destination(self) -> tuple[np.ndarray, str]:
         """Where a return goes (local NED) and what it is, by RTL_TYPE."""

@@ -30,7 +30,7 @@ from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_
 class StopAnswering(StrictModel):
     """Fall silent (send nothing, ignore everything) when ``step`` begins, after ``after`` of its messages."""
 
-    step: Literal["connect", "mission_upload", "arming", "mode_change", "mission_start"]
+    step: Literal["connect", "fence_upload", "rally_upload", "mission_upload", "arming", "mode_change", "mission_start"]
     after: int = Field(default=0, ge=0)
 
 

@@ -370,7 +370,8 @@ class SimulatedVehicle(Autopilot, Commands, Geofence, Telemetry):
         if target not in (None, 0, self.settings.system_id):
             return
         if kind in ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM"):
-            if self._silence("mission_upload"):
+            list_type = int(getattr(message, "mission_type", MISSION))
+            if self._silence({FENCE: "fence_upload", RALLY: "rally_upload"}.get(list_type, "mission_upload")):
                 return
             if self.sender.busy and kind == "MISSION_COUNT":
                 self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, 0)])
