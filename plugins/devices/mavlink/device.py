@@ -384,7 +384,7 @@ class MavlinkVehicle(Device):
             # only while the stream flies the profile: before it the vehicle takes off from its pad, after it
             # it lands (NAV_LAND), and "the setpoint" is then the profile's end, which it leaves on purpose
             since = t - log.profile_start
-            setpoints[(since < 0) | (since > log.profile.duration)] = np.nan
+            setpoints[(since < 0) | (since > log.profile.duration) | (t > log.stopped_at)] = np.nan
         metrics, arrays = flight_metrics(
             t, flown, velocity, trajectory.space, planned, log.path_window, threshold, critical, setpoints
         )
@@ -434,9 +434,16 @@ class MavlinkVehicle(Device):
                     link_text=_link_text(metrics),
                     zones=fence.zones if fence is not None else None,
                     breaches=breaches,
+                    setpoints=setpoints,
                 )
                 files.append(f"{name}.png")
-        annotations = {"zones": fence.annotation()} if fence is not None else {}
+        annotations: dict = {"zones": fence.annotation()} if fence is not None else {}
+        if len(t):  # report.html's time bar: the flight on the vehicle's clock
+            annotations["timeline"] = {
+                "t": t.tolist(),
+                "tip": flown.tolist(),
+                "clearance": arrays["clearance"].tolist(),
+            }  # its events are the faults (metrics), which the report marks on this time axis
         flown_path = flown if len(flown) else None
         return ExecutionReport(log.status, metrics, flown_path, log.faults, log.message, files, annotations)
 

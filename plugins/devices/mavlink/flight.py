@@ -166,6 +166,8 @@ class FlightLog:
     #: offboard: the timed route and the vehicle time it started at
     profile: TimedPath | None = None
     profile_start: float = 0.0
+    #: vehicle time (s) the vehicle's geofence took over (inf: it did not)
+    stopped_at: float = math.inf
 
 
 class Flight:
@@ -447,6 +449,7 @@ class Flight:
         said = flight_events[-1]["message"] if flight_events else "SYS_STATUS: geofence not healthy"
         log = self.log
         log.status = "stopped"
+        log.stopped_at = vehicle.vehicle_time
         log.faults.append({"kind": "geofence_breach", "mode": mode, "vehicle_time_s": vehicle.vehicle_time})
         for ticker in list(gcs.tickers):
             gcs.tickers.remove(ticker)  # the vehicle ignores setpoints now; no more of them

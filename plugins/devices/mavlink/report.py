@@ -206,6 +206,7 @@ def flight_figure(
     link_text: str = "",
     zones=None,
     breaches=(),
+    setpoints: np.ndarray | None = None,
 ) -> None:
     """Planned versus flown: a top view coloured by clearance, and clearance, deviation and (given ``link``)
     the link's losses over time.
@@ -252,6 +253,8 @@ def flight_figure(
         )
     top.plot(*route[:, :2].T, ":", color="#555555", linewidth=1.0, label="route (take-off, approach, landing)")
     top.plot(*planned[:, :2].T, "--", color="#1f6fb4", linewidth=1.6, label="planned path")
+    if setpoints is not None and np.isfinite(setpoints).any():
+        top.plot(*setpoints[:, :2].T, "-", color="#9467bd", linewidth=0.9, label="offboard setpoints")
     if len(flown) >= 2:
         segments = np.stack([flown[:-1, :2], flown[1:, :2]], axis=1)
         value = np.minimum(arrays["clearance"][:-1], arrays["clearance"][1:])

@@ -146,6 +146,7 @@ class Commands:
             return REJECTED
         self.armed = True
         self.armed_at = self.t
+        self._next_fence_check = 0
         self._armed_wall = time.monotonic()
         self.hold_point = self.model.p.copy()
         self.home = self.model.p.copy()  # PX4 (COM_HOME_EN): home is where the vehicle arms

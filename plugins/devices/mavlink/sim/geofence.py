@@ -82,7 +82,8 @@ class Geofence:
         #: every breach acted on: vehicle time, kind, GF_ACTION, position and the point tested (NED)
         self.fence_breaches: list[dict] = []
         self._breached = False
-        self._next_fence_check = 0.0
+        #: the next breach check, counted in CHECK_INTERVALs since arming
+        self._next_fence_check = 0
 
     # ------------------------------------------------------------------ the lists
     @property
@@ -174,14 +175,17 @@ class Geofence:
         return test
 
     def _geofence_step(self) -> None:
-        """PX4's breach check, every CHECK_INTERVAL s of vehicle time (called after each physics step)."""
-        if self.t < self._next_fence_check - 1e-9:
-            return
-        self._next_fence_check = self.t + CHECK_INTERVAL
+        """PX4's breach check, every CHECK_INTERVAL s of vehicle time since arming (called after each physics
+        step; counted from arming, so that a flight is checked at the same instants however long the vehicle
+        waited on the ground first)."""
         action = int(self.settings.geofence_action)
-        if action == 0 or not self.armed or not self.model.airborne or not self.fence_present:
+        if action == 0 or not self.armed or self.armed_at is None or not self.model.airborne or not self.fence_present:
             self._breached = False
             return
+        tick = math.floor((self.t - self.armed_at) / CHECK_INTERVAL + 1e-6)
+        if tick < self._next_fence_check:
+            return
+        self._next_fence_check = tick + 1
         test = self._test_point()
         kind = self._violation(test)
         if kind is None:
