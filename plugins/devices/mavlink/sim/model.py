@@ -190,14 +190,18 @@ class PointMassMultirotor:
                 # (an upward gust must not lift an idling vehicle off its pad)
                 self.v = np.zeros(3)
                 return
-        # the airframe's top speeds: its motors can do no more, whatever the controller asks
-        vx, vy = _clip_horizontal(vx + ax * dt, vy + ay * dt, a.max_speed)
-        vz = min(max(vz + az * dt, -a.max_climb), a.max_descent)
+        # the airframe's top speeds: its motors can do no more, whatever the controller asks (motors off, it
+        # falls: only the drag limits it)
+        vx, vy, vz = vx + ax * dt, vy + ay * dt, vz + az * dt
+        if armed:
+            vx, vy = _clip_horizontal(vx, vy, a.max_speed)
+            vz = min(max(vz, -a.max_climb), a.max_descent)
         px, py, pz = px + vx * dt, py + vy * dt, pz + vz * dt
         if pz >= self.ground:
             pz = self.ground
             vz = min(vz, 0.0)
-            if self.airborne and math.sqrt(vx * vx + vy * vy + vz * vz) < 0.2:
+            # a touchdown below 0.2 m/s, or any ground contact with the motors off (it falls: it stops there)
+            if self.airborne and (math.sqrt(vx * vx + vy * vy + vz * vz) < 0.2 or not armed):
                 self.airborne = False
                 vx = vy = vz = 0.0
                 self.integral = np.zeros(3)
