@@ -191,7 +191,11 @@ def test_bad_settings_are_reported_with_their_yaml_path(tmp_path, roadmap, setti
 def test_mission_flight_through_the_hall(tmp_path, roadmap):
     with simulated() as vehicle:
         outcome, document, stage, table = fly(tmp_path, roadmap, external(vehicle))
+        zones, breaches = list(vehicle.zones), list(vehicle.fence_breaches)
     assert outcome.ok and stage["status"] == "completed"
+    # with the scene's fence on (the default): uploaded, verified, held by the vehicle, never breached
+    assert stage["metrics"]["fence_items"] == 27 and len(zones) == 10 and breaches == []
+    assert stage["metrics"]["fence_unfenced"].keys() == {"lintel"} and stage["metrics"]["fence_events"] == []
     metrics = check_flight_against_independent_measures(document, stage, table, vehicle)
     # the mission the vehicle flew is the one that was planned: change speed, take off to the path's first
     # waypoint, one waypoint per other (thinned) path point, land

@@ -446,7 +446,9 @@ class Flight:
             flight_events = [e for e in self.log.faults if e["kind"] == "geofence"]
         if not (flight_events or vehicle.fence_breached):
             return False
-        said = flight_events[-1]["message"] if flight_events else "SYS_STATUS: geofence not healthy"
+        # what the vehicle said (its STATUSTEXT), else what its SYS_STATUS showed (the STATUSTEXT lost)
+        words = [e["message"] for e in flight_events if not e["message"].startswith("SYS_STATUS")]
+        said = words[0] if words else "SYS_STATUS: geofence not healthy"
         log = self.log
         log.status = "stopped"
         log.stopped_at = vehicle.vehicle_time
