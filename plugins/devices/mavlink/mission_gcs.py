@@ -100,14 +100,14 @@ class _Exchange:
 
         Each timeout bounds one wait, but a vehicle that keeps asking (the same item, for ever) would
         restart it for ever; this bounds the transfer in time as the retries bound it in count."""
-        self.give_up_at = now + seconds
+        self.give_up_at = now + seconds + self.timeout  # one more wait: each message's own retries end first
 
     def on_timer(self, now: float) -> list:
         if self.state == "sending" and now >= self.give_up_at:
             progress = self._progress()
             return self._finish(
                 "failed",
-                f"the transfer did not finish within {self.give_up_at - self._started:.0f} s, the time its "
+                f"the transfer did not finish within {self.give_up_at - self._started:g} s, the time its "
                 f"timeouts and retries allow" + (f"; {progress}" if progress else ""),
             )
         if self.state != "sending" or now < self.deadline:

@@ -374,8 +374,11 @@ class SimulatedVehicle(Autopilot, Commands, Geofence, Telemetry):
             if self._silence({FENCE: "fence_upload", RALLY: "rally_upload"}.get(list_type, "mission_upload")):
                 return
             if self.sender.busy and kind == "MISSION_COUNT":
-                self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, 0)])
-                return  # PX4: busy with a download
+                if self.sender.partner == source and self.sender.next_seq >= self.sender.total:
+                    self.sender.partner = None  # every item went out: the download's final ACK was lost
+                else:
+                    self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, list_type)])
+                    return  # PX4: busy with a download
             self._send(self.receiver.on_message(message, source, now))
         elif kind in ("MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
             self._send(self.sender.on_message(message, source, now))
