@@ -326,7 +326,8 @@ class MissionSender:
                 return [error]
             int_form = kind == "MISSION_REQUEST_INT"
             item = self.provide(seq, mission_type, int_form)
-            return [item.encode(seq, *source, mission_type, legacy=not int_form, current=seq == self.current())]
+            current = mission_type == MISSION and seq == self.current()  # fence and rally items are never current
+            return [item.encode(seq, *source, mission_type, legacy=not int_form, current=current)]
         if kind == "MISSION_ACK" and self.busy and source == self.partner and mission_type == self.mission_type:
             if int(message.type) == ACCEPTED and self.next_seq >= self.total:
                 self.completed += 1

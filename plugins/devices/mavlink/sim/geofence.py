@@ -29,9 +29,10 @@ depend on the link staying up.
   it braked now is tested instead: ahead along its horizontal velocity by the
   200 ms to the next check plus its braking distance
   (:func:`~.model.braking_distance`, the position loop's overshoot, about
-  0.30 s x v), both at the speed it may have by the next check if it goes on
-  accelerating as it does (PX4 takes the speed of the moment), and above or
-  below by the same for its climb rate. At a steady 1.5 m/s that is
+  0.30 s x v, longer by what its velocity integral has learnt), both at the
+  speed it may have by the next check if it goes on accelerating as it does
+  (PX4 takes the speed of the moment), and above or below by the same for
+  its climb rate. At a steady 1.5 m/s that is
   0.30 + 0.45 = 0.75 m ahead. On a breach (once, until it
   clears) the vehicle says so (STATUSTEXT) and does GF_ACTION: 1 nothing
   more, 2 hold (where it is when the breach is predicted: it brakes within
@@ -166,7 +167,9 @@ class Geofence:
             direction = v[:2] / speed
             # the speed it may have by the next check, accelerating as it does now
             faster = min(speed + max(float(thrust[:2] @ direction), 0.0) * CHECK_INTERVAL, airframe.max_speed)
-            ahead = CHECK_INTERVAL * 0.5 * (speed + faster) + braking_distance(airframe, faster, self.settings.step)
+            learnt = float(np.asarray(self.model.integral[:2], float) @ direction)
+            braking = braking_distance(airframe, faster, self.settings.step, integral=learnt)
+            ahead = CHECK_INTERVAL * 0.5 * (speed + faster) + braking
             test[:2] += ahead * direction
         climb = -float(v[2])
         if abs(climb) > 1e-6:

@@ -60,8 +60,10 @@ def _clip_horizontal(x: float, y: float, limit: float) -> tuple[float, float]:
 
 
 @functools.lru_cache(maxsize=4096)
-def _overshoot(speed: float, kp: float, kv: float, ki: float, speed_limit: float, authority: float, dt: float) -> float:
-    p, v, integral = 0.0, speed, 0.0
+def _overshoot(
+    speed: float, kp: float, kv: float, ki: float, speed_limit: float, authority: float, dt: float, bias: float
+) -> float:
+    p, v, integral = 0.0, speed, bias
     for _ in range(100_000):
         wanted = min(max(-kp * p, -speed_limit), speed_limit)
         error = wanted - v
@@ -77,12 +79,16 @@ def _overshoot(speed: float, kp: float, kv: float, ki: float, speed_limit: float
     return p
 
 
-def braking_distance(airframe: Airframe, speed: float, dt: float = 0.01, vertical: bool = False) -> float:
+def braking_distance(
+    airframe: Airframe, speed: float, dt: float = 0.01, vertical: bool = False, integral: float = 0.0
+) -> float:
     """How far (m) the vehicle goes on from ``speed`` (m/s) along its motion when it is told to hold where it
-    is (the position controller's overshoot; no wind). ``vertical``: with the vertical gains and climb limit."""
+    is (the position controller's overshoot; no wind). ``vertical``: with the vertical gains and climb limit;
+    ``integral``: the velocity loop's integral along the motion (m/s^2; what it has learnt pushes on)."""
     speed = abs(float(speed))
     if speed < 1e-6:
         return 0.0
+    bias = max(math.ceil(float(integral) * 100) / 100, 0.0)
     a = airframe
     gains = (
         (a.position_gain_z, a.velocity_gain_z, a.velocity_integral_z, a.max_climb)
@@ -90,7 +96,7 @@ def braking_distance(airframe: Airframe, speed: float, dt: float = 0.01, vertica
         else (a.position_gain, a.velocity_gain, a.velocity_integral, a.max_speed)
     )
     # rounded up to the cm/s: cached, and never shorter than at the speed itself
-    return _overshoot(math.ceil(speed * 100) / 100, *gains, a.max_acceleration, dt)
+    return _overshoot(math.ceil(speed * 100) / 100, *gains, a.max_acceleration, dt, bias)
 
 
 class Gusts:
