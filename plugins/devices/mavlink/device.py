@@ -27,8 +27,11 @@ Lifecycle (:class:`surgiplan.Device`, ros2_control's):
   clearance (the vehicle a sphere of the plan's ``tip_radius``) is negative
   or below ``safety_margin`` anywhere, whatever planner produced it, or when
   the vehicle's limits (its parameters) are tighter than the flight's
-  profile (naming the parameter); then the parameters the failsafe relies on
-  are set (and read back), :mod:`.flight` (route, mission upload verified by
+  profile (naming the parameter), or when the scene's geofence cannot be
+  made for the route (:mod:`.scene_fence`: beyond the vehicle's capacity,
+  the route outside the bounds); then the parameters the failsafe relies on
+  are set (and read back), the fence and rally points uploaded and verified
+  (:mod:`.safety`), :mod:`.flight` (route, mission upload verified by
   download, or offboard stream, arming and modes with their
   acknowledgements, the watch with the failsafe), then :mod:`.report`
   (tracking error, flown clearance, ``<stage>.csv`` and ``<stage>.png``, named after the stage);
@@ -44,6 +47,8 @@ Settings (:mod:`.settings`; lengths in the pipeline's ``length_unit``; speeds m/
     cruise_speed: 1.0
     safety_margin: 0.1                   # the planned path must keep this much (else refused)
     failsafe: land                       # on heartbeat loss: land, return or hold
+    fence: {action: hold, predict: false}  # the scene's geofence (default on; enabled: false: none)
+    rally_points: [pad_b]                # returns go to the nearest of home and these
     signing: {key: 64 hex digits or a passphrase}
     sim: {speed: 4, packet_loss: 0.2}    # the simulated vehicle, faults included
 """
