@@ -195,6 +195,8 @@ def fly(tmp: Path, artifact: Path, mode: str, gust: float, seed: int, **sim_sett
             "frame": {"local_origin": [2, 6, 0]},
             "cruise_speed": 1.5,
             "figure": False,
+            # these flights measure tracking: in strong gusts they leave the scene's fence, which only warns here
+            "fence": {"action": "warning"},
         }
         path = tmp / f"{mode}-{gust}-{seed}.yaml"
         text = HALL.format(
@@ -387,7 +389,7 @@ def bench_hall(tmp: Path) -> list[dict]:
     return rows
 
 
-SECTIONS = ("hall", "upload", "links", "fence", "tracking", "speed", "lockstep")
+SECTIONS = ("hall", "upload", "links", "fence", "tracking", "speed", "lockstep")  # the tables' order
 
 
 def main() -> None:

@@ -26,6 +26,26 @@ def markdown(rows: list[dict]) -> str:
                 f"{r['door_min_clearance_m']:.3f} m | {r['outside_min_clearance_m']:.3f} m | {fence} |"
             )
         out.append("")
+    upload = [r for r in rows if r["benchmark"] == "upload"]
+    if upload:
+        losses = sorted({r["loss"] for r in upload})
+        out += [
+            "| loss each way | " + " | ".join(f"{100 * p:g} %" if p else "0" for p in losses) + " |",
+            "|---|" + "---|" * len(losses),
+        ]
+        for n in sorted({r["items"] for r in upload}):
+            cells = []
+            for p in losses:
+                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
+                cells.append(f"{r['upload_s_median']:.3g} s ({r['predicted_s']:.3g})")
+            out.append(f"| {n} items: upload (predicted) | " + " | ".join(cells) + " |")
+        for n in sorted({r["items"] for r in upload}):
+            cells = []
+            for p in losses:
+                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
+                cells.append(f"{r['download_s_median']:.3g} s, {r['verified']}")
+            out.append(f"| {n} items: download back, verified | " + " | ".join(cells) + " |")
+        out.append("")
     links = [r for r in rows if r["benchmark"] == "links"]
     if links:
         lossy = max(r["loss"] for r in links)
@@ -61,26 +81,6 @@ def markdown(rows: list[dict]) -> str:
             f"(braking {r['braking_distance_m']:.2f} m) |",
             "",
         ]
-    upload = [r for r in rows if r["benchmark"] == "upload"]
-    if upload:
-        losses = sorted({r["loss"] for r in upload})
-        out += [
-            "| loss each way | " + " | ".join(f"{100 * p:g} %" if p else "0" for p in losses) + " |",
-            "|---|" + "---|" * len(losses),
-        ]
-        for n in sorted({r["items"] for r in upload}):
-            cells = []
-            for p in losses:
-                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
-                cells.append(f"{r['upload_s_median']:.3g} s ({r['predicted_s']:.3g})")
-            out.append(f"| {n} items: upload (predicted) | " + " | ".join(cells) + " |")
-        for n in sorted({r["items"] for r in upload}):
-            cells = []
-            for p in losses:
-                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
-                cells.append(f"{r['download_s_median']:.3g} s, {r['verified']}")
-            out.append(f"| {n} items: download back, verified | " + " | ".join(cells) + " |")
-        out.append("")
     tracking = [r for r in rows if r["benchmark"] == "tracking"]
     if tracking:
         gusts = sorted({r["gust_mps"] for r in tracking})

@@ -7,6 +7,7 @@ the vehicle's own positions against the obstacles with coal, its stored fence ag
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -107,10 +108,13 @@ def test_the_fence_can_be_turned_off_and_rally_points_are_uploaded_and_verified(
 
 
 @pytest.mark.slow
-def test_the_shipped_rehearsal_runs_as_a_program_and_says_why_it_stopped(tmp_path, cli, monkeypatch):
+def test_the_shipped_rehearsal_runs_as_a_program_and_says_why_it_stopped(tmp_path, roadmap, cli, monkeypatch):
     """hall_faults_fence.yaml exactly as shipped (the simulated vehicle a subprocess at 4x): exit 1, the stage
     stopped, the breach in result.json and report.html's zones."""
     monkeypatch.chdir(tmp_path)
+    if roadmap.exists():  # the file's artifact path is relative to the working directory
+        (tmp_path / "out" / "hall-flight").mkdir(parents=True)
+        shutil.copy(roadmap, tmp_path / "out" / "hall-flight" / "roadmap.npz")
     code, _, err = cli("run", CONFIGS / "hall_faults_fence.yaml", "--quiet")
     assert code == 1 and "the vehicle's geofence stopped the flight" in err
     document = json.loads((tmp_path / "out" / "hall-faults-fence" / "result.json").read_text())

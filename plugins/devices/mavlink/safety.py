@@ -104,7 +104,11 @@ def upload_safety(
         zones = [to_vehicle(zone, frame) for zone in fence.zones]
         items = fence_items(zones, projection)
         metrics.update(fence.describe())
+        said = len(gcs.vehicle.fence_events)
         metrics.update(_transfer(gcs, items, FENCE, "fence", legacy))
+        dropped = [text for _, text in gcs.vehicle.fence_events[said:] if "invalid" in text.lower()]
+        if dropped:  # PX4 keeps the list but drops such zones from its geofence: the download cannot tell
+            raise VehicleError(f"the vehicle dropped zones of the fence: {'; '.join(dropped)}", step="fence verify")
         metrics["geofence_action"] = settings.action
         metrics["geofence_predict"] = settings.predict
     rally = np.asarray(rally, float).reshape(-1, 3)
