@@ -37,7 +37,6 @@ from surgiplan.plugins.devices.mavlink.zones import (
     FenceFormatError,
     Zone,
     fence_items,
-    first_exit,
     inside_fence,
     path_clear,
     zones_from_items,
@@ -82,7 +81,7 @@ def test_inside_tests_agree_with_matplotlib_on_convex_and_concave_polygons(rng):
     assert np.array_equal(inside_fence(zones, points), expected)
 
 
-def test_paths_and_first_exits_are_measured_exactly():
+def test_paths_are_judged_exactly():
     pillar = Zone.circle((5.0, 0.0), 1.0)
     box = Zone.polygon([[0, 3], [2, 3], [2, 5], [0, 5]])
     hall = Zone.polygon([[-10, -10], [10, -10], [10, 10], [-10, 10]], inclusion=True)
@@ -93,10 +92,6 @@ def test_paths_and_first_exits_are_measured_exactly():
     assert not path_clear(zones, (0, 0), (12, 0))  # out of the hall
     # a segment that cuts the box's corner is not clear; one that only touches it (no point inside) is
     assert not path_clear(zones, (3, 2), (1, 6)) and path_clear(zones, (1, 2), (3, 4))
-    # first exit along a ray: the pillar's near side at 4 m, the hall's wall at 10 m
-    assert first_exit(zones, (0, 0), (1, 0), 20.0) == pytest.approx(4.0, abs=1e-4)
-    assert first_exit(zones, (0, -5), (1, 0), 20.0) == pytest.approx(10.0, abs=1e-4)
-    assert first_exit(zones, (0, -5), (1, 0), 5.0) == math.inf
 
 
 def test_fence_items_survive_the_wire_to_a_centimetre():

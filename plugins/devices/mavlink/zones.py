@@ -189,27 +189,6 @@ def _leaves(zone: Zone, a: np.ndarray, b: np.ndarray) -> bool:
     return not bool(zone.contains(samples).all())
 
 
-def first_exit(zones: Sequence[Zone], start, direction, distance: float, resolution: float = 0.01) -> float:
-    """How far (m) from ``start`` along the unit ``direction`` the fence is left first, within ``distance``
-    (``inf`` if not); by bisection to ``resolution``, as PX4's breach avoidance searches along the bearing."""
-    start, direction = np.asarray(start, float).reshape(2), np.asarray(direction, float).reshape(2)
-    steps = np.linspace(0.0, distance, max(2, int(np.ceil(distance / max(resolution, 1e-3))) + 1))
-    ok = inside_fence(zones, start + steps[:, None] * direction)
-    if ok.all():
-        return np.inf
-    first = int(np.argmin(ok))
-    if first == 0:
-        return 0.0
-    lo, hi = steps[first - 1], steps[first]
-    while hi - lo > resolution * 1e-3:
-        mid = 0.5 * (lo + hi)
-        if inside_fence(zones, start + mid * direction)[0]:
-            lo = mid
-        else:
-            hi = mid
-    return float(hi)
-
-
 # ----------------------------------------------------------------------------- items
 
 
