@@ -61,10 +61,10 @@ def test_rogue_setpoints_through_a_pillar_are_stopped_by_the_vehicle_at_its_fenc
     # the vehicle acted once, on its own prediction, and said so; the device saw it (STATUSTEXT, SYS_STATUS)
     assert len(breaches) == 1 and breaches[0]["action"] == "hold" and breaches[0]["kind"] == "fence"
     assert "Geofence breached (fence): holding" in events and "mode hold (geofence)" in events
-    assert [e["message"] for e in metrics["fence_events"]][:2] == [
-        "Geofence breached (fence): holding",
-        "SYS_STATUS: geofence not healthy (breached)",
-    ]
+    # SYS_STATUS (1 Hz) shows the breach only if one falls while the vehicle still brakes: not every flight
+    said = [e["message"] for e in metrics["fence_events"]]
+    assert said[0] == "Geofence breached (fence): holding"
+    assert set(said[1:]) <= {"SYS_STATUS: geofence not healthy (breached)"}
     assert {"kind": "geofence_breach", "mode": "hold"}.items() <= metrics["faults"][1].items()
     # the fence the device derived is the one the vehicle holds: 10 zones (9 obstacles and the bounds)
     assert metrics["fence_verified"] is True and metrics["fence_items"] == 27 and len(zones) == 10
