@@ -579,7 +579,14 @@
       y += 12;
     }
     ctx.strokeStyle = "#d62728";
-    for (const e of active.events) if (e.t !== null && e.t !== undefined) { ctx.beginPath(); ctx.moveTo(X(e.t), 0); ctx.lineTo(X(e.t), h); ctx.stroke(); ctx.fillStyle = "#d62728"; ctx.fillText(e.kind, X(e.t) + 2, h - 2); }
+    // labels that would overlap the one before are raised a line (events close in time, e.g. a breach and its action)
+    let labelEnd = -Infinity, labelRow = 0;
+    for (const e of active.events) if (e.t !== null && e.t !== undefined) {
+      ctx.beginPath(); ctx.moveTo(X(e.t), 0); ctx.lineTo(X(e.t), h); ctx.stroke(); ctx.fillStyle = "#d62728";
+      labelRow = X(e.t) + 2 < labelEnd ? (labelRow + 1) % 4 : 0;
+      ctx.fillText(e.kind, X(e.t) + 2, h - 2 - 12 * labelRow);
+      labelEnd = Math.max(labelRow ? labelEnd : -Infinity, X(e.t) + 2 + ctx.measureText(e.kind).width + 4);
+    }
     if (state && state.index !== undefined) { ctx.strokeStyle = "#000"; ctx.beginPath(); ctx.moveTo(X(t[state.index]), 0); ctx.lineTo(X(t[state.index]), h); ctx.stroke(); }
   }
   slider.addEventListener("input", () => { playing = false; setIndex(+slider.value); });
