@@ -139,6 +139,11 @@ class Cia402Device(Device):
         """Joint waypoints for the trajectory's path; raise :class:`Refusal` if impossible."""
         raise NotImplementedError
 
+    def executed_geometry(self, q: np.ndarray, trajectory: Trajectory) -> tuple[Any, np.ndarray | None]:
+        """The space (with the device's body) and configurations in which the framework re-measures the executed
+        joints ``q`` (:mod:`surgiplan.verify_motion`); (None, None): the executed tip path is measured."""
+        return None, None
+
     def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
         """Clearance metrics (m) of the executed joint path ``q`` (n, nq), re-measured on the scene,
         and the body's clearance at each sample (for the figure)."""
@@ -445,6 +450,10 @@ class Cia402Device(Device):
         metrics["faults"] = log.faults
         message = log.reason if log.status != "completed" else ""
         report = ExecutionReport(log.status, metrics, tips if len(tips) else None, log.faults, message)
+        report.executed_t = log.t if len(log.t) == len(tips) else None
+        if len(tips):  # what the framework re-measures: the device's own geometry where it has one
+            report.executed_space, report.executed_path = self.executed_geometry(log.measured, trajectory)
+            report.tip_radius = metrics.get("tip_radius_m")
         if s.outputs and self.context is not None and len(tips):
             report.files = self._write_outputs(log, tips, reference_tips, clearance, message)
         return report
