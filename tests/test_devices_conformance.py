@@ -93,7 +93,8 @@ def test_pdo_mapping_follows_the_cia_301_procedure_and_refuses_the_rest(bench):
     mapping = node.sdo[0x1A00]
     # mapping a valid PDO: device state
     assert abort_code(lambda: setattr(mapping[0], "raw", 0)) == 0x08000022
-    tpdo_cob.raw = 0x181 | (1 << 31)  # invalidate
+    assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x181 | (1 << 31))) == 0x06090030  # TPDOs are not RTR'd
+    tpdo_cob.raw = 0x40000181 | (1 << 31)  # invalidate (bit 30: no RTR)
     assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410010)) == 0x08000022  # number of entries first
     mapping[0].raw = 0
     assert abort_code(lambda: setattr(mapping[1], "raw", 0x60650020)) == 0x06040041  # 0x6065 is not mappable
@@ -102,8 +103,8 @@ def test_pdo_mapping_follows_the_cia_301_procedure_and_refuses_the_rest(bench):
         mapping[sub].raw = entry
     assert abort_code(lambda: setattr(mapping[0], "raw", 3)) == 0x06040042  # 80 bits > 64
     mapping[0].raw = 2
-    tpdo_cob.raw = 0x181
-    assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x191)) == 0x06090030  # the COB-ID of a valid PDO
+    tpdo_cob.raw = 0x40000181
+    assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x40000191)) == 0x06090030  # the COB-ID of a valid PDO
     assert abort_code(lambda: setattr(node.sdo[0x1800][2], "raw", 252)) == 0x06090030  # RTR-only: not offered
     node.nmt.send_command(0x01)  # OPERATIONAL: no PDO changes at all
     assert abort_code(lambda: setattr(node.sdo[0x1800][2], "raw", 1)) == 0x08000022
@@ -266,6 +267,6 @@ def test_the_shipped_eds_files_are_the_dictionaries_the_simulator_serves(tmp_pat
     # and canopen loads each as a node's dictionary, with the values the simulated drive serves
     path = devices["cast_gimbal"].eds_folder() / "cast_gimbal_insertion.eds"
     loaded = canopen.import_od(str(path), 3)
-    assert loaded[0x1800][1].default == 0x183 and loaded[0x1018][4].default == 3
+    assert loaded[0x1800][1].default == 0x40000183 and loaded[0x1018][4].default == 3
     assert loaded[0x607D][2].default == 300_000  # 300 mm at 1 um per count
     assert loaded[0x6502].default == 0x0185 and loaded[0x6060].data_type == canopen.objectdictionary.INTEGER8
