@@ -91,11 +91,11 @@ def test_pdo_mapping_follows_the_cia_301_procedure_and_refuses_the_rest(bench):
     node = bench.node
     tpdo_cob = node.sdo[0x1800][1]
     mapping = node.sdo[0x1A00]
-    # mapping a valid PDO: device state
-    assert abort_code(lambda: setattr(mapping[0], "raw", 0)) == 0x08000022
+    # mapping a valid PDO: refused (0x06010000, a code CiA's conformance test accepts)
+    assert abort_code(lambda: setattr(mapping[0], "raw", 0)) == 0x06010000
     assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x181 | (1 << 31))) == 0x06090030  # TPDOs are not RTR'd
     tpdo_cob.raw = 0x40000181 | (1 << 31)  # invalidate (bit 30: no RTR)
-    assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410010)) == 0x08000022  # number of entries first
+    assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410010)) == 0x06010000  # number of entries first
     mapping[0].raw = 0
     assert abort_code(lambda: setattr(mapping[1], "raw", 0x60650020)) == 0x06040041  # 0x6065 is not mappable
     assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410020)) == 0x06040041  # wrong length

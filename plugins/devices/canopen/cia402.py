@@ -351,8 +351,7 @@ def _pdo(direction: str, n: int, node_id: int):
     comm = _record(f"{direction}PDO{n} communication parameter", comm_index, members)
     mapping = (DEFAULT_RPDO if receive else DEFAULT_TPDO)[n]
     record = od.ODRecord(f"{direction}PDO{n} mapping parameter", map_index)
-    count = _variable("Number of mapped objects", map_index, 0, od.UNSIGNED8, "rw", len(mapping), limits=(0, 8))
-    record.add_member(count)
+    record.add_member(_variable("Number of mapped objects", map_index, 0, od.UNSIGNED8, "rw", len(mapping)))
     for sub in range(1, 9):
         entry = mapping[sub - 1] if sub <= len(mapping) else 0
         record.add_member(_variable(f"Mapped object {sub}", map_index, sub, od.UNSIGNED32, "rw", entry))

@@ -42,8 +42,15 @@ BIT_TIMING = {0: 1_000_000, 1: 800_000, 2: 500_000, 3: 250_000, 4: 125_000, 6: 5
 class LssSlave:
     """The LSS slave of one drive (axis ``i`` of the simulator ``drives``: its node, memory and clock)."""
 
-    def __init__(self, drives, i: int, address: tuple[int, int, int, int], node_id: int, bit_rate: int,
-                 supported: tuple[int, ...]) -> None:  # fmt: skip
+    def __init__(
+        self,
+        drives,
+        i: int,
+        address: tuple[int, int, int, int],
+        node_id: int,
+        bit_rate: int,
+        supported: tuple[int, ...],
+    ) -> None:
         self.drives = drives
         self.i = i
         self.address = address

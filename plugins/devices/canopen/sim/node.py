@@ -193,6 +193,16 @@ class DriveNode(canopen.LocalNode):
         return self.alive and not self.off_bus and self.simulator.clock.now() >= self.muted_until
 
     # ------------------------------------------------------------------ values
+    def _find_object(self, index, subindex):
+        """canopen's look-up, strict about sub-indices: a variable has sub-index 0 only, an ARRAY those its EDS
+        lists (canopen's would take any sub-index of a variable, and imply an array's)."""
+        obj = super()._find_object(index, subindex)
+        parent = self.object_dictionary[index]
+        known = (0,) if isinstance(parent, od_types.ODVariable) else parent.subindices
+        if subindex not in known:
+            raise SdoAbortedError(0x06090011)
+        return obj
+
     def value(self, index: int, subindex: int = 0):
         """The object's current value (stored, else its default), decoded."""
         obj = self._find_object(index, subindex)

@@ -5,10 +5,11 @@ velocity actual values, the mode in force 0x6061, the error objects
 0x1001, 0x1003, 0x603F) are computed from it, the motor integrated up to the
 moment of reading. Writes (by SDO or RPDO: the same path) are checked with
 the standard abort codes (0x06090031/32 above or below the limits the EDS
-states, 0x06090030 value range, 0x06040041/42 PDO mapping, 0x08000022 device
-state, ...) and take effect when written, also while enabled: the controlword
-drives the state machine, the targets the operating mode, every parameter its
-SI value (:meth:`ObjectDictionary._parameter`). PDO parameters change with
+states, 0x06090030 value range, 0x06040041/42 PDO mapping, 0x06010000 a
+mapping changed outside CiA 301's procedure, 0x08000022 device state, ...)
+and take effect when written, also while enabled: the controlword drives the
+state machine, the targets the operating mode, every parameter its SI value
+(:meth:`ObjectDictionary._parameter`). PDO parameters change with
 CiA 301's procedure only: in PRE-OPERATIONAL, the COB-ID invalidated, the
 number of entries 0 while mapping; an object maps in the direction its access
 type says (``ro``/``rwr`` to a TPDO, ``rww``/``wo`` to an RPDO, ``rw`` both);
@@ -65,8 +66,7 @@ class ObjectDictionary:
                 return len(history)
             if subindex > len(history):
                 raise SdoAbortedError(0x08000024)  # no data available
-            code = history[subindex - 1]
-            return code | (cia402.ERROR_REGISTER.get(code, cia402.ERR_GENERIC) << 16)
+            return history[subindex - 1]  # the error code; no additional information (as the EMCY's bytes 3-7)
         return None
 
     # ------------------------------------------------------------------ writes
@@ -158,10 +158,10 @@ class ObjectDictionary:
                 raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
             return
         if valid:
-            raise SdoAbortedError(cia402.ABORT_DEVICE_STATE)  # invalidate the PDO first
+            raise SdoAbortedError(cia402.ABORT_UNSUPPORTED_ACCESS)  # invalidate the PDO first
         if subindex == 0:
             if value > 8:
-                raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
+                raise SdoAbortedError(cia402.ABORT_PDO_TOO_LONG)  # more objects than a PDO carries
             bits = 0
             for sub in range(1, value + 1):
                 entry = int(node.value(index, sub))
@@ -171,7 +171,7 @@ class ObjectDictionary:
                 raise SdoAbortedError(cia402.ABORT_PDO_TOO_LONG)
             return
         if int(node.value(index, 0)) != 0:
-            raise SdoAbortedError(cia402.ABORT_DEVICE_STATE)  # set the number of entries to 0 first
+            raise SdoAbortedError(cia402.ABORT_UNSUPPORTED_ACCESS)  # set the number of entries to 0 first
         if value:
             self._check_mapping_entry(node, value, receive)
 

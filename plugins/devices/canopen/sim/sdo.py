@@ -255,8 +255,15 @@ class DriveSdoServer(SdoServer):
                 raise SdoAbortedError(0x06010002)
         crc = bool(command & 0x04)
         self._transfer = "block download"
-        self._block = {"crc": crc, "size": size, "received": bytearray(), "seqno": 0, "receiving": True,
-                       "blksize": MAX_BLOCK, "last": False}  # fmt: skip
+        self._block = {
+            "crc": crc,
+            "size": size,
+            "received": bytearray(),
+            "seqno": 0,
+            "receiving": True,
+            "blksize": MAX_BLOCK,
+            "last": False,
+        }
         response = bytearray(8)
         struct.pack_into("<BHBB", response, 0, 0xA0 | (0x04 if crc else 0), index, subindex, MAX_BLOCK)
         self.send_response(response)
