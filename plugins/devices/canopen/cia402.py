@@ -9,10 +9,12 @@ their standard indices, with the standard types and access, so a master that
 speaks CiA 402 (ours, canopen's ``BaseNode402``, a PLC) works with it.
 
 Communication (CiA 301): device type, error register, pre-defined error
-field, SYNC and EMCY COB-IDs, communication cycle period, heartbeat consumer
-and producer, identity, four RPDOs and four TPDOs (the predefined connection
-set's COB-IDs: RPDO n at 0x100 + 0x100 n + node, TPDO n at 0x080 + 0x100 n +
-node). Profile (CiA 402): controlword, statusword, modes of operation and
+field, SYNC and EMCY COB-IDs, communication cycle period, store and restore
+(0x1010/0x1011), heartbeat consumer and producer, identity (the serial number
+the drive's own, part of its LSS address), the SDO server's COB-IDs (0x1200),
+four RPDOs and four TPDOs (the predefined connection set's COB-IDs: RPDO n at
+0x100 + 0x100 n + node, TPDO n at 0x080 + 0x100 n + node, bit 30 set: not
+served by RTR). Profile (CiA 402): controlword, statusword, modes of operation and
 display, supported drive modes (0x6502: profile position 1, profile velocity
 3, cyclic synchronous position 8 and velocity 9), position, velocity and
 following-error objects, software position limits, profile velocity,
@@ -247,6 +249,8 @@ def tpdo_cob_id(n: int, node_id: int) -> int:
 
 PDO_INVALID = 1 << 31
 PDO_NO_RTR = 1 << 30
+#: CiA 301's restricted CAN-IDs (NMT, SDO and NMT error control of the predefined set, reserved): no PDO uses them
+RESTRICTED_IDS = ((0x000, 0x07F), (0x101, 0x180), (0x581, 0x5FF), (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x7FF))
 #: the bit rates the simulated drives support (the EDS's BaudRate_* keys, LSS bit timing)
 BIT_RATES = (125_000, 250_000, 500_000, 1_000_000)
 #: CiA 301 0x1010/0x1011: the signatures that save ("save") and restore defaults ("load"), as UNSIGNED32

@@ -305,3 +305,22 @@ def dummies(session: Session) -> dict[int, Finding]:
         session.reset([node_id])
         out[node_id] = judge(problems, f"dummies {', '.join(allowed) or 'none'} allowed; the others refused")
     return out
+
+
+@PDO.case("3.8", "no PDO takes a restricted CAN-ID as its COB-ID (CiA 301 §7.3.5)", ctt="8.10")
+def restricted(session: Session) -> dict[int, Finding]:
+    out = {}
+    for node_id in session.ids:
+        problems, tried = [], 0
+        for receive in (True, False):
+            n = _pdos(session, node_id, receive)[0]
+            comm, _ = _invalid(session, node_id, receive, n)
+            flags = cia.PDO_INVALID | (0 if receive else cia.PDO_NO_RTR)
+            for can_id in cia.RESTRICTED_IDS:
+                tried += 1
+                code = session.download(node_id, comm, 1, struct.pack("<L", flags | can_id))
+                if code not in cia.ACCEPT["restricted CAN-ID"]:
+                    problems.append(f"0x{comm:04X}:1 <- 0x{flags | can_id:08X}: {hexcode(code)}")
+        session.reset([node_id])
+        out[node_id] = judge(problems, f"{tried} restricted CAN-IDs refused for RPDO and TPDO COB-IDs (0x06090030)")
+    return out

@@ -16,9 +16,8 @@ import time
 from canopen import objectdictionary as od
 
 from . import standard as cia
-from .cases import Finding, failed, judge, not_applicable, passed
+from .cases import Family, Finding, failed, judge, not_applicable, passed
 from .family_pdo import (
-    PDO,
     QUIET,
     READY,
     _candidates,
@@ -32,6 +31,9 @@ from .family_pdo import (
     _tpdo_n,
 )
 from .session import Frame, Session
+
+#: cases of the PDO family (the same name: they are reported with it)
+PDO = Family("PDO")
 
 
 def _start_all(session: Session, settle: dict[int, int] | None = None) -> None:
@@ -56,7 +58,7 @@ def _after(frames: list[Frame], syncs: list[float]) -> list[int]:
     return [sum(1 for s in syncs if s <= f.received) for f in frames]
 
 
-@PDO.case("3.8", "synchronous cyclic TPDO (type 3): after every third SYNC, never between", ctt="3.6, 6.3")
+@PDO.case("3.9", "synchronous cyclic TPDO (type 3): after every third SYNC, never between", ctt="3.6, 6.3")
 def cyclic(session: Session) -> dict[int, Finding]:
     failed_to_map = _configure_all(session, False, 1, lambda n: _new_mapping(session, n, False, 0), 3)
     _start_all(session)
@@ -82,7 +84,7 @@ def cyclic(session: Session) -> dict[int, Finding]:
     return out
 
 
-@PDO.case("3.9", "acyclic synchronous TPDO (type 0): at the SYNC after a change, only then", ctt="3.7")
+@PDO.case("3.10", "acyclic synchronous TPDO (type 0): at the SYNC after a change, only then", ctt="3.7")
 def acyclic(session: Session) -> dict[int, Finding]:
     n_of = {node_id: _tpdo_n(session, node_id) for node_id in session.ids}
     failed_to_map = {}
@@ -132,7 +134,7 @@ def acyclic(session: Session) -> dict[int, Finding]:
     return out
 
 
-@PDO.case("3.10", "event-driven TPDO (types 254, 255): sent at a change without SYNC, not at SYNC", ctt="3.4")
+@PDO.case("3.11", "event-driven TPDO (types 254, 255): sent at a change without SYNC, not at SYNC", ctt="3.4")
 def event_driven(session: Session) -> dict[int, Finding]:
     out: dict[int, Finding] = {}
     for trans in (255, 254):
@@ -166,7 +168,7 @@ def event_driven(session: Session) -> dict[int, Finding]:
     return out
 
 
-@PDO.case("3.11", "the inhibit time keeps event-driven TPDOs apart; the last value still goes")
+@PDO.case("3.12", "the inhibit time keeps event-driven TPDOs apart; the last value still goes")
 def inhibit(session: Session) -> dict[int, Finding]:
     inhibit_s = 0.1
     n_of = {node_id: _tpdo_n(session, node_id) for node_id in session.ids}
@@ -188,10 +190,11 @@ def inhibit(session: Session) -> dict[int, Finding]:
     _start_all(session, {n: cia.tpdo(n_of[n], n) for n in session.ids})
     time.sleep(inhibit_s)
     mark = session.recorder.mark()
-    changes = 10
+    changes = 12  # a change every quarter of the inhibit time, for three of them: the last one READY TO SWITCH ON
     for k in range(changes):
-        _controlword(session, 0x06 if (changes - 1 - k) % 2 == 0 else 0x00)  # the last one: READY TO SWITCH ON
-    time.sleep(3 * inhibit_s)
+        _controlword(session, 0x06 if (changes - 1 - k) % 2 == 0 else 0x00)
+        time.sleep(inhibit_s / 4)
+    time.sleep(2 * inhibit_s)
     out = {}
     for node_id in session.ids:
         if node_id in problems_of:
@@ -206,8 +209,8 @@ def inhibit(session: Session) -> dict[int, Finding]:
             problems.append(f"the last TPDO says 0x{_statusword(frames[-1]):02X}, the drive is READY (0x21)")
         if gaps and min(gaps) < 0.9 * inhibit_s:  # 10 %: the sender's scheduling, not an early frame
             problems.append(f"TPDOs {min(gaps) * 1000:.1f} ms apart, inhibit time {inhibit_s * 1000:.0f} ms")
-        if len(frames) >= changes:
-            problems.append(f"{len(frames)} TPDOs for {changes} changes")
+        if len(frames) >= changes or len(frames) < 2:
+            problems.append(f"{len(frames)} TPDOs for {changes} changes over {changes / 4:g} inhibit times")
         gap_text = f"{min(gaps) * 1000:.0f} ms" if gaps else "-"
         out[node_id] = judge(
             problems,
@@ -218,7 +221,7 @@ def inhibit(session: Session) -> dict[int, Finding]:
     return out
 
 
-@PDO.case("3.12", "the event timer sends an unchanged event-driven TPDO every period", ctt="3.5")
+@PDO.case("3.13", "the event timer sends an unchanged event-driven TPDO every period", ctt="3.5")
 def event_timer(session: Session) -> dict[int, Finding]:
     period = 0.05
     n_of = {node_id: _tpdo_n(session, node_id) for node_id in session.ids}
@@ -273,7 +276,7 @@ def _rpdo_object(session: Session, node_id: int) -> od.ODVariable | None:
     return next((v for v in pool if v.index == 0x607A), pool[0] if pool else None)
 
 
-@PDO.case("3.13", "RPDOs: type 1 acted on at the next SYNC, type 255 at once; shorter than mapped: ignored")
+@PDO.case("3.14", "RPDOs: type 1 acted on at the next SYNC, type 255 at once; shorter than mapped: ignored")
 def rpdos(session: Session) -> dict[int, Finding]:
     out = {}
     objects = {node_id: _rpdo_object(session, node_id) for node_id in session.ids}

@@ -53,6 +53,7 @@ ACCEPT = {
     "mapping too long": {UNSUPPORTED_ACCESS, NO_OBJECT, CANNOT_MAP, PDO_TOO_LONG},
     "cannot map": {NO_OBJECT, CANNOT_MAP},
     "heartbeat consumer twice": {INCOMPATIBLE},
+    "restricted CAN-ID": {VALUE_RANGE, INCOMPATIBLE, GENERAL},
     "signature": {CANNOT_STORE},
     "error history": {VALUE_RANGE, VALUE_TOO_HIGH, GENERAL},
     "no error": {NO_DATA, GENERAL},
@@ -112,6 +113,24 @@ def heartbeat(node: int) -> int:
 
 PDO_INVALID = 1 << 31
 PDO_NO_RTR = 1 << 30
+#: CAN-IDs no configurable COB-ID may use (CiA 301 §7.3.5: NMT, reserved, the default SDOs, NMT error control)
+RESTRICTED_IDS = (
+    0x000,
+    0x001,
+    0x07F,
+    0x101,
+    0x180,
+    0x581,
+    0x5FF,
+    0x601,
+    0x67F,
+    0x6E0,
+    0x6FF,
+    0x701,
+    0x77F,
+    0x780,
+    0x7FF,
+)
 
 # ----------------------------------------------------------------------------- errors (CiA 301 §7.2.7, Table 21)
 EMCY_NO_ERROR = 0x0000

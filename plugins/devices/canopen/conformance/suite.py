@@ -25,6 +25,7 @@ from .family_errors import ERRORS
 from .family_lss import LSS
 from .family_nmt import NMT
 from .family_pdo import PDO
+from .family_pdo_timing import PDO as PDO_TIMING
 from .family_sdo import SDO
 from .family_store import STORE
 from .session import Drive, Session, Timing
@@ -33,7 +34,7 @@ from .target import BusDrives, SimulatedDrives
 log = logging.getLogger(__name__)
 
 #: the families, in the order they run
-FAMILIES: list[Family] = [LSS, EDS, SDO, PDO, ERRORS, NMT, STORE]
+FAMILIES: list[Family] = [LSS, EDS, SDO, PDO, PDO_TIMING, ERRORS, NMT, STORE]
 SCANS = {
     "none": [],
     "standard": [(0x1000, 0x1FFF), (0x6000, 0x67FF)],

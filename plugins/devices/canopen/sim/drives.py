@@ -204,7 +204,8 @@ class DriveSimulator(
         self.hand: Callable[[float], np.ndarray] | None = None
         self.memories = [Memory(memory / f"{device or 'drive'}_{a.name}.json" if memory else None) for a in axes]
         self.lss: list[LssSlave] = []
-        bit_rate = getattr(bus, "bitrate", None) or 1_000_000
+        #: the bus's bit rate (a drive switched to another by LSS is off the bus)
+        self.bus_bit_rate = bit_rate = getattr(bus, "bitrate", None) or 1_000_000
         for i, axis in enumerate(axes):
             stored = self.memories[i].lss.get("node_id", UNCONFIGURED)
             node_id = (stored if 1 <= stored <= 127 else UNCONFIGURED) if unconfigured else axis.node_id

@@ -195,8 +195,8 @@ class LssSlave:
         self.silent_until = now + 2 * delay
         self.bit_rate = self.pending_bit_rate
         self.drives.mute(self.i, self.silent_until)
-        bus_rate = getattr(self.drives.network.bus, "bitrate", None)
-        if bus_rate is not None and self.bit_rate != bus_rate:
+        bus_rate = self.drives.bus_bit_rate
+        if self.bit_rate != bus_rate:
             log.info("node %s: now at %d bit/s, this bus runs at %d: off the bus", self.active, self.bit_rate, bus_rate)
             self.off_bus = True
             self.drives.leave_bus(self.i)

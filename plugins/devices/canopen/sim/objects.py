@@ -152,6 +152,8 @@ class ObjectDictionary:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # no extended ids; an id to be valid
                 if not receive and not value & cia402.PDO_NO_RTR:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # no TPDO on request (RTR)
+                if any(lo <= value & 0x7FF <= hi for lo, hi in cia402.RESTRICTED_IDS):
+                    raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # a restricted CAN-ID (CiA 301 §7.3.5)
                 if valid and not value & cia402.PDO_INVALID and value & 0x7FF != cob & 0x7FF:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # the COB-ID of a valid PDO is fixed
             elif subindex == 2 and not (value <= 240 or value in (254, 255)):
