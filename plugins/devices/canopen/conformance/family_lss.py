@@ -302,7 +302,7 @@ def activate_bit_timing(session: Session) -> dict[int, Finding]:
     session.set_heartbeat(20)
     time.sleep(0.1)
     lss.send_switch_state_global(lss.CONFIGURATION_STATE)
-    start = time.monotonic()
+    start, sent = time.monotonic(), time.time()
     mark = session.recorder.mark()
     lss.activate_bit_timing(round(delay * 1000))
     quiet_until = start + 2 * delay
@@ -318,7 +318,8 @@ def activate_bit_timing(session: Session) -> dict[int, Finding]:
     out = {}
     for node_id in session.ids:
         own = [f for f in frames if f.can_id in (cia.heartbeat(node_id), cia.emcy(node_id))]
-        inside = [f for f in own if start + 0.03 < f.received < quiet_until - 0.03]
+        # by the drive's send times: from its taking the command (a few ms after it went) to the delays' end
+        inside = [f for f in own if sent + 0.03 < f.sent < sent + 2 * delay - 0.005]
         after = [f for f in own if f.received >= quiet_until - 0.03]
         problems = [f"{len(inside)} frames inside the switch delays"] if inside else []
         if not after:

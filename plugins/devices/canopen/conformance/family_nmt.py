@@ -154,7 +154,7 @@ def stopped(session: Session) -> dict[int, Finding]:
         time.sleep(0.15)
         for node_id in session.ids:
             session.nmt(cia.STOP, node_id)
-        time.sleep(0.05)
+        time.sleep(0.1)  # a heartbeat sent before the command was taken is not STOPPED's
         mark = session.recorder.mark()
     finally:
         beat.stop()  # the drives' consumers now time out: an error, whose EMCY a STOPPED node must not send

@@ -190,13 +190,17 @@ class Communication:
         bus = self.network.bus
         send_batch = getattr(bus, "send_batch", None)
         for pdo, payload in batch:
-            pdo.last, pdo.sent_at = payload, now
+            pdo.last = payload
         if send_batch is not None and self.network.link is None:
             send_batch([can.Message(arbitration_id=pdo.cob_id, data=payload, is_extended_id=False)
                         for pdo, payload in batch])  # fmt: skip
-            return
-        for pdo, payload in batch:
-            self.network.send_message(pdo.cob_id, payload)
+        else:
+            for pdo, payload in batch:
+                self.network.send_message(pdo.cob_id, payload)
+        # the inhibit time and the event timer count from when the frame went (a late send does not shorten them)
+        sent = max(now, self.clock.now())
+        for pdo, _ in batch:
+            pdo.sent_at = sent
 
     def _event_tpdos(self, i: int | None = None, now: float | None = None) -> None:
         """Event-driven TPDOs (254/255): on change (after the inhibit time) and on the event timer."""
