@@ -119,7 +119,7 @@ def reports(tmp_path_factory):
         def run(device: str) -> dict:
             path = out / f"{device}.json"
             if device == "cast_gimbal":  # through the command, as a user runs it
-                exits[device] = _run_cli(device, path, ["--sdo-timeout", "1.0"])
+                exits[device] = _run_cli(device, path, ["--sdo-timeout", "1.0", "--lss-timeout", "0.1"])
                 return json.loads(path.read_text())
             cls = registry.default_registry().get("device", device).cls
             return cls.conformance(device, {"sdo_timeout": 1.0, "lss_timeout": 0.1}).as_dict()

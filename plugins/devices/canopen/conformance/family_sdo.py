@@ -28,13 +28,15 @@ def _request(command: int, index: int, subindex: int, payload: bytes = b"") -> b
 
 
 def _strings(session: Session, node_id: int) -> list[od.ODVariable]:
-    """Readable objects longer than 4 bytes (segmented and block transfers of several segments)."""
-    out = []
-    for var in variables(session.drive(node_id).dictionary):
-        value = session.upload(node_id, var.index, var.subindex) if var.readable else 0
-        if isinstance(value, bytes) and len(value) > 4:
-            out.append(var)
-    return out
+    """Readable objects longer than 4 bytes (segmented and block transfers of several segments); found once."""
+    found = session.notes.setdefault("long objects", {})
+    if node_id not in found:
+        found[node_id] = []
+        for var in variables(session.drive(node_id).dictionary):
+            value = session.upload(node_id, var.index, var.subindex) if var.readable else 0
+            if isinstance(value, bytes) and len(value) > 4:
+                found[node_id].append(var)
+    return found[node_id]
 
 
 def _numbers(session: Session, node_id: int, writable: bool = True):
