@@ -52,7 +52,10 @@ def main() -> None:
         "(127.0.0.1); one device after the other; wall_s includes the drives' two process starts"
     )
     peers = {
-        "canopen": {"version": version("canopen"), "configuration": "Network, RemoteNode, SdoClient, PdoMap, LssMaster"},
+        "canopen": {
+            "version": version("canopen"),
+            "configuration": "master classes: Network, RemoteNode, SdoClient, PdoMap, LssMaster",
+        },
         "python-can": {"version": version("python-can"), "configuration": "interface loopback (surgiplan's)"},
     }
     print(f"written {save('canopen_conformance', rows, notes, peers=peers)}")
