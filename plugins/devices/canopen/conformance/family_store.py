@@ -24,8 +24,9 @@ def _skip(session: Session) -> dict[int, Finding] | None:
     if not session.target.may_store:
         return every(session.ids, skipped("changes what the drives keep over a power cycle: allow it to run"))
     missing = [n for n in session.ids if not {0x1010, 0x1011} <= set(session.drive(n).dictionary.indices)]
-    if missing:
-        return {n: not_applicable("the EDS has no 0x1010/0x1011") if n in missing else failed("") for n in session.ids}
+    if missing:  # the family runs on drives that all store (it power-cycles them together)
+        others = skipped(f"node {missing[0]}'s EDS has no 0x1010/0x1011: the family needs every drive to store")
+        return {n: not_applicable("the EDS has no 0x1010/0x1011") if n in missing else others for n in session.ids}
     return None
 
 
@@ -138,6 +139,9 @@ def save_areas(session: Session) -> dict[int, Finding]:
             continue
         problems = []
         changed = _change(session, node_id)
+        if not {"communication", "application"} <= set(changed):
+            out[node_id] = failed(f"no communication and application setting to change found ({sorted(changed)})")
+            continue
         _signature(session, node_id, 0x1010, 2, cia.SAVE)
         session.reset([node_id])
         problems += _expect(_values(session, node_id, changed), changed, {"communication"}, "communication saved")
