@@ -78,7 +78,7 @@ def identify_non_configured(session: Session) -> dict[int, Finding]:
     session.recorder.wait(
         lambda f: len(_responses(session, mark, cia.LSS_NON_CONFIGURED)) >= len(session.ids),
         mark,
-        session.timing.silence,
+        session.timing.sdo,  # an answer is expected: as long as an SDO answer may take (not LSS's silence)
     )
     answers = len(_responses(session, mark, cia.LSS_NON_CONFIGURED))
     finding = judge([] if answers else ["no non-configured slave answered"], f"{answers} answers (50h)")
@@ -279,8 +279,10 @@ def identify_remote(session: Session) -> dict[int, Finding]:
             for cs, part in zip(cia.LSS_IDENTIFY_REMOTE, (vendor, product, revision, revision, low, high), strict=True):
                 session.network.send_message(cia.LSS_REQUEST, _u32(cs, part))
             time.sleep(session.timing.silence if low > serial else 0)
-            session.recorder.wait(
-                lambda f, m=mark: bool(_responses(session, m, cia.LSS_IDENTIFIED)), mark, session.timing.silence
+            session.recorder.wait(  # its own range: an answer expected, as long as an SDO answer may take
+                lambda f, m=mark: bool(_responses(session, m, cia.LSS_IDENTIFIED)),
+                mark,
+                session.timing.silence if low > serial else session.timing.sdo,
             )
             answers.append(len(_responses(session, mark, cia.LSS_IDENTIFIED)))
         problems = []

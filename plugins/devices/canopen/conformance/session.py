@@ -241,8 +241,17 @@ class Session:
     def upload_many(self, requests: dict[int, list[tuple[int, int]]]) -> dict[int, dict[tuple[int, int], bytes | int]]:
         """Expedited upload requests, one in flight per drive and every drive's at once (the drives' answers
         overlap the round trips): {node-ID: [(index, sub-index), ...]} -> the answers' data or abort codes
-        (or -1: no answer)."""
+        (or -1: no answer). An answer counts only if it names the object asked for (a late answer to an
+        earlier request is not taken for the next one); a request left unanswered is sent once more, as
+        canopen's SDO client retries (``SdoClient.MAX_RETRIES``), with a longer wait."""
         out: dict[int, dict] = {node_id: {} for node_id in requests}
+        self._upload_batches(requests, out, self.timing.sdo)
+        silent = {node_id: [key for key, code in found.items() if code == -1] for node_id, found in out.items()}
+        if any(silent.values()):
+            self._upload_batches(silent, out, 4 * self.timing.sdo)
+        return out
+
+    def _upload_batches(self, requests: dict[int, list[tuple[int, int]]], out: dict[int, dict], timeout: float) -> None:
         queues = {node_id: list(items) for node_id, items in requests.items() if items}
         for _ in range(max((len(q) for q in queues.values()), default=0)):
             batch = {node_id: q.pop(0) for node_id, q in queues.items() if q}
@@ -251,22 +260,24 @@ class Session:
             mark = self.recorder.mark()
             for node_id, (index, sub) in batch.items():
                 self.network.send_message(cia.sdo_request(node_id), struct.pack("<BHB", 0x40, index, sub) + bytes(4))
-            wanted = {cia.sdo_response(node_id): node_id for node_id in batch}
+            wanted = {cia.sdo_response(node_id): (node_id, struct.pack("<HB", *batch[node_id])) for node_id in batch}
+
+            def matches(frame: Frame, wanted=wanted) -> bool:
+                return frame.can_id in wanted and frame.data[1:4] == wanted[frame.can_id][1]
 
             def answered(frames: list[Frame], wanted=wanted) -> bool:
-                return set(wanted) <= {f.can_id for f in frames}
+                return set(wanted) <= {f.can_id for f in frames if matches(f)}
 
-            self.recorder.wait(answered, mark, self.timing.sdo)
+            self.recorder.wait(answered, mark, timeout)
             for frame in self.recorder.since(mark):
-                node_id = wanted.pop(frame.can_id, None)
-                if node_id is None:
+                if not matches(frame):
                     continue
-                key = batch[node_id]
+                node_id, _ = wanted.pop(frame.can_id)
                 code = abort_of(frame.data)
-                out[node_id][key] = code if code is not None else frame.data[4 : 8 - ((frame.data[0] >> 2) & 3)]
-            for node_id in wanted.values():
+                data = frame.data[4 : 8 - ((frame.data[0] >> 2) & 3)]
+                out[node_id][batch[node_id]] = code if code is not None else data
+            for node_id, _ in wanted.values():
                 out[node_id][batch[node_id]] = -1
-        return out
 
     def send_raw(self, node_id: int, frame: bytes) -> None:
         self.nodes[node_id].sdo.send_request(bytes(frame))
