@@ -84,3 +84,16 @@ class Family:
 def every(nodes: Iterable[int], finding: Finding) -> dict[int, Finding]:
     """The same finding for every node."""
     return {node: finding for node in nodes}
+
+
+def periodic(count: int, window: float, period: float, what: str) -> list[str]:
+    """Judge a periodic producer (heartbeat, event timer) by how many frames came in ``window`` s: never more
+    often than ``period`` (at most ``window / period`` + 2, the two ends' frames), and still sending (at least a
+    third of that: a loaded sender is late, not silent). By count, not by the gaps between reception stamps: a
+    receiver that falls behind stamps a burst of frames at once, which says nothing about when they were sent."""
+    most, least = int(window / period) + 2, max(2, int(window / period / 3))
+    if count > most:
+        return [f"{count} {what} in {window * 1000:.0f} ms: more often than every {period * 1000:.0f} ms"]
+    if count < least:
+        return [f"{count} {what} in {window * 1000:.0f} ms at {period * 1000:.0f} ms (at least {least} expected)"]
+    return []

@@ -24,7 +24,9 @@ MASTER_ID = 0x7F
 
 @dataclass(frozen=True)
 class Frame:
-    """A frame as the master received it: when (monotonic, here), when it was sent (the sender's clock)."""
+    """A frame as the master received it: when (monotonic, here) and the interface's time stamp (``sent``: the
+    kernel's reception time on SocketCAN, the receiving thread's on loopback; frames that wait in a busy
+    receiver get the same stamp, so rates are judged by counts, :func:`.cases.periodic`)."""
 
     received: float
     sent: float
