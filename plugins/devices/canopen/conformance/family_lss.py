@@ -100,7 +100,7 @@ def fast_scan(session: Session) -> dict[int, Finding]:
         if all(node_id in results["11.8"] for node_id in session.ids):
             break
         started = time.monotonic()
-        found, address = lss.fast_scan()
+        found, address = session.fast_scan()
         took = time.monotonic() - started
         if not found:
             continue
@@ -234,7 +234,7 @@ LSS.case("11.8", "back to waiting, a configured drive boots with its node-ID; 0x
 def nobody_left(session: Session) -> dict[int, Finding]:
     if (skip := _skip_if_configured(session)) is not None:
         return skip
-    found, address = session.network.lss.fast_scan()
+    found, address = session.fast_scan()
     if found:
         session.network.lss.send_switch_state_global(session.network.lss.WAITING_STATE)
     return every(session.ids, judge([f"found {address}"] if found else [], "no answer to the fast scan's first step"))

@@ -98,6 +98,7 @@ class Timing:
     #: how long a node may take to answer or react when silence is the expected answer
     silence: float = 0.25
     boot: float = 3.0
+    #: how long a fast scan step waits for an answer (its silence means a 1 bit: short, the scan has 132 steps)
     lss: float = 0.15
 
 
@@ -141,7 +142,18 @@ class Session:
             node.sdo.RESPONSE_TIMEOUT = self.timing.sdo
             network.add_node(node)
             self.nodes[drive.node_id] = node
-        network.lss.RESPONSE_TIMEOUT = self.timing.lss
+        # LSS services that must be answered wait as long as an SDO answer may take; the fast scan, whose
+        # silence is an answer, waits ``timing.lss`` (:meth:`fast_scan`)
+        network.lss.RESPONSE_TIMEOUT = max(self.timing.sdo, self.timing.lss)
+
+    def fast_scan(self) -> tuple[bool, list[int] | None]:
+        """canopen's ``LssMaster.fast_scan``, each step waiting ``timing.lss`` (silence means a 1 bit)."""
+        lss = self.network.lss
+        patient, lss.RESPONSE_TIMEOUT = lss.RESPONSE_TIMEOUT, self.timing.lss
+        try:
+            return lss.fast_scan()
+        finally:
+            lss.RESPONSE_TIMEOUT = patient
 
     def close(self) -> None:
         if self.network is None:
