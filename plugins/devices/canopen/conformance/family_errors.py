@@ -119,6 +119,8 @@ def emcy_on_error(session: Session) -> dict[int, Finding]:
 @ERRORS.case("5.4", "the error gone (heartbeat back, CiA 402 fault reset): EMCY 0x0000, 0x1001 = 0")
 def error_reset(session: Session) -> dict[int, Finding]:
     raised = session.notes.get("emcy", {})
+    for node_id in raised:  # the consumer kept, with a time this master's heartbeat thread meets under any load
+        session.nodes[node_id].sdo[0x1016][1].raw = MASTER_ID << 16 | 1000
     beat = session.network.send_periodic(cia.heartbeat(MASTER_ID), b"\x05", 0.02)
     try:
         mark = session.recorder.mark()
