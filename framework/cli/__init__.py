@@ -18,10 +18,10 @@ import traceback
 
 from .. import __version__
 from ..errors import SurgiplanError
-from . import canopen_conformance, plugins, run, trainee, view
+from . import benchmark, can_decode, canopen_conformance, export, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
-COMMANDS = (run, view, trainee, plugins, canopen_conformance)
+COMMANDS = (run, view, trainee, benchmark, export, can_decode, canopen_conformance, plugins)
 
 
 class _Formatter(logging.Formatter):
