@@ -47,7 +47,7 @@ def main() -> None:
         return
     notes = (
         "surgiplan canopen-conformance DEVICE, default settings (standard scan 0x1000-0x1FFF and 0x6000-0x67FF, "
-        "SDO time-out 0.5 s, LSS fast scan step time-out 0.15 s); the simulated drives in a process of their own "
+        "SDO time-out 1 s, LSS fast scan step time-out 0.15 s); the simulated drives in a process of their own "
         "(surgiplan-sim-drives --unconfigured), canopen's master here, on the loopback python-can interface "
         "(127.0.0.1); one device after the other; wall_s includes the drives' two process starts"
     )

@@ -43,7 +43,7 @@ def add_parsers(sub) -> None:
     parser.add_argument(
         "--allow-store", action="store_true", help="real drives: let store/restore change what they keep (0x1010/1011)"
     )
-    parser.add_argument("--sdo-timeout", type=float, default=0.5, metavar="S", help="SDO answer time-out (s)")
+    parser.add_argument("--sdo-timeout", type=float, default=1.0, metavar="S", help="SDO answer time-out (s)")
     parser.add_argument("--lss-timeout", type=float, default=0.15, metavar="S", help="LSS fast scan step time-out (s)")
     parser.add_argument("--per-drive", action="store_true", help="one row per case and drive")
     parser.add_argument("--json", action="store_true", help="machine-readable output")

@@ -30,8 +30,18 @@ def _skip(session: Session) -> dict[int, Finding] | None:
     return None
 
 
+#: how long a store or restore command may take to be confirmed (s): the drive writes its non-volatile memory
+#: first (flash or EEPROM on real drives, a file on the simulated ones; either can take long on a busy device)
+STORE_TIMEOUT = 3.0
+
+
 def _signature(session: Session, node_id: int, index: int, sub: int, value: int) -> int | None:
-    return session.download(node_id, index, sub, value.to_bytes(4, "little"))
+    sdo = session.nodes[node_id].sdo
+    patient, sdo.RESPONSE_TIMEOUT = sdo.RESPONSE_TIMEOUT, max(sdo.RESPONSE_TIMEOUT, STORE_TIMEOUT)
+    try:
+        return session.download(node_id, index, sub, value.to_bytes(4, "little"))
+    finally:
+        sdo.RESPONSE_TIMEOUT = patient
 
 
 def _change(session: Session, node_id: int) -> dict[str, tuple]:

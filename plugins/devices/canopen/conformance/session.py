@@ -94,7 +94,7 @@ class Drive:
 class Timing:
     """How long the session waits (s): generous by default, for a loaded machine or a slow interface."""
 
-    sdo: float = 0.5
+    sdo: float = 1.0
     #: how long a node may take to answer or react when silence is the expected answer
     silence: float = 0.25
     boot: float = 3.0

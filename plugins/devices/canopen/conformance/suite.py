@@ -63,7 +63,7 @@ class ConformanceSettings(StrictModel):
     unconfigured: bool = False
     #: real drives: the store/restore family may change what they keep over a power cycle
     allow_store: bool = False
-    sdo_timeout: PositiveFloat = 0.5
+    sdo_timeout: PositiveFloat = 1.0
     lss_timeout: PositiveFloat = 0.15
 
 
