@@ -351,7 +351,9 @@ class LoopbackBus(can.BusABC):
                 listener = self._try_listen(required=hub == "host")
             if listener is not None:
                 rx = self._rx  # not self: the hub thread must not keep the bus alive (python-can's __del__ cleanup)
-                self._hub = _Hub(listener, lambda record: rx.put((record, True)), self.send_timeout, self._address_text())
+                self._hub = _Hub(
+                    listener, lambda record: rx.put((record, True)), self.send_timeout, self._address_text()
+                )
                 self.role = "host"
             else:
                 self._sock = self._join(float(connect_timeout))
