@@ -359,6 +359,7 @@ class LoopbackBus(can.BusABC):
                 self._sock = self._join(float(connect_timeout))
                 self._wake_r, self._wake_w = socket.socketpair()
                 self._wake_r.setblocking(False)
+                self._wake_w.setblocking(False)  # a full pipe is already readable: a wake-up never blocks
                 self.role = "join"
             super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         except BaseException:
