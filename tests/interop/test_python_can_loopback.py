@@ -15,7 +15,7 @@ import time
 import can
 import pytest
 from pycan_tests import back2back_test as b2b
-from pycan_tests import free_port
+from pycan_tests import free_port, free_ports
 from pycan_tests.config import TEST_CAN_FD
 
 
@@ -155,46 +155,67 @@ def _run_module(module: str, *args: str) -> subprocess.Popen:
     )
 
 
-@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf"])
-def test_can_logger_writes_what_can_logreader_and_can_player_read_back(tmp_path, suffix):
+SUFFIXES = (".log", ".asc", ".blf")
+
+
+def test_can_logger_writes_what_can_logreader_and_can_player_read_back(tmp_path):
+    """Three ``can.logger`` processes (one per format) on one bus, then three ``can.player`` processes, each
+    on a bus of its own (the processes start together: each takes seconds to import python-can and us)."""
     port = free_port()
-    path = tmp_path / f"capture{suffix}"
+    paths = {suffix: tmp_path / f"capture{suffix}" for suffix in SUFFIXES}
     with can.Bus(port, interface="loopback", hub="host") as host:
-        logger = _run_module("can.logger", "-i", "loopback", "-c", str(port), "-f", str(path))
+        loggers = {
+            s: _run_module("can.logger", "-i", "loopback", "-c", str(port), "-f", str(paths[s])) for s in SUFFIXES
+        }
         try:
-            deadline = time.monotonic() + 30
-            while not host._hub.peers and time.monotonic() < deadline and logger.poll() is None:
+            deadline = time.monotonic() + 60
+            while len(host._hub.peers) < len(loggers) and time.monotonic() < deadline:
+                if any(logger.poll() is not None for logger in loggers.values()):
+                    break
                 time.sleep(0.02)
-            assert host._hub.peers, logger.communicate(timeout=10)
+            assert len(host._hub.peers) == len(loggers)
             sent = []  # (frame, time just before, time just after sending it)
             for msg in FRAMES:
                 before = time.time()
                 host.send(msg)
                 sent.append((msg, before, time.time()))
                 time.sleep(0.02)
-            time.sleep(0.3)  # the logger has them (it writes what it received when stopped)
+            time.sleep(0.3)  # the loggers have them (they write what they received when stopped)
         finally:
-            logger.send_signal(signal.SIGINT)
-            out, err = logger.communicate(timeout=30)
+            for logger in loggers.values():
+                logger.send_signal(signal.SIGINT)
+            outputs = {s: logger.communicate(timeout=60) for s, logger in loggers.items()}
+    for suffix, logger in loggers.items():
+        out, err = outputs[suffix]
         assert logger.returncode == 0, out + err
         assert f"Connected to LoopbackBus: loopback CAN 127.0.0.1:{port}" in out
 
+    for suffix, path in paths.items():
         read = list(can.LogReader(str(path)))
-        assert len(read) == len(FRAMES)
+        assert len(read) == len(FRAMES), suffix
         remote_dlc = suffix != ".log"
-        assert all(_same_frame(got, msg, remote_dlc) for got, (msg, _, _) in zip(read, sent, strict=True))
+        assert all(_same_frame(got, msg, remote_dlc) for got, (msg, _, _) in zip(read, sent, strict=True)), suffix
         if suffix == ".log":  # canutils names a numeric channel canN; absolute times to the microsecond
             assert {m.channel for m in read} == {f"can{port}"}
             assert all(b - 1e-6 <= m.timestamp <= a + 1e-6 for m, (_, b, a) in zip(read, sent, strict=True))
         else:  # .asc and .blf: the gaps between frames are those between sending them
             for i in range(1, len(read)):
                 gap = read[i].timestamp - read[i - 1].timestamp
-                assert sent[i][1] - sent[i - 1][2] - 2e-5 <= gap <= sent[i][2] - sent[i - 1][1] + 2e-5
+                assert sent[i][1] - sent[i - 1][2] - 2e-5 <= gap <= sent[i][2] - sent[i - 1][1] + 2e-5, suffix
 
-        player = _run_module("can.player", "-i", "loopback", "-c", str(port), str(path))
-        out, err = player.communicate(timeout=120)  # it plays the file and ends; what it sent waits in our queue
-        assert player.returncode == 0, out + err
-        played = [host.recv(5.0) for _ in FRAMES]
-        assert all(m is not None and _same_frame(m, f, remote_dlc) for m, f in zip(played, FRAMES, strict=True))
-        assert all(m.is_rx and m.channel == port for m in played)
-        assert host.recv(0.2) is None  # nothing twice
+    ports = dict(zip(SUFFIXES, free_ports(len(SUFFIXES)), strict=True))
+    hosts = {s: can.Bus(ports[s], interface="loopback", hub="host") for s in SUFFIXES}
+    try:
+        players = {s: _run_module("can.player", "-i", "loopback", "-c", str(ports[s]), str(paths[s])) for s in SUFFIXES}
+        for player in players.values():
+            out, err = player.communicate(timeout=120)  # it plays the file and ends; its frames wait in our queue
+            assert player.returncode == 0, out + err
+        for suffix, bus in hosts.items():
+            played = [bus.recv(5.0) for _ in FRAMES]
+            remote_dlc = suffix != ".log"
+            assert all(m is not None and _same_frame(m, f, remote_dlc) for m, f in zip(played, FRAMES, strict=True))
+            assert all(m.is_rx and m.channel == ports[suffix] for m in played)
+            assert bus.recv(0.2) is None  # nothing twice
+    finally:
+        for bus in hosts.values():
+            bus.shutdown()
