@@ -111,6 +111,9 @@ class Device(ABC):
         self.settings = settings
         self.state = LifecycleState.UNCONFIGURED
         self.context: StageContext | None = None
+        #: files the device wrote in the output directory besides its report's (relative names), e.g. a bus
+        #: trace written when it releases the bus at shutdown; the execute stage lists those that exist
+        self.recordings: list[str] = []
 
     @property
     def safety_margin(self) -> float:

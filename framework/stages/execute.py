@@ -116,7 +116,7 @@ class ExecuteKind(StageKind):
             metrics=metrics,
             message=message,
             warnings=warnings,
-            files=list(report.files),
+            files=[*report.files, *(f for f in run.recordings(device, warnings) if f not in report.files)],
             tip_path=report.executed_tip_path,
             space="r3",
             annotations={**dict(report.annotations or {}), "path_from": spec.path_from},

@@ -309,6 +309,8 @@ class GuideKind(StageKind):
             f"min clearance {metrics['min_clearance_m'] * guide.k:.3g} {guide.unit}, {len(events)} event(s)",
         )
         files.append(png_name)
+        warnings: list[str] = []
+        files += run.recordings(source, warnings)  # e.g. the bus trace of a device the source ran
         if spec.trainee is not None:
             ms = guide.measurements
             samples = {
@@ -358,6 +360,7 @@ class GuideKind(StageKind):
             clearance_threshold=self._judged_against(spec, source_result, guide.threshold),
             critical_regions=regions,
             annotations=annotations,
+            warnings=warnings,
         )
 
     @staticmethod

@@ -204,5 +204,8 @@ class CastGimbalObserver(PoseSource):
 
     def close(self) -> None:
         if self.device is not None:
-            self.device.shutdown()
-            self.device = None
+            try:
+                self.device.shutdown()
+            finally:
+                self.recordings = list(self.device.recordings)  # the device's trace (record.can) is the source's
+                self.device = None
