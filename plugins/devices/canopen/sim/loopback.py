@@ -30,7 +30,7 @@ the moment the application reads it; a bus's own frames
 bus that is shut down raises ``can.CanOperationError``, and a thread
 waiting in ``recv`` is woken with it when another thread shuts the bus
 down. python-can's own interface tests run against this interface in
-``tests/interop/python_can/``.
+``tests/interop/pycan_tests/``.
 
 Why not an existing transport: python-can's ``udp_multicast`` sends to a
 239.x group on the default route, i.e. out of the machine's LAN interface;
@@ -39,9 +39,9 @@ modules); python-can-remote (0.3.0) targets python-can 3, carries its own
 websocket implementation and listens on all interfaces by default.
 
 Wire format (little endian), one record per frame: ``<dIBB`` (the time the
-frame was sent, s since the epoch; arbitration id, flags, data length) then the data bytes (0-64). Flags: 1
-extended id, 2 remote, 4 error, 8 CAN FD, 16 bit-rate switch, 32 error-state
-indicator. Every socket operation has a time-out; a peer that does not read
+frame was sent, s since the epoch; arbitration id, flags, data length) then
+the data bytes (0-64). Flags: 1 extended id, 2 remote, 4 error, 8 CAN FD, 16
+bit-rate switch, 32 error-state indicator. Every socket operation has a time-out; a peer that does not read
 its frames for ``send_timeout`` seconds is disconnected rather than allowed
 to stall the bus.
 """
