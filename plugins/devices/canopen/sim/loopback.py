@@ -23,9 +23,9 @@ host's bus shuts down the hub closes and the other buses' ``recv`` raise
 As python-can's built-in interfaces: a received frame's ``channel`` is the
 channel the bus was opened with (so ``can.logger`` writes files that
 ``can.LogReader`` and ``can.player`` read back); its ``timestamp`` is the
-moment the sending bus put it on the hub (as ``virtual`` stamps frames, and
-as every controller on a real bus sees a frame at the same instant), not
-the moment the application reads it; a bus's own frames
+moment it went on the bus, i.e. through the hub (every bus sees the same
+frames in the same order at the same times, as the controllers on a real
+bus do), not the moment the application reads it; a bus's own frames
 (``receive_own_messages``) come back with ``is_rx=False``. Receiving on a
 bus that is shut down raises ``can.CanOperationError``, and a thread
 waiting in ``recv`` is woken with it when another thread shuts the bus
@@ -38,8 +38,9 @@ Why not an existing transport: python-can's ``udp_multicast`` sends to a
 modules); python-can-remote (0.3.0) targets python-can 3, carries its own
 websocket implementation and listens on all interfaces by default.
 
-Wire format (little endian), one record per frame: ``<dIBB`` (the time the
-frame was sent, s since the epoch; arbitration id, flags, data length) then
+Wire format (little endian), one record per frame: ``<dIBB`` (time stamp,
+s since the epoch: the sender's, then the hub's as it relays the frame;
+arbitration id, flags, data length) then
 the data bytes (0-64). Flags: 1 extended id, 2 remote, 4 error, 8 CAN FD, 16
 bit-rate switch, 32 error-state indicator. Every socket operation has a time-out; a peer that does not read
 its frames for ``send_timeout`` seconds is disconnected rather than allowed
@@ -65,6 +66,8 @@ import can
 from ..bus import BusError
 
 HEADER = struct.Struct("<dIBB")
+#: a record's time stamp (its first field)
+_STAMP = struct.Struct("<d")
 #: what the hub sends a bus once it is on the bus: frames sent after the bus's constructor returned reach it
 GREETING = b"SPCANHUB\x01"
 _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = 1, 2, 4, 8, 16, 32
@@ -129,8 +132,8 @@ def encode(msg: can.Message) -> bytes:
     if len(data) > _MAX_DATA:
         raise can.CanOperationError(f"a CAN frame carries at most {_MAX_DATA} bytes, got {len(data)}")
     length = msg.dlc if msg.is_remote_frame else len(data)
-    # stamped when it goes on the bus (what a message carries in .timestamp is not when it was sent: a
-    # replayed log's time, or nothing)
+    # the time it is sent (what a message carries in .timestamp is not: a replayed log's time, or nothing); the
+    # hub stamps it again as it relays it
     return HEADER.pack(time.time(), msg.arbitration_id, flags, length) + (b"" if msg.is_remote_frame else data)
 
 
@@ -166,7 +169,7 @@ def decode(record: bytes, channel: Any, is_rx: bool = True) -> can.Message:
     timestamp, arbitration_id, flags, length = HEADER.unpack_from(record)
     remote = bool(flags & _REMOTE)
     return can.Message(
-        timestamp=timestamp,  # when it went on the bus: what every receiver's controller would stamp
+        timestamp=timestamp,  # when it went through the hub (own frames of a joined bus: when sent)
         arbitration_id=arbitration_id,
         is_extended_id=bool(flags & _EXTENDED),
         is_remote_frame=remote,
@@ -202,17 +205,28 @@ class _Hub:
         self._wake_r, self._wake_w = socket.socketpair()
         self.selector.register(self._wake_r, selectors.EVENT_READ)
         self.closed = threading.Event()
+        self._last = 0.0  # the latest time stamp put on the bus
         self.thread = threading.Thread(target=self._run, name=f"loopback-can-hub {name}", daemon=True)
         self.thread.start()
 
-    def broadcast(self, record: bytes, source: socket.socket | None) -> None:
+    def broadcast(self, records: list[bytes], source: socket.socket | None, own=None) -> None:
+        """Put records on the bus: stamped now (the hub is the wire: every bus sees them in one order, at times
+        that never go back), queued for the hosting bus (``own``: its own, when it receives them) and written to
+        every peer but their ``source``, in one write each."""
         with self.lock:
             peers = [p for p in self.peers if p is not source]
         failed = []
         with self.send_lock:
+            now = self._last = max(time.time(), self._last)
+            stamped = [_STAMP.pack(now) + record[_STAMP.size :] for record in records]
+            queue_to = self.deliver if source is not None else own
+            if queue_to is not None:
+                for record in stamped:
+                    queue_to(record)
+            data = b"".join(stamped)
             for peer in peers:
                 try:
-                    peer.sendall(record)
+                    peer.sendall(data)
                 except OSError:  # it hung up or stopped reading for send_timeout: it leaves the bus
                     failed.append(peer)
         for peer in failed:
@@ -270,10 +284,8 @@ class _Hub:
                 except can.CanOperationError:
                     self._drop(sock)
                     continue
-                for record in records:
-                    self.deliver(record)
                 if records:  # in order, with one write per peer for what arrived together
-                    self.broadcast(b"".join(records), sock)
+                    self.broadcast(records, sock)
 
     def close(self) -> None:
         self.closed.set()
@@ -435,17 +447,19 @@ class LoopbackBus(can.BusABC):
         if self._closing.is_set():
             raise self._closed_error()
         if self._hub is not None:
-            self._hub.broadcast(b"".join(records), None)
-        else:
-            with self._send_lock:
-                try:
-                    self._sock.sendall(b"".join(records))
-                except OSError as exc:
-                    if self._closing.is_set():
-                        raise self._closed_error() from None
-                    raise can.CanOperationError(
-                        f"{self.channel_info}: the hub is gone ({exc}); its host process ended or stopped reading"
-                    ) from None
+            rx = self._rx
+            # our own frames (receive_own_messages) are queued as the hub stamps them: transmitted, not received
+            self._hub.broadcast(records, None, (lambda r: rx.put((r, False))) if self.receive_own_messages else None)
+            return
+        with self._send_lock:
+            try:
+                self._sock.sendall(b"".join(records))
+            except OSError as exc:
+                if self._closing.is_set():
+                    raise self._closed_error() from None
+                raise can.CanOperationError(
+                    f"{self.channel_info}: the hub is gone ({exc}); its host process ended or stopped reading"
+                ) from None
         if self.receive_own_messages:
             for record in records:
                 self._rx.put((record, False))  # our own frame: transmitted, not received (as virtual, socketcan)
