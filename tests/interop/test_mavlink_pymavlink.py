@@ -257,6 +257,23 @@ def test_geofence_and_rally_lists_are_stored_sent_back_and_cleared(script):
     assert client.download(F) == [] and client.download(R) == []
 
 
+def test_an_upload_during_an_unacknowledged_download_is_refused_with_px4s_statustext(script):
+    """PX4 (mavlink_mission.cpp, handle_mission_count) in the middle of sending a list: STATUSTEXT
+    "WPM: IGN MISSION_COUNT: Busy" (critical), MISSION_ACK MAV_MISSION_ERROR, the stored mission untouched."""
+    client, vehicle = script
+    items = [item(M.MAV_CMD_NAV_WAYPOINT, 3, *offset(LAT, LON, k, 0), 3.0) for k in range(3)]
+    assert client.upload(items)[0] == M.MAV_MISSION_ACCEPTED
+    client.drain()
+    client.mav.mission_request_list_send(1, 1, M.MAV_MISSION_TYPE_MISSION)
+    assert client.expect("MISSION_COUNT", lambda m: m.count == 3) is not None  # a download, not acknowledged
+    client.mav.mission_count_send(1, 1, 1, M.MAV_MISSION_TYPE_MISSION)
+    said = client.expect("STATUSTEXT", lambda m: "MISSION_COUNT" in m.text)
+    assert said is not None and (said.text, said.severity) == ("WPM: IGN MISSION_COUNT: Busy", M.MAV_SEVERITY_CRITICAL)
+    assert client.expect("MISSION_ACK").type == M.MAV_MISSION_ERROR
+    assert client.expect("MISSION_REQUEST_INT", timeout=0.5) is None  # the upload did not start
+    assert len(vehicle.mission) == 3
+
+
 # ----------------------------------------------------------------------------- parameters
 
 
@@ -357,6 +374,8 @@ def test_telemetry_streams_at_px4_rates_and_follows_set_message_interval(script)
     assert span >= 20.0
     for name, rate in STREAMS.items():
         assert measured.get(name, 0.0) == pytest.approx(rate, abs=1.5 / span), name
+    # PX4's figure, not our table's: mavlink_main.cpp, MAVLINK_MODE_NORMAL, configure_stream_local("ALTITUDE", 1.0f)
+    assert measured.get("ALTITUDE", 0.0) == pytest.approx(1.0, abs=1.5 / span)
     # SET_MESSAGE_INTERVAL: ATTITUDE at 2 Hz, GLOBAL_POSITION_INT off; the interval read back
     assert client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, 500_000) == 0
     assert client.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, -1) == 0
@@ -390,6 +409,7 @@ def test_telemetry_says_where_the_vehicle_is_consistently(script):
     home = client.expect("HOME_POSITION", timeout=5)
     status = client.expect("SYS_STATUS", timeout=5)
     state = client.expect("EXTENDED_SYS_STATE", timeout=5)
+    altitude = client.expect("ALTITUDE", timeout=5)
     lat, lon = glob.lat * 1e-7, glob.lon * 1e-7
     assert ground_distance(lat, lon, *target) < 0.35  # holding at the waypoint (radius 0.3 m by default)
     assert ground_distance(lat, lon, gps.lat * 1e-7, gps.lon * 1e-7) < 0.35 and gps.fix_type == 3
@@ -401,6 +421,12 @@ def test_telemetry_says_where_the_vehicle_is_consistently(script):
     required = M.MAV_SYS_STATUS_SENSOR_GPS | M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_PREARM_CHECK
     assert status.onboard_control_sensors_health & required == required
     assert state.landed_state == M.MAV_LANDED_STATE_IN_AIR
+    # ALTITUDE as PX4 fills it (streams/ALTITUDE.hpp): AMSL, local (-z), above home; no distance sensor: NaN
+    assert altitude.altitude_amsl == pytest.approx(glob.alt / 1000, abs=0.05)
+    assert altitude.altitude_monotonic == pytest.approx(altitude.altitude_amsl, abs=1e-3)  # the barometer's
+    assert altitude.altitude_local == pytest.approx(-local.z, abs=0.05)
+    assert altitude.altitude_relative == pytest.approx(glob.relative_alt / 1000, abs=0.05)
+    assert math.isnan(altitude.altitude_terrain) and math.isnan(altitude.bottom_clearance)
 
 
 # ----------------------------------------------------------------------------- commands, PING, TIMESYNC, version

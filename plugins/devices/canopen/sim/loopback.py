@@ -20,16 +20,29 @@ own frames unless ``receive_own_messages=True`` (as SocketCAN). When the
 host's bus shuts down the hub closes and the other buses' ``recv`` raise
 ``can.CanOperationError`` saying so, as a bus whose cable was pulled.
 
+As python-can's built-in interfaces: a received frame's ``channel`` is the
+channel the bus was opened with (so ``can.logger`` writes files that
+``can.LogReader`` and ``can.player`` read back); its ``timestamp`` is the
+moment it went on the bus, i.e. through the hub (every bus sees the same
+frames in the same order at the same times, as the controllers on a real
+bus do), not the moment the application reads it; a bus's own frames
+(``receive_own_messages``) come back with ``is_rx=False``. Receiving on a
+bus that is shut down raises ``can.CanOperationError``, and a thread
+waiting in ``recv`` is woken with it when another thread shuts the bus
+down. python-can's own interface tests run against this interface in
+``tests/interop/pycan_tests/``.
+
 Why not an existing transport: python-can's ``udp_multicast`` sends to a
 239.x group on the default route, i.e. out of the machine's LAN interface;
 ``socketcand`` needs the socketcand daemon and SocketCAN (Linux kernel
 modules); python-can-remote (0.3.0) targets python-can 3, carries its own
 websocket implementation and listens on all interfaces by default.
 
-Wire format (little endian), one record per frame: ``<dIBB`` (timestamp s,
-arbitration id, flags, data length) then the data bytes (0-64). Flags: 1
-extended id, 2 remote, 4 error, 8 CAN FD, 16 bit-rate switch, 32 error-state
-indicator. Every socket operation has a time-out; a peer that does not read
+Wire format (little endian), one record per frame: ``<dIBB`` (time stamp,
+s since the epoch: the sender's, then the hub's as it relays the frame;
+arbitration id, flags, data length) then
+the data bytes (0-64). Flags: 1 extended id, 2 remote, 4 error, 8 CAN FD, 16
+bit-rate switch, 32 error-state indicator. Every socket operation has a time-out; a peer that does not read
 its frames for ``send_timeout`` seconds is disconnected rather than allowed
 to stall the bus.
 """
@@ -53,6 +66,8 @@ import can
 from ..bus import BusError
 
 HEADER = struct.Struct("<dIBB")
+#: a record's time stamp (its first field)
+_STAMP = struct.Struct("<d")
 #: what the hub sends a bus once it is on the bus: frames sent after the bus's constructor returned reach it
 GREETING = b"SPCANHUB\x01"
 _EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = 1, 2, 4, 8, 16, 32
@@ -117,9 +132,9 @@ def encode(msg: can.Message) -> bytes:
     if len(data) > _MAX_DATA:
         raise can.CanOperationError(f"a CAN frame carries at most {_MAX_DATA} bytes, got {len(data)}")
     length = msg.dlc if msg.is_remote_frame else len(data)
-    return HEADER.pack(msg.timestamp or time.time(), msg.arbitration_id, flags, length) + (
-        b"" if msg.is_remote_frame else data
-    )
+    # the time it is sent (what a message carries in .timestamp is not: a replayed log's time, or nothing); the
+    # hub stamps it again as it relays it
+    return HEADER.pack(time.time(), msg.arbitration_id, flags, length) + (b"" if msg.is_remote_frame else data)
 
 
 class _Reader:
@@ -149,11 +164,12 @@ class _Reader:
         return out
 
 
-def decode(record: bytes, channel: str) -> can.Message:
-    _, arbitration_id, flags, length = HEADER.unpack_from(record)
+def decode(record: bytes, channel: Any, is_rx: bool = True) -> can.Message:
+    """A record as the :class:`can.Message` a bus on ``channel`` receives (``is_rx=False``: its own frame)."""
+    timestamp, arbitration_id, flags, length = HEADER.unpack_from(record)
     remote = bool(flags & _REMOTE)
     return can.Message(
-        timestamp=time.time(),  # stamped on reception, as a CAN controller does
+        timestamp=timestamp,  # when it went through the hub (own frames of a joined bus: when sent)
         arbitration_id=arbitration_id,
         is_extended_id=bool(flags & _EXTENDED),
         is_remote_frame=remote,
@@ -164,7 +180,7 @@ def decode(record: bytes, channel: str) -> can.Message:
         dlc=length,
         data=None if remote else record[HEADER.size :],
         channel=channel,
-        is_rx=True,
+        is_rx=is_rx,
     )
 
 
@@ -185,18 +201,32 @@ class _Hub:
         self.peers: dict[socket.socket, _Reader] = {}
         self.selector = selectors.DefaultSelector()
         self.selector.register(listener, selectors.EVENT_READ)
+        #: close() writes to it: the hub thread leaves its select at once, not after its time-out
+        self._wake_r, self._wake_w = socket.socketpair()
+        self.selector.register(self._wake_r, selectors.EVENT_READ)
         self.closed = threading.Event()
+        self._last = 0.0  # the latest time stamp put on the bus
         self.thread = threading.Thread(target=self._run, name=f"loopback-can-hub {name}", daemon=True)
         self.thread.start()
 
-    def broadcast(self, record: bytes, source: socket.socket | None) -> None:
+    def broadcast(self, records: list[bytes], source: socket.socket | None, own=None) -> None:
+        """Put records on the bus: stamped now (the hub is the wire: every bus sees them in one order, at times
+        that never go back), queued for the hosting bus (``own``: its own, when it receives them) and written to
+        every peer but their ``source``, in one write each."""
         with self.lock:
             peers = [p for p in self.peers if p is not source]
         failed = []
         with self.send_lock:
+            now = self._last = max(time.time(), self._last)
+            stamped = [_STAMP.pack(now) + record[_STAMP.size :] for record in records]
+            queue_to = self.deliver if source is not None else own
+            if queue_to is not None:
+                for record in stamped:
+                    queue_to(record)
+            data = b"".join(stamped)
             for peer in peers:
                 try:
-                    peer.sendall(record)
+                    peer.sendall(data)
                 except OSError:  # it hung up or stopped reading for send_timeout: it leaves the bus
                     failed.append(peer)
         for peer in failed:
@@ -220,6 +250,8 @@ class _Hub:
                 break
             for key, _ in events:
                 sock = key.fileobj
+                if sock is self._wake_r or self.closed.is_set():
+                    break
                 if sock is self.listener:
                     try:
                         peer, _ = self.listener.accept()
@@ -252,13 +284,15 @@ class _Hub:
                 except can.CanOperationError:
                     self._drop(sock)
                     continue
-                for record in records:
-                    self.deliver(record)
                 if records:  # in order, with one write per peer for what arrived together
-                    self.broadcast(b"".join(records), sock)
+                    self.broadcast(records, sock)
 
     def close(self) -> None:
         self.closed.set()
+        try:
+            self._wake_w.send(b"\0")
+        except OSError:
+            pass
         self.thread.join(timeout=2.0)
         with self.lock:
             peers = list(self.peers)
@@ -271,6 +305,8 @@ class _Hub:
             peer.close()
         self.selector.close()
         self.listener.close()
+        self._wake_r.close()
+        self._wake_w.close()
 
 
 class LoopbackBus(can.BusABC):
@@ -295,33 +331,52 @@ class LoopbackBus(can.BusABC):
         bitrate: int = 1_000_000,
         **kwargs: object,
     ) -> None:
+        # first what shutdown() cleans up: it runs when the constructor fails half-way, too
+        self._closing = threading.Event()
+        self._hub: _Hub | None = None
+        self._sock: socket.socket | None = None
+        #: the host's received records and (both roles) our own: (record, is_rx); None wakes a receiver to close
+        self._rx: queue.SimpleQueue[tuple[bytes, bool] | None] = queue.SimpleQueue()
+        #: a joined bus: one thread at a time reads the socket; shutdown() closes it once none is reading
+        self._recv_lock = threading.Lock()
+        #: a joined bus: written to wake a thread waiting in select (an own frame queued, or shutdown)
+        self._wake_r: socket.socket | None = None
+        self._wake_w: socket.socket | None = None
+        self._send_lock = threading.Lock()
+        self._reader = _Reader()
+        self._pending: deque[bytes] = deque()
+        self._hub_closed = False
         if channel is None:
             raise LoopbackError("loopback CAN needs a channel: a port on 127.0.0.1, e.g. channel: 43113")
         if hub not in ("auto", "host", "join"):
             raise LoopbackError(f"loopback CAN: hub must be auto, host or join, not '{hub}'")
         self.host, self.port = parse_channel(channel)
+        #: what received frames carry in ``Message.channel``: the channel as given, as python-can's interfaces do
+        self.channel = channel
         self.bitrate = bitrate
         self.receive_own_messages = receive_own_messages
         self.send_timeout = float(send_timeout)
         self.channel_info = f"loopback CAN {self._address_text()}"
-        self._send_lock = threading.Lock()
-        self._hub: _Hub | None = None
-        self._rx: queue.SimpleQueue[bytes] = queue.SimpleQueue()
-        self._sock: socket.socket | None = None
-        self._reader = _Reader()
-        self._pending: deque[bytes] = deque()
-        self._hub_closed = False
-
-        listener = None
-        if hub in ("auto", "host"):
-            listener = self._try_listen(required=hub == "host")
-        if listener is not None:
-            self._hub = _Hub(listener, self._rx.put, self.send_timeout, self._address_text())
-            self.role = "host"
-        else:
-            self._sock = self._join(float(connect_timeout))
-            self.role = "join"
-        super().__init__(channel=str(channel), can_filters=can_filters, **kwargs)
+        try:
+            listener = None
+            if hub in ("auto", "host"):
+                listener = self._try_listen(required=hub == "host")
+            if listener is not None:
+                rx = self._rx  # not self: the hub thread must not keep the bus alive (python-can's __del__ cleanup)
+                self._hub = _Hub(
+                    listener, lambda record: rx.put((record, True)), self.send_timeout, self._address_text()
+                )
+                self.role = "host"
+            else:
+                self._sock = self._join(float(connect_timeout))
+                self._wake_r, self._wake_w = socket.socketpair()
+                self._wake_r.setblocking(False)
+                self._wake_w.setblocking(False)  # a full pipe is already readable: a wake-up never blocks
+                self.role = "join"
+            super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        except BaseException:
+            self.shutdown()  # no hub thread nor socket outlives a constructor that failed
+            raise
 
     def _address_text(self) -> str:
         return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
@@ -377,88 +432,127 @@ class LoopbackBus(can.BusABC):
         )
 
     # ------------------------------------------------------------------ python-can interface
+    def _closed_error(self) -> can.CanOperationError:
+        return can.CanOperationError(f"{self.channel_info} is shut down")
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if self._is_shutdown:
-            raise can.CanOperationError(f"{self.channel_info} is shut down")
-        record = encode(msg)
-        if self._hub is not None:
-            self._hub.broadcast(record, None)
-        else:
-            with self._send_lock:
-                try:
-                    self._sock.sendall(record)
-                except OSError as exc:
-                    raise can.CanOperationError(
-                        f"{self.channel_info}: the hub is gone ({exc}); its host process ended or stopped reading"
-                    ) from None
-        if self.receive_own_messages:
-            self._rx.put(record)
+        self._transmit([encode(msg)])
 
     def send_batch(self, messages: list[can.Message]) -> None:
         """Send frames in order with one write to the hub (a real-time loop's SYNC and RPDOs: one system call
         instead of one per frame); every other bus receives them as if sent one by one."""
-        if self._is_shutdown:
-            raise can.CanOperationError(f"{self.channel_info} is shut down")
-        records = [encode(msg) for msg in messages]
+        self._transmit([encode(msg) for msg in messages])
+
+    def _transmit(self, records: list[bytes]) -> None:
+        if self._closing.is_set():
+            raise self._closed_error()
         if self._hub is not None:
-            self._hub.broadcast(b"".join(records), None)
-        else:
-            with self._send_lock:
-                try:
-                    self._sock.sendall(b"".join(records))
-                except OSError as exc:
-                    raise can.CanOperationError(
-                        f"{self.channel_info}: the hub is gone ({exc}); its host process ended or stopped reading"
-                    ) from None
+            rx = self._rx
+            # our own frames (receive_own_messages) are queued as the hub stamps them: transmitted, not received
+            self._hub.broadcast(records, None, (lambda r: rx.put((r, False))) if self.receive_own_messages else None)
+            return
+        with self._send_lock:
+            try:
+                self._sock.sendall(b"".join(records))
+            except OSError as exc:
+                if self._closing.is_set():
+                    raise self._closed_error() from None
+                raise can.CanOperationError(
+                    f"{self.channel_info}: the hub is gone ({exc}); its host process ended or stopped reading"
+                ) from None
         if self.receive_own_messages:
             for record in records:
-                self._rx.put(record)
+                self._rx.put((record, False))  # our own frame: transmitted, not received (as virtual, socketcan)
+            if self._wake_w is not None:  # a joined bus's receiver may be waiting in select, not on the queue
+                try:
+                    self._wake_w.send(b"\0")
+                except OSError:
+                    pass
+
+    def _queued(self, item: tuple[bytes, bool] | None) -> can.Message:
+        if item is None:  # shutdown's wake-up: pass it on to the next waiting thread
+            self._rx.put(None)
+            raise self._closed_error()
+        record, is_rx = item
+        return decode(record, self.channel, is_rx)
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self._closing.is_set():
+            raise self._closed_error()
         if self._sock is None:  # the host: the hub thread queues what the others send
             try:
-                record = self._rx.get(timeout=timeout) if timeout is None or timeout > 0 else self._rx.get_nowait()
+                item = self._rx.get(timeout=timeout) if timeout is None or timeout > 0 else self._rx.get_nowait()
             except queue.Empty:
                 return None, False
-            return decode(record, self.channel_info), False
-        # a joined bus: frames of our own (receive_own_messages) first, then the socket
-        try:
-            return decode(self._rx.get_nowait(), self.channel_info), False
-        except queue.Empty:
-            pass
-        if self._pending:
-            return decode(self._pending.popleft(), self.channel_info), False
+            return self._queued(item), False
         deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
+        if not self._recv_lock.acquire(timeout=-1 if deadline is None else max(0.0, timeout)):
+            return None, False  # another thread is receiving for the whole time-out
+        try:
+            return self._recv_joined(deadline), False
+        finally:
+            self._recv_lock.release()
+
+    def _recv_joined(self, deadline: float | None) -> can.Message | None:
+        """A joined bus: frames of our own (receive_own_messages) first, then those read from the hub."""
+        while True:  # until a frame, the deadline, the hub's end or shutdown: each turn waits in select
+            if self._closing.is_set():
+                raise self._closed_error()
+            try:
+                return self._queued(self._rx.get_nowait())
+            except queue.Empty:
+                pass
+            if self._pending:
+                return decode(self._pending.popleft(), self.channel)
             if self._hub_closed:
                 raise can.CanOperationError(f"{self.channel_info}: the hub closed (its host's bus shut down)")
             remaining = None if deadline is None else max(0.0, deadline - time.monotonic())
             try:
-                readable, _, _ = select.select([self._sock], [], [], remaining)
-                if not readable:
-                    return None, False
-                chunk = self._sock.recv(65536)
+                readable, _, _ = select.select([self._sock, self._wake_r], [], [], remaining)
             except (OSError, ValueError) as exc:
-                if self._is_shutdown:
-                    return None, False
+                if self._closing.is_set():
+                    raise self._closed_error() from None
                 raise can.CanOperationError(f"{self.channel_info}: {exc}") from None
-            if not chunk:
-                if self._is_shutdown:
-                    return None, False
-                self._hub_closed = True
-                raise can.CanOperationError(f"{self.channel_info}: the hub closed (its host's bus shut down)")
-            self._reader.feed(chunk)
-            records = self._reader.records()
-            if records:
-                self._pending.extend(records[1:])
-                return decode(records[0], self.channel_info), False
-            if deadline is not None and time.monotonic() >= deadline:
-                return None, False
+            if self._closing.is_set():
+                raise self._closed_error()
+            if self._wake_r in readable:  # an own frame was queued: drain the wake-ups and look again
+                try:
+                    self._wake_r.recv(4096)
+                except OSError:
+                    pass
+            if self._sock in readable:
+                try:
+                    chunk = self._sock.recv(65536)
+                except (OSError, ValueError) as exc:
+                    if self._closing.is_set():
+                        raise self._closed_error() from None
+                    raise can.CanOperationError(f"{self.channel_info}: {exc}") from None
+                if not chunk:
+                    if self._closing.is_set():
+                        raise self._closed_error()
+                    self._hub_closed = True
+                    continue
+                self._reader.feed(chunk)
+                self._pending.extend(self._reader.records())
+                continue
+            if not readable or (deadline is not None and time.monotonic() >= deadline):
+                if self._rx.empty():
+                    return None
 
     def shutdown(self) -> None:
-        if self._is_shutdown:
+        """Close the bus: the hub (if this bus hosts it) or the connection to it. Any thread waiting in
+        :meth:`recv` is woken with ``can.CanOperationError``, as is every later ``recv`` and ``send``."""
+        super().shutdown()  # always (python-can's contract), even when the constructor did not finish
+        closing = getattr(self, "_closing", None)
+        if closing is None or closing.is_set():
             return
-        super().shutdown()
+        closing.set()
+        self._rx.put(None)  # wakes a thread waiting on the host's queue
+        if self._wake_w is not None:
+            try:
+                self._wake_w.send(b"\0")  # wakes a thread waiting in a joined bus's select
+            except OSError:
+                pass
         if self._hub is not None:
             self._hub.close()
         if self._sock is not None:
@@ -466,7 +560,15 @@ class LoopbackBus(can.BusABC):
                 self._sock.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
-            self._sock.close()
+        # close the sockets once no thread reads them (the wake-up above makes a reader leave at once)
+        locked = self._recv_lock.acquire(timeout=2.0)
+        try:
+            for sock in (self._sock, self._wake_r, self._wake_w):
+                if sock is not None:
+                    sock.close()
+        finally:
+            if locked:
+                self._recv_lock.release()
 
     @staticmethod
     def _detect_available_configs() -> list:

@@ -37,6 +37,7 @@ STREAMS: dict[str, float] = {
     "BATTERY_STATUS": 0.5,
     "VFR_HUD": 4.0,
     "GPS_GLOBAL_ORIGIN": 0.1,
+    "ALTITUDE": 1.0,
 }
 STREAM_IDS: dict[int, str] = {getattr(mavlink, f"MAVLINK_MSG_ID_{name}"): name for name in STREAMS}
 
@@ -237,6 +238,14 @@ class Telemetry:
         throttle = 50 if self.armed and self.model.airborne else 0
         amsl = self.settings.origin[2] - float(self.model.p[2])
         return mavlink.MAVLink_vfr_hud_message(speed, speed, 0, throttle, amsl, -float(v[2]))
+
+    def _msg_altitude(self):
+        """PX4's ALTITUDE stream (streams/ALTITUDE.hpp): the barometer's altitude (the true AMSL one here),
+        AMSL, local (-z), above home; terrain and bottom clearance NaN (no distance sensor)."""
+        amsl = self.settings.origin[2] - float(self.model.p[2])
+        return mavlink.MAVLink_altitude_message(
+            round(self.t * 1e6), amsl, amsl, -float(self.model.p[2]), self._height(), math.nan, math.nan
+        )
 
     @property
     def capabilities(self) -> int:

@@ -7,8 +7,8 @@ QGroundControl and the ``mavlink_vehicle`` device can rehearse against it:
 
 * telemetry (:mod:`.telemetry`): HEARTBEAT at 1 Hz of wall clock, SYS_STATUS,
   EXTENDED_SYS_STATE, ATTITUDE, GLOBAL_POSITION_INT, LOCAL_POSITION_NED,
-  GPS_RAW_INT, HOME_POSITION, BATTERY_STATUS, VFR_HUD, GPS_GLOBAL_ORIGIN at
-  PX4's default rates for a ground station link, changed by
+  GPS_RAW_INT, HOME_POSITION, BATTERY_STATUS, VFR_HUD, GPS_GLOBAL_ORIGIN,
+  ALTITUDE at PX4's default rates for a ground station link, changed by
   SET_MESSAGE_INTERVAL; MISSION_CURRENT, MISSION_ITEM_REACHED, STATUSTEXT;
   AUTOPILOT_VERSION with the capability bits it honours;
 * the command protocol (:mod:`.commands`): arming, PX4 modes, take-off,
@@ -376,9 +376,10 @@ class SimulatedVehicle(Autopilot, Commands, Geofence, Telemetry):
             if self.sender.busy and kind == "MISSION_COUNT":
                 if self.sender.partner == source and self.sender.next_seq >= self.sender.total:
                     self.sender.partner = None  # every item went out: the download's final ACK was lost
-                else:
+                else:  # PX4: busy with a download, said and refused
+                    self._say("WPM: IGN MISSION_COUNT: Busy", mavlink.MAV_SEVERITY_CRITICAL)
                     self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, list_type)])
-                    return  # PX4: busy with a download
+                    return
             self._send(self.receiver.on_message(message, source, now))
         elif kind in ("MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
             self._send(self.sender.on_message(message, source, now))
