@@ -1,4 +1,5 @@
-"""The ``surgiplan`` command line: run, validate, plugins, trainee, view; one module per command group.
+"""The ``surgiplan`` command line: run, validate, plugins, trainee, benchmark-task, cohort, validity, view; one module
+per command group.
 
 Each module of this package adds its subcommands (``add_parsers(sub)``, each with ``set_defaults(handler=...)``);
 :func:`main` parses, dispatches, and turns errors into exit statuses.
@@ -17,10 +18,10 @@ import traceback
 
 from .. import __version__
 from ..errors import SurgiplanError
-from . import plugins, run, trainee, view
+from . import benchmark_task, cohort, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
-COMMANDS = (run, view, trainee, plugins)
+COMMANDS = (run, view, trainee, benchmark_task, cohort, plugins)
 
 
 class _Formatter(logging.Formatter):

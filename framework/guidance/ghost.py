@@ -1,13 +1,14 @@
 """The expert ghost: an expert's recorded attempt shown beside the trainee's instrument, synchronised by progress.
 
-A guide stage with ``ghost: {trainee: ann, attempt: best}`` takes that attempt's tip positions from the trainee
-record and measures each against *this* stage's recommended path (so an expert recorded on another
-path, with another d_thresh, still lines up). The ghost's key is the expert's furthest progress so far, which
-never decreases; for the trainee at progress ``p`` the ghost is where the expert was when they first reached
-``p`` (interpolated between the two samples either side), so it waits while the trainee hesitates and goes back
-with a trainee going the wrong way. The attempt is chosen by ``attempt``: ``best`` (the highest score of the
-trainee's completed attempts at the task), ``last``, ``first``, or its number (1: the trainee's first attempt
-at the task).
+A guide stage with ``ghost: {trainee: ann, attempt: best}`` takes that attempt's samples from the trainee
+record. Progress is measured along each one's own recommended path, as the fraction of it covered: the same
+path gives the same progress, and an expert recorded on another path (a smaller d_thresh takes a shorter way)
+still keeps pace with the trainee from the start to the goal. The ghost's key is the expert's furthest fraction
+so far, which never decreases; for the trainee at fraction ``f`` the ghost is where the expert was when they
+first reached ``f`` (interpolated between the two samples either side), so it waits while the trainee
+hesitates and goes back with a trainee going the wrong way. The attempt is chosen by ``attempt``: ``best``
+(the highest score of the trainee's completed attempts at the task), ``last``, ``first``, or its number (1:
+the trainee's first attempt at the task).
 """
 
 from __future__ import annotations
@@ -41,18 +42,19 @@ class Ghost:
     score: float | None
     t: np.ndarray
     tips: np.ndarray
-    #: the expert's furthest progress so far along the stage's recommended path, per sample (non-decreasing)
+    #: the expert's furthest fraction of their recommended path so far, per sample (non-decreasing)
     key: np.ndarray
 
-    def at(self, progress: float) -> np.ndarray:
-        """Where the expert was when they first reached ``progress`` (the first or last sample beyond the ends)."""
-        i = int(np.searchsorted(self.key, progress, side="left"))
+    def at(self, fraction: float) -> np.ndarray:
+        """Where the expert was when they first covered ``fraction`` of their recommended path (their first or last
+        sample beyond the ends)."""
+        i = int(np.searchsorted(self.key, fraction, side="left"))
         if i <= 0:
             return self.tips[0].copy()
         if i >= len(self.key):
             return self.tips[-1].copy()
         a, b = self.key[i - 1], self.key[i]
-        f = (progress - a) / (b - a) if b > a else 1.0
+        f = (fraction - a) / (b - a) if b > a else 1.0
         return self.tips[i - 1] + f * (self.tips[i] - self.tips[i - 1])
 
     def describe(self) -> dict[str, Any]:
@@ -89,14 +91,14 @@ def choose_attempt(record: TraineeRecord, keys: GhostKeys, task: str) -> dict[st
     return history[keys.attempt - 1]
 
 
-def load_ghost(record: TraineeRecord, keys: GhostKeys, task: str, closest) -> Ghost:
-    """The ghost of the attempt ``keys`` names; ``closest(tip) -> (deviation, progress)`` on the stage's path."""
+def load_ghost(record: TraineeRecord, keys: GhostKeys, task: str) -> Ghost:
+    """The ghost of the attempt ``keys`` names (a :class:`RecordError` says why there is none)."""
     attempt = choose_attempt(record, keys, task)
     samples = record.samples(attempt["id"])
     tips = np.asarray(samples["tip"], float)
-    if len(tips) < 2:
+    length = attempt["recommended_length_m"]
+    if len(tips) < 2 or not (length and length > 0):
         raise RecordError(f"attempt {attempt['n']} of trainee '{keys.trainee}' at '{task}' has no samples to show")
-    progress = np.array([closest(tip)[1] for tip in tips])
     return Ghost(
         trainee=keys.trainee,
         task=task,
@@ -105,5 +107,5 @@ def load_ghost(record: TraineeRecord, keys: GhostKeys, task: str, closest) -> Gh
         score=attempt["score"],
         t=np.asarray(samples["t"], float),
         tips=tips,
-        key=np.maximum.accumulate(progress),
+        key=np.maximum.accumulate(np.asarray(samples["progress"], float) / length),
     )

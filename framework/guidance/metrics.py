@@ -209,20 +209,20 @@ def reversals(x: np.ndarray, distance: float) -> int:
     """How often a signal turns back by more than ``distance`` from its last extreme (a hysteresis, so noise
     smaller than ``distance`` never counts); NaNs are skipped."""
     x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
+    x = x[np.isfinite(x)].tolist()
     if len(x) < 2:
         return 0
     count, direction = 0, 0
     high = low = extreme = float(x[0])
-    for value in x[1:].tolist():
+    for value in x[1:]:
         if direction == 0:
             high, low = max(high, value), min(low, value)
             if high - value > distance:  # the first clear motion: down after a rise, or a fall from the start
                 direction, extreme = -1, value
-                count += high > x[0] + distance
+                count += int(high > x[0] + distance)
             elif value - low > distance:
                 direction, extreme = 1, value
-                count += low < x[0] - distance
+                count += int(low < x[0] - distance)
         elif direction > 0:
             if value > extreme:
                 extreme = value

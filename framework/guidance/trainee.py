@@ -34,6 +34,8 @@ from pydantic import Field, NonNegativeFloat, PositiveFloat
 
 from ..models import StrictModel
 from ..units import Length, PositiveLength
+from .analysis import Guide
+from .source import PoseSample
 
 #: parameters per level (SI)
 LEVELS: dict[str, dict[str, float]] = {
@@ -113,3 +115,13 @@ def synthetic_attempt(tips: np.ndarray, model: TraineeModel) -> tuple[np.ndarray
             s = min(length, s + speed * max(0.1, 1.0 + factor) * dt)
         t += dt
     return np.asarray(times), np.asarray(points)
+
+
+def follow(guide: Guide, model: TraineeModel) -> Guide:
+    """A synthetic trainee's attempt measured by ``guide`` sample by sample (tip positions), as fast as it runs;
+    returns the guide, its events finished."""
+    times, tips = synthetic_attempt(guide.tips, model)
+    for t, tip in zip(times, tips, strict=True):
+        guide.measure(PoseSample(float(t), tip=tip))
+    guide.finish()
+    return guide

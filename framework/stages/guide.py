@@ -24,8 +24,8 @@ Writes ``<stage>.png`` and ``<stage>-samples.csv``; with ``trainee:``, the
 attempt (samples and metrics) goes into the trainee record in one transaction,
 and when the task has a proficiency benchmark the stage's metrics say where
 the trainee stands at its gate. With ``ghost:``, each sample carries the
-expert's position at the same progress (:mod:`surgiplan.guidance.ghost`), on
-the live feed and in the report.
+expert's position at the same progress along their own recommended path
+(:mod:`surgiplan.guidance.ghost`), on the live feed and in the report.
 """
 
 from __future__ import annotations
@@ -257,7 +257,7 @@ class GuideKind(StageKind):
         if spec.ghost is not None:
             try:
                 with TraineeRecord(run.state.record) as record:
-                    ghost = load_ghost(record, spec.ghost, spec.ghost.task or spec.trainee.task, guide.closest)
+                    ghost = load_ghost(record, spec.ghost, spec.ghost.task or spec.trainee.task)
             except RecordError as exc:
                 raise StageError(f"ghost: {exc.message}", location=f"{spec.location}.ghost") from None
         gcontext = GuideContext(
@@ -323,7 +323,7 @@ class GuideKind(StageKind):
                     previous_t = float(item.t)
                     m, changes = guide.measure(item)
                     if ghost is not None:
-                        m.ghost = ghost.at(m.progress)
+                        m.ghost = ghost.at(m.progress / max(guide.length, 1e-12))
                     m.delay = time.perf_counter() - arrived
                     if live.active:
                         live.publish(
