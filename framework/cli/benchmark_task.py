@@ -62,7 +62,7 @@ def settings_from(args):
     except ValidationError as exc:
         error = exc.errors()[0]
         option = "--" + str(error["loc"][0]).replace("_", "-") if error["loc"] else "the options"
-        raise ConfigError(f"{option}: {error['msg']}", location=option) from None
+        raise ConfigError(error["msg"].removeprefix("Value error, "), location=option) from None
 
 
 def _cmd_benchmark_task(args) -> int:

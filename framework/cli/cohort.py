@@ -68,7 +68,7 @@ def _cusum_settings(args):
     except ValidationError as exc:
         error = exc.errors()[0]
         option = f"--{error['loc'][0]}" if error["loc"] else "--p0/--p1"
-        raise ConfigError(f"{option}: {error['msg'].removeprefix('Value error, ')}", location=option) from None
+        raise ConfigError(error["msg"].removeprefix("Value error, "), location=option) from None
 
 
 def _cmd_cohort(args) -> int:

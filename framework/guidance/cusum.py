@@ -88,8 +88,9 @@ def cusum(failures: Sequence[bool], settings: CusumSettings) -> Cusum:
     for n, failed in enumerate(failures, start=1):
         total += (1.0 if failed else 0.0) - s
         chart.values.append(total)
-        if chart.acceptable_at is None and total <= -h0:
+        # reaching a line counts (with the default rates two failures in a row land exactly on h1)
+        if chart.acceptable_at is None and total <= -h0 + 1e-9:
             chart.acceptable_at = n
-        if chart.unacceptable_at is None and total >= h1:
+        if chart.unacceptable_at is None and total >= h1 - 1e-9:
             chart.unacceptable_at = n
     return chart

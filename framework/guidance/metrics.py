@@ -11,7 +11,7 @@ metric                 better   definition
 ``path_length_m``      lower    the tip's path length (sum of the distances between consecutive samples)
 ``economy``            lower    economy of motion: path length / the recommended path's length
 ``idle_s``             lower    idle time: the intervals between samples in which the tip moved slower than
-                                ``idle_speed``
+                                ``idle_speed`` (of the smoothed positions, with ``smoothing_window``)
 ``jerk``               lower    dimensionless jerk of the speed profile (Hogan & Sternad 2009, as
                                 Balasubramanian et al. 2015 compute it): D^3 / v_peak^2 * integral (d^2v/dt^2)^2
 ``sparc``              higher   spectral arc length of the speed profile (Balasubramanian et al. 2012, 2015)
@@ -98,8 +98,8 @@ class AssessmentSettings(StrictModel):
     #: a lateral (insertion) reversal counts when the motion retreats this far from its last extreme
     correction_distance: PositiveLength = 0.001
     depth_distance: PositiveLength = 0.001
-    #: Savitzky-Golay smoothing (s, cubic) of the tip positions before the speed profile; 0: none (a noisy
-    #: tracker needs some: its noise is speed, and jerk amplifies it)
+    #: Savitzky-Golay smoothing (s, cubic) of the tip positions for the speed profile (smoothness, and then idle
+    #: time); 0: none (a noisy tracker needs some: its noise is speed, and jerk amplifies it)
     smoothing_window: NonNegativeFloat = 0.0
     #: SPARC's cut-off frequency (Hz) and amplitude threshold (Balasubramanian et al. 2015's defaults)
     sparc_cutoff: PositiveFloat = 10.0
@@ -282,7 +282,10 @@ def measure(
         "duration_s": duration,
         "path_length_m": path_length,
         "economy": path_length / recommended_length if recommended_length > 0 else None,
-        "idle_s": idle_time(t, tip, settings.idle_speed),
+        # on the smoothed speed profile when there is smoothing (a noisy tracker's noise is speed), else exactly
+        "idle_s": float(np.count_nonzero(speed < settings.idle_speed) / fs)
+        if settings.smoothing_window > 0
+        else idle_time(t, tip, settings.idle_speed),
         "jerk": _finite(dimensionless_jerk(speed, fs)),
         "sparc": _finite(sparc(speed, fs, cutoff=settings.sparc_cutoff, threshold=settings.sparc_threshold)),
         "corrections": corrections,

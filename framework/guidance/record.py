@@ -75,10 +75,11 @@ class TraineeRecord:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.db = sqlite3.connect(self.path, timeout=10.0)
+            version = self._version()  # before anything writes to the file: a newer one is left as it is
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.execute("PRAGMA foreign_keys=ON")
-            self._migrate()
+            migrate(self.db, version)
         except sqlite3.DatabaseError as exc:
             raise RecordError(f"cannot open the trainee record {self.path}: {exc}") from None
         except (ValueError, TypeError, KeyError) as exc:  # a migration's backfill met data it cannot read
@@ -90,7 +91,7 @@ class TraineeRecord:
         except OSError as exc:
             raise RecordError(f"cannot create the trainee record {self.path}: {exc.strerror or exc}") from None
 
-    def _migrate(self) -> None:
+    def _version(self) -> int:
         version = self.db.execute("PRAGMA user_version").fetchone()[0]
         if version > SCHEMA_VERSION:
             self.db.close()
@@ -99,7 +100,7 @@ class TraineeRecord:
                 f"{SCHEMA_VERSION} (written by a newer surgiplan); upgrade surgiplan to read it (the file is "
                 "left as it is)"
             )
-        migrate(self.db, version)
+        return version
 
     def close(self) -> None:
         self.db.close()
