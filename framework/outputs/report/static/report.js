@@ -703,11 +703,19 @@
   S.renderedFrames = () => S.frames;
 
   // ------------------------------------------------------------------ render loop
-  let liveDirty = false;
+  let liveDirty = false, deferred = false;
   const PIXEL = new Uint8Array(4);
   const overlay = document.getElementById("overlay");
   function loop() {
     requestAnimationFrame(loop);
+    if (LIVE && dirty && S.live.pending.length && drawOverlay && !deferred) {
+      // a sample waits: its cues first, on their own frame; the 3D view (slow without a GPU) on the next one
+      overlayDirty = false;
+      deferred = true;
+      cuesDrawn(drawOverlay(), false);
+      return;
+    }
+    deferred = false;
     if (playing && active) {
       const span = active.times[active.count - 1] - active.times[0];
       const seconds = (performance.now() - playStart) / 1000;
@@ -725,20 +733,21 @@
       if (!S.ready) { S.ready = true; S.loadMs = performance.now(); }
     }
     if (!LIVE) return;
-    let tip = null;
-    if ((overlayDirty || drew) && drawOverlay) { overlayDirty = false; tip = drawOverlay(); }
+    if ((overlayDirty || drew) && drawOverlay) { overlayDirty = false; cuesDrawn(drawOverlay(), drew); }
+  }
+  // after the live view's overlay is drawn (at the instrument's pixel ``tip``): count the update, and each waiting
+  // sample's latency; with #latency the pixels are read back first, so they exist
+  function cuesDrawn(tip, drew) {
     if (liveDirty) { liveDirty = false; S.live.updates++; S.live.updateTimes.push(performance.now()); if (S.live.updateTimes.length > 4000) S.live.updateTimes.splice(0, 2000); }
-    if (S.live.pending.length) {
-      if (S.live.measurePixels) {
-        // read back: the frame's pixels exist (the overlay's at the instrument; the 3D view's when it was redrawn)
-        if (tip) overlay.getContext("2d").getImageData(Math.max(0, tip[0] | 0), Math.max(0, tip[1] | 0), 1, 1);
-        if (drew) { const gl = renderer.getContext(); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, PIXEL); }
-      }
-      const now = performance.timeOrigin + performance.now();
-      for (const wall of S.live.pending) S.live.cueLatency.push(now - 1000 * wall);
-      S.live.pending.length = 0;
-      if (S.live.cueLatency.length > 200000) S.live.cueLatency.splice(0, 100000);
+    if (!S.live.pending.length) return;
+    if (S.live.measurePixels) {
+      if (tip) overlay.getContext("2d").getImageData(Math.max(0, tip[0] | 0), Math.max(0, tip[1] | 0), 1, 1);
+      if (drew) { const gl = renderer.getContext(); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, PIXEL); }
     }
+    const now = performance.timeOrigin + performance.now();
+    for (const wall of S.live.pending) S.live.cueLatency.push(now - 1000 * wall);
+    S.live.pending.length = 0;
+    if (S.live.cueLatency.length > 200000) S.live.cueLatency.splice(0, 100000);
   }
 
   // ------------------------------------------------------------------ header
@@ -809,6 +818,14 @@
       projected: new Float32Array(2 * 4096), projectedN: 0, projectedFor: -1, reference: null, ghostPath: null,
       clearance: [], times: [], criticalSince: null,
     };
+    // the materials a stage's start adds, compiled now (tiny stand-ins drawn once): compiling their shaders when
+    // the stage starts would hold its first samples back by tens of milliseconds on software WebGL
+    const referenceMaterial = new THREE.MeshLambertMaterial({ color: colour("#555555"), transparent: true, opacity: 0.5, depthWrite: false });
+    const ghostPathMaterial = new THREE.LineBasicMaterial({ color: colour(GHOST), transparent: true, opacity: 0.55 });
+    const warm = new THREE.Group();
+    warm.add(new THREE.Mesh(tube(new Float32Array([0, 0, 0, 1e-9, 0, 0]), 1e-10, null, 8), referenceMaterial));
+    warm.add(new THREE.Line(lineGeometry(new Float32Array([0, 0, 0, 1e-9, 0, 0])), ghostPathMaterial));
+    world.add(warm);
     const overlay = document.getElementById("overlay"), octx = overlay.getContext("2d");
     const trail = document.getElementById("trail"), tctx = trail.getContext("2d");
     const banner = document.getElementById("cue-banner"), hud = document.getElementById("cue-hud");
@@ -828,13 +845,13 @@
       for (const key of ["reference", "ghostPath"]) if (live[key]) { world.remove(live[key]); live[key] = null; }
       if (p.recommended && p.recommended.length > 1) {
         const g = tube(new Float32Array(p.recommended.flat()), 0.8 * R, null, 8);
-        live.reference = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ color: colour("#555555"), transparent: true, opacity: 0.5, depthWrite: false }));
+        live.reference = new THREE.Mesh(g, referenceMaterial);
         live.reference.userData = { kind: "reference", label: `${p.kind === "guide" ? "recommended" : "planned"} path${p.path_from ? " (" + p.path_from + ")" : ""}` };
         pickable.push(live.reference);
         world.add(live.reference);
       }
       if (p.ghost_path && p.ghost_path.length > 1) {
-        live.ghostPath = new THREE.Line(lineGeometry(new Float32Array(p.ghost_path.flat())), new THREE.LineBasicMaterial({ color: colour(GHOST), transparent: true, opacity: 0.55 }));
+        live.ghostPath = new THREE.Line(lineGeometry(new Float32Array(p.ghost_path.flat())), ghostPathMaterial);
         live.ghostPath.userData = { kind: "ghost-path", label: `expert ghost's path (${ghostLabel(p.ghost || {})})` };
         world.add(live.ghostPath);
       }
