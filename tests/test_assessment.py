@@ -219,7 +219,11 @@ def test_cusum_against_a_hand_computed_series():
     expected += [-0.164872, -0.351041, -0.5372099, -0.7233788, -0.9095478, -1.0957167, -1.2818857, -1.4680546]
     expected += [-1.6542235]
     np.testing.assert_allclose(chart.values, expected, atol=1e-7)
-    assert chart.unacceptable_at == 4 and chart.acceptable_at == 25
+    # unacceptable: 2.2553242 is h1 above the lowest point so far (0, the start); acceptable: 13 attempts in,
+    # 0.5798038 is h0 below the highest so far (2.2553242 - 1.6276621 = 0.6276621)
+    assert chart.unacceptable_at == 4 and chart.acceptable_at == 13
+    assert chart.acceptable_line[12] == pytest.approx(0.6276621, abs=1e-7)
+    assert chart.unacceptable_line[0] == pytest.approx(1.6276621, abs=1e-7)
     # two failures in a row: 2 (1 - s) = 2 ln 3 / (P + Q) = h1 exactly, which reaches the line
     assert cusum([True, True], CusumSettings()).unacceptable_at == 2
     # other rates: p0 0.05, p1 0.2, alpha 0.05, beta 0.2: s = ln(0.95/0.8) / ln(0.2 * 0.95 / (0.05 * 0.8))

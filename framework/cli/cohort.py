@@ -72,7 +72,7 @@ def _cusum_settings(args):
 
 
 def _cmd_cohort(args) -> int:
-    from ..guidance.assessment_figures import cusum_figure, learning_curves_figure
+    from ..guidance.assessment_figures import cusum_figure, learning_curves_figure, verdict_of
     from ..guidance.cohort import cohort, write_csv
     from ..guidance.progression import safe_name
     from ..guidance.record import RecordError, TraineeRecord
@@ -124,16 +124,7 @@ def _cmd_cohort(args) -> int:
             gate = f"not yet ({curve.streak}/{result.benchmark.consecutive} in a row)"
         else:
             gate = "—"
-        chart = curve.cusum
-        verdict = "—"
-        if chart is not None:
-            verdict = (
-                f"acceptable at #{chart.acceptable_at}"
-                if chart.acceptable_at
-                else f"unacceptable at #{chart.unacceptable_at}"
-                if chart.unacceptable_at
-                else "no decision yet"
-            )
+        verdict = "—" if curve.cusum is None else verdict_of(curve.cusum)
         score = curve.last_score
         table.add_row(
             curve.name,

@@ -127,6 +127,16 @@ def learning_curves_figure(path: Path, result: Cohort) -> None:
     _save(fig, path)
 
 
+def verdict_of(chart) -> str:
+    """What a CUSUM chart said: acceptable at #n, unacceptable at #m, or no decision yet (both, in order)."""
+    said = sorted(
+        (n, what)
+        for n, what in ((chart.unacceptable_at, "unacceptable"), (chart.acceptable_at, "acceptable"))
+        if n is not None
+    )
+    return ", then ".join(f"{what} at #{n}" for n, what in said) or "no decision yet"
+
+
 def cusum_figure(path: Path, result: Cohort) -> None:
     """One CUSUM chart per trainee, with the decision lines h1 (unacceptable) and -h0 (acceptable)."""
     curves = [c for c in result.trainees if c.cusum is not None]
@@ -141,14 +151,14 @@ def cusum_figure(path: Path, result: Cohort) -> None:
         failed = np.array(curve.failed, bool)
         ax.plot(n[1:][failed], values[1:][failed], "x", color=OUTSIDE, markersize=5)
         ax.plot(n[1:][~failed], values[1:][~failed], "o", color=WITHIN, markersize=3)
-        ax.axhline(chart.h1, color=OUTSIDE, linestyle="--", linewidth=1)
-        ax.axhline(-chart.h0, color=WITHIN, linestyle="--", linewidth=1)
-        ax.axhline(0, color="black", linewidth=0.6)
-        verdict = (
-            f"acceptable at #{chart.acceptable_at}"
-            if chart.acceptable_at
-            else (f"unacceptable at #{chart.unacceptable_at}" if chart.unacceptable_at else "no decision yet")
+        ax.step(
+            n, np.concatenate([[-chart.h0], chart.acceptable_line]), where="post", color=WITHIN, linestyle="--", lw=1
         )
+        ax.step(
+            n, np.concatenate([[chart.h1], chart.unacceptable_line]), where="post", color=OUTSIDE, linestyle="--", lw=1
+        )
+        ax.axhline(0, color="black", linewidth=0.6)
+        verdict = verdict_of(chart)
         ax.set_title(f"{curve.name}: {verdict}", fontsize=9)
         ax.set_xlabel("attempt", fontsize=8)
         ax.tick_params(labelsize=7)
@@ -164,8 +174,8 @@ def cusum_figure(path: Path, result: Cohort) -> None:
         fontsize=9,
     )
     handles = [
-        Line2D([], [], color=OUTSIDE, linestyle="--", label="h1: unacceptable"),
-        Line2D([], [], color=WITHIN, linestyle="--", label="-h0: acceptable"),
+        Line2D([], [], color=OUTSIDE, linestyle="--", label="lowest so far + h1: unacceptable"),
+        Line2D([], [], color=WITHIN, linestyle="--", label="highest so far - h0: acceptable"),
         Line2D([], [], color=OUTSIDE, marker="x", linestyle="none", label="failed attempt"),
         Line2D([], [], color=WITHIN, marker="o", linestyle="none", label="successful attempt"),
     ]

@@ -13,9 +13,13 @@ and II errors ``alpha`` and ``beta``::
 
     S_0 = 0,  S_n = S_{n-1} + (x_n - s),  x_n = 1 for a failed attempt, 0 for a success
 
-A chart falling to ``-h0`` says the trainee performs at the acceptable rate (with the chosen errors), one
-rising to ``h1`` that they fail at the unacceptable one. An attempt *fails* when it is not within the task's
-proficiency benchmark (:mod:`.benchmark`), or, without one, when its score is below a pass score.
+A chart that falls by ``h0`` from its highest point so far says the trainee has performed at the acceptable
+rate since that point (with the chosen errors); one that rises by ``h1`` from its lowest point so far, that
+they fail at the unacceptable rate. These are the decision lines Bolsin & Colson draw below and above the
+chart, taken from its peaks and troughs (Page's one-sided CUSUMs: max(0, T + s - x) >= h0 and
+max(0, U + x - s) >= h1), so the early failures of a learning curve do not hide the later competence.
+An attempt *fails* when it is not within the task's proficiency benchmark (:mod:`.benchmark`), or, without
+one, when its score is below a pass score.
 """
 
 from __future__ import annotations
@@ -56,7 +60,11 @@ class Cusum:
     h1: float
     #: S_1 ... S_n
     values: list[float] = field(default_factory=list)
-    #: the first attempt (1-based) at which S reached -h0 (acceptable) or h1 (unacceptable); None: not yet
+    #: the lines the chart is judged by after each attempt: its highest point so far - h0, lowest + h1
+    acceptable_line: list[float] = field(default_factory=list)
+    unacceptable_line: list[float] = field(default_factory=list)
+    #: the first attempt (1-based) at which S fell by h0 from its peak (acceptable) or rose by h1 from its trough
+    #: (unacceptable); None: not yet
     acceptable_at: int | None = None
     unacceptable_at: int | None = None
 
@@ -66,6 +74,8 @@ class Cusum:
             "h0": self.h0,
             "h1": self.h1,
             "values": self.values,
+            "acceptable_line": self.acceptable_line,
+            "unacceptable_line": self.unacceptable_line,
             "acceptable_at": self.acceptable_at,
             "unacceptable_at": self.unacceptable_at,
         }
@@ -84,13 +94,16 @@ def cusum(failures: Sequence[bool], settings: CusumSettings) -> Cusum:
     """The CUSUM of a sequence of attempts (True: failed), oldest first."""
     s, h0, h1 = parameters(settings)
     chart = Cusum(s, h0, h1)
-    total = 0.0
+    total = peak = trough = 0.0
     for n, failed in enumerate(failures, start=1):
         total += (1.0 if failed else 0.0) - s
+        peak, trough = max(peak, total), min(trough, total)
         chart.values.append(total)
+        chart.acceptable_line.append(peak - h0)
+        chart.unacceptable_line.append(trough + h1)
         # reaching a line counts (with the default rates two failures in a row land exactly on h1)
-        if chart.acceptable_at is None and total <= -h0 + 1e-9:
+        if chart.acceptable_at is None and total <= peak - h0 + 1e-9:
             chart.acceptable_at = n
-        if chart.unacceptable_at is None and total >= h1 - 1e-9:
+        if chart.unacceptable_at is None and total >= trough + h1 - 1e-9:
             chart.unacceptable_at = n
     return chart
