@@ -217,17 +217,24 @@ class GuideKind(StageKind):
 
     @staticmethod
     def _check_ghost(spec: GuideSpec, files: FileContext) -> None:
-        """The ghost's attempt is in the record now (it is read again when the stage runs)."""
+        """The ghost's attempt is in the record now, or an earlier guide stage of the pipeline records one (it is
+        read when the stage runs)."""
         from ..guidance.ghost import choose_attempt
         from ..validation import RECORD_KEY
 
+        task = spec.ghost.task or spec.trainee.task
+        for earlier in files.earlier:
+            keys = getattr(earlier, "trainee", None)
+            if earlier.index < spec.index and keys is not None and (keys.name, keys.task) == (spec.ghost.trainee, task):
+                if spec.ghost.attempt in ("best", "last", "first"):
+                    return
         path = Path(files.validation.get(RECORD_KEY) or "out/trainees.sqlite")
         where = ("pipeline", spec.index, "ghost")
         if not path.is_file():
             raise files.error(f"no trainee record at {path} to take the ghost from (see record:)", *where)
         try:
             with TraineeRecord(path) as record:
-                choose_attempt(record, spec.ghost, spec.ghost.task or spec.trainee.task)
+                choose_attempt(record, spec.ghost, task)
         except RecordError as exc:
             raise files.error(exc.message, *where) from None
 
@@ -436,12 +443,15 @@ class GuideKind(StageKind):
             return []
         events = m.get("events") or {}
         listed = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in events.items() if n)
-        return [
+        lines = [
             f"score {m['score']:.0f}",
             f"deviation rms {m['deviation_rms_m'] * k:.3g} {unit}, max {m['deviation_max_m'] * k:.3g} {unit}",
             f"events: {listed or 'none'}",
             f"{m.get('duration_s', 0):.3g} s",
         ]
+        if isinstance(m.get("gate"), dict):
+            lines.append(f"gate {m['gate'].get('status', '')}")
+        return lines
 
     def report(self, stage, entry, inputs) -> None:
         motion_report(stage, entry, inputs)
