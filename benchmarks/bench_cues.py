@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -36,7 +35,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, wait_for  # noqa: E402
+from browser_support import Browser, start_live_view, wait_for  # noqa: E402
 from common import save, table  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
@@ -75,19 +74,7 @@ def run(path: Path, *extra: str) -> None:
 
 
 def viewer() -> tuple[subprocess.Popen, str]:
-    process = subprocess.Popen(
-        [*SURGIPLAN, "view", "--live", "--port", "0", "--no-browser", "--exit-after", "600"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        match = re.search(r"(http://127\.0\.0\.1:\d+/\S*)", process.stdout.readline())
-        if match:
-            return process, match.group(1)
-    process.kill()
-    raise SystemExit("surgiplan view --live did not start")
+    return start_live_view(exit_after=600)
 
 
 def page_run(browser: Browser, attempt: Path) -> list[float]:

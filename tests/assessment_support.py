@@ -3,14 +3,10 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import yaml
 from conftest import CONFIGS
-
-SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
 
 
 def guide_stage(name, level, seed, trainee, **extra):
@@ -50,8 +46,10 @@ def pipeline(tmp: Path, name: str, proficiency: str, stages: list[dict]) -> Path
 
 
 def run(path: Path) -> dict:
-    done = subprocess.run([*SURGIPLAN, "run", str(path), "--quiet"], capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, done.stderr
+    """Run the pipeline as `surgiplan run --quiet` does (in this process); its result.json."""
+    from surgiplan.cli import main
+
+    assert main(["run", str(path), "--quiet"]) == 0
     return json.loads((Path(yaml.safe_load(path.read_text())["output"]["dir"]) / "result.json").read_text())
 
 
@@ -65,13 +63,9 @@ def ghost_run(tmp: Path) -> tuple[Path, dict]:
         guide_stage("ben1", "expert", 3, {"name": "ben", "task": "bw", "level": "expert"}),
     ]
     run(pipeline(tmp, "experts", "expert", experts))
-    done = subprocess.run(
-        [*SURGIPLAN, "benchmark-task", "bw", "--record", str(tmp / "record.sqlite"), "--metrics", "score,duration_s"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert done.returncode == 0, done.stderr
+    from surgiplan.cli import main
+
+    assert main(["benchmark-task", "bw", "--record", str(tmp / "record.sqlite"), "--metrics", "score,duration_s"]) == 0
     stage = guide_stage(
         "attempt", "beginner", 7, {"name": "eve", "task": "bw", "level": "beginner"}, ghost={"trainee": "ann"}
     )

@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import io
 import json
-import re
-import subprocess
 import time
 
 import numpy as np
 import pytest
-from assessment_support import SURGIPLAN, ghost_run
-from browser_support import Browser, canvas_pixels, offsite, wait_for
+from browser_support import Browser, canvas_pixels, offsite, start_live_view, wait_for
 
 GHOST = (0x17, 0xBE, 0xCF)
 CUES = {
@@ -29,13 +26,6 @@ def browser():
     b = Browser()
     yield b
     b.close()
-
-
-@pytest.fixture(scope="module")
-def ghosted(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("ghost-report")
-    _, document = ghost_run(tmp)
-    return tmp / "beginner", document
 
 
 def near(pixels: np.ndarray, x: float, y: float, rgb, radius: int = 2, tolerance: int = 40) -> bool:
@@ -57,7 +47,8 @@ def teal(pixels: np.ndarray) -> np.ndarray:
 
 
 def test_the_report_shows_the_expert_ghost_beside_the_trainee_over_time(browser, ghosted):
-    out, document = ghosted
+    tmp, _, document = ghosted
+    out = tmp / "beginner"
     timeline = document["stages"][1]["annotations"]["timeline"]
     page = browser.page((out / "report.html").resolve().as_uri())
     assert page.problems == [] and page.evaluate("surgiplan.errors") == []
@@ -97,18 +88,7 @@ def test_the_report_shows_the_expert_ghost_beside_the_trainee_over_time(browser,
 
 @pytest.fixture
 def live_view():
-    process = subprocess.Popen(
-        [*SURGIPLAN, "view", "--live", "--port", "0", "--no-browser", "--exit-after", "120"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 60
-    url = None
-    while url is None and time.monotonic() < deadline:
-        match = re.search(r"(http://127\.0\.0\.1:\d+/\S*)", process.stdout.readline())
-        url = match.group(1) if match else None
-    assert url, process.stderr.read()
+    process, url = start_live_view()
     yield url
     process.terminate()
     process.wait(10)

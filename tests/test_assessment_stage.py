@@ -8,17 +8,12 @@ import sqlite3
 import numpy as np
 import pytest
 import yaml
-from assessment_support import ghost_run, guide_stage, pipeline
+from assessment_support import guide_stage, pipeline
 from surgiplan.guidance import TraineeRecord
 
 
-@pytest.fixture(scope="module")
-def ghosted(tmp_path_factory):
-    return ghost_run(tmp_path_factory.mktemp("ghost"))
-
-
 def test_the_ghost_is_the_experts_best_attempt_keeping_pace_by_progress(ghosted):
-    record, document = ghosted
+    _, record, document = ghosted
     stage = document["stages"][1]
     db = sqlite3.connect(record)
     attempts = db.execute(
@@ -58,7 +53,7 @@ def test_the_ghost_is_the_experts_best_attempt_keeping_pace_by_progress(ghosted)
 
 
 def test_the_stage_reports_the_trainees_standing_at_the_tasks_gate(ghosted):
-    record, document = ghosted
+    _, record, document = ghosted
     gate = document["stages"][1]["metrics"]["gate"]
     with TraineeRecord(record) as r:
         benchmark = r.benchmark("bw")
@@ -74,7 +69,7 @@ def test_the_live_feed_carries_the_cues_of_every_sample(tmp_path, ghosted):
     from surgiplan import load_pipeline, run_pipeline
     from surgiplan.live import LiveFeed
 
-    record, _ = ghosted
+    _, record, _ = ghosted
 
     class Recorder(LiveFeed):
         active = True
@@ -123,7 +118,7 @@ def test_the_live_feed_carries_the_cues_of_every_sample(tmp_path, ghosted):
     ],
 )
 def test_ghost_and_assessment_keys_are_checked_at_validation(tmp_path, cli, ghosted, change, message):
-    record, _ = ghosted
+    _, record, _ = ghosted
     stage = guide_stage("attempt", "beginner", 7, {"name": "eve", "task": "bw"}, **change)
     path = pipeline(tmp_path, "bad", "beginner", [stage])
     data = yaml.safe_load(path.read_text())

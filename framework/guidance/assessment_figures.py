@@ -16,20 +16,12 @@ import numpy as np
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from ..storage import atomic_write
+from ..outputs.figures import save_figure
 from .benchmark import GATE_METRICS, Benchmark
 from .cohort import Cohort
 from .metrics import METRIC_BY_NAME
 
 WITHIN, OUTSIDE, UNJUDGED = "#2ca02c", "#d62728", "#8c8c8c"
-
-
-def _save(fig, path: Path) -> None:
-    try:
-        with atomic_write(path, "wb") as handle:
-            fig.savefig(handle, format="png", dpi=110)
-    finally:
-        plt.close(fig)
 
 
 def _scale(name: str) -> tuple[float, str]:
@@ -87,7 +79,7 @@ def metric_history_figure(
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=8, frameon=False)
     fig.suptitle(f"trainee {trainee} at {task}: {len(history)} attempt(s); gate {status}", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 0.95))
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def learning_curves_figure(path: Path, result: Cohort) -> None:
@@ -124,7 +116,7 @@ def learning_curves_figure(path: Path, result: Cohort) -> None:
     ax.legend(handles=handles, fontsize=8, loc="lower right", ncol=2)
     ax.set_title(f"learning curves at {result.task}: {len(result.trainees)} trainee(s)", fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def verdict_of(chart) -> str:
@@ -181,4 +173,4 @@ def cusum_figure(path: Path, result: Cohort) -> None:
     ]
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.06, 1, 0.94))
-    _save(fig, path)
+    save_figure(fig, path)

@@ -21,6 +21,7 @@ instrument off the obstacles in that share of their motion.
 from __future__ import annotations
 
 import json
+import numbers
 import sqlite3
 import time
 from collections.abc import Sequence
@@ -188,7 +189,9 @@ class TraineeRecord:
                 [
                     (attempt_id, name, float(value))
                     for name in METRIC_BY_NAME
-                    if isinstance(value := metrics.get(name), int | float) and np.isfinite(value)
+                    if isinstance(value := metrics.get(name), numbers.Real)
+                    and not isinstance(value, bool)
+                    and np.isfinite(value)
                 ],
             )
         return attempt_id
