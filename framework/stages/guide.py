@@ -402,8 +402,9 @@ class GuideKind(StageKind):
                 source=spec.plugin.name,
                 output_dir=str(out),
             )
-            if metrics["record"].get("gate") is not None:
-                metrics["gate"] = metrics["record"]["gate"]
+            gate = metrics["record"].pop("gate")
+            if gate is not None:
+                metrics["gate"] = gate
         live.publish("status", {"status": status.value, "message": message})
         tips = np.array([m.tip for m in guide.measurements])
         annotations = {
