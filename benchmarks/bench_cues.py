@@ -77,19 +77,20 @@ def viewer() -> tuple[subprocess.Popen, str]:
     return start_live_view(exit_after=600)
 
 
-def page_run(browser: Browser, attempt: Path) -> list[float]:
-    """Sample-to-pixels latencies (ms) of one attempt watched by a page."""
+def page_run(browser: Browser, attempt: Path) -> tuple[list[float], list[float]]:
+    """Sample-to-pixels latencies (ms) of one attempt watched by a page, and sample to the page's handling of it."""
     process, url = viewer()
     try:
         page = browser.page(url + "#latency", ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
         run(attempt, "--live", url.replace("http://", "ws://").rstrip("/") + "/feed")
         wait_for(page, "surgiplan.live.status !== null && surgiplan.live.pending.length === 0", 60_000)
         latencies = page.evaluate("surgiplan.live.cueLatency")
+        arrivals = page.evaluate("surgiplan.live.arrivalLatency")
         problems = page.problems + page.evaluate("surgiplan.errors")
         page.close()
         if problems:
             raise SystemExit(f"the page reported problems: {problems}")
-        return latencies
+        return latencies, arrivals
     finally:
         process.terminate()
         process.wait(10)
@@ -158,11 +159,12 @@ def main() -> None:
         }
         attempt = pipeline(tmp, "attempt", guide)
         browser = Browser()
-        pooled, per_run = [], []
+        pooled, arrived, per_run = [], [], []
         try:
             for i in range(runs):
-                latencies = page_run(browser, attempt)
+                latencies, arrivals = page_run(browser, attempt)
                 pooled += latencies
+                arrived += arrivals
                 per_run.append(summary(f"page, run {i + 1}", latencies, 1))
                 print(table(per_run[-1:], list(per_run[-1])), flush=True)
         finally:
@@ -172,6 +174,7 @@ def main() -> None:
             transport += transport_run(attempt)
     rows = [
         summary("sample to pixels (headless chromium, software WebGL)", pooled, runs),
+        summary("sample to the page's handling of its message (stage, feed, relay, page's queue)", arrived, runs),
         summary("sample to a watcher in Python (stage, feed, relay)", transport, runs),
         *per_run,
     ]

@@ -101,16 +101,21 @@ def render_assessment(results: Path) -> str:
 def render_cues(results: Path) -> str:
     data = load(results, "cues")
     rows = data["rows"]
-    pooled, transport = rows[0], rows[1]
+    pooled = rows[0]
+    labels = {
+        "sample to pixels": "the pixels of the live view's cues (headless chromium, software WebGL)",
+        "sample to the page's handling": "the page's handling of its message (stage, feed, relay, the page's queue)",
+        "sample to a watcher": "a watcher in Python (stage, feed, relay)",
+    }
+
+    def label(case: str) -> str:
+        return next((text for start, text in labels.items() if case.startswith(start)), case)
+
     body = table(
         ["from a sample to", "runs", "samples", "median", "p95", "p99", "max"],
         [
             [
-                "the pixels of the live view's cues (headless chromium, software WebGL)"
-                if r is pooled
-                else "a watcher in Python (stage, feed, relay)"
-                if r is transport
-                else r["case"],
+                label(r["case"]),
                 str(r["runs"]),
                 f"{r['samples']:,}",
                 f"{r['median_ms']:.1f} ms",

@@ -797,7 +797,8 @@
     last: null, events: [], closed: false, cue: null,
     // cue latency (ms): from each sample's arrival at the stage (its "wall" clock time) to the end of the first frame
     // drawn after the page got it; with #latency in the URL that frame is read back (getImageData), so it is in pixels
-    pending: [], cueLatency: [], measurePixels: /latency/.test(location.hash),
+    // and (arrivalLatency) to the page's handling of its message, so the page's own share can be told apart
+    pending: [], cueLatency: [], arrivalLatency: [], measurePixels: /latency/.test(location.hash),
   };
   const CUE_COLOURS = { clear: "#2ca02c", critical: "#f2b01e", below: "#d62728", contact: "#7f0000" };
   const ARROW = "#9467bd", TRAIL = "#1f6fb4", INSTRUMENT = "#ff7f0e";
@@ -856,16 +857,38 @@
         world.add(live.ghostPath);
       }
       banner.style.display = hud.style.display = "none";
+      written.clear();
       S.live.stage = p;
-      S.live.cue = null;
+      S.live.cue = cueWaiting = null;
       info.textContent = `${p.kind || "stage"} ${p.name} (${p.plugin || ""}) running`;
       active = liveTs;
       requestRender();
     }
-    function showBanner(text, kind) {
-      if (banner.textContent !== text) banner.textContent = text;
-      banner.className = `cue-${kind}`;
-      banner.style.display = text ? "block" : "none";
+    // the cues' DOM (banner, numbers): built once, its text and colours written at most once a frame and only
+    // when they change (a style and layout pass per sample would hold the page's messages back)
+    const hudText = [document.createTextNode(""), document.createTextNode(""), document.createTextNode("expert ghost")];
+    const hudSwatch = [el("span", { class: "sw" }), el("span", { class: "sw", style: `background:${ARROW}` }), el("span", { class: "sw", style: `background:${GHOST}` })];
+    const hudGhost = el("span", {}, el("br"), hudSwatch[2], hudText[2]);
+    hud.append(hudSwatch[0], hudText[0], el("br"), hudSwatch[1], hudText[1], hudGhost);
+    let cueWaiting = null;
+    const written = new Map(); // what was last written where (a style reads back normalised: compare with this)
+    function assign(node, key, value) {
+      let was = written.get(node);
+      if (!was) written.set(node, (was = {}));
+      if (was[key] !== value) { node[key] = value; was[key] = value; }
+    }
+    function paintCues() {
+      const c = cueWaiting;
+      if (!c) return;
+      cueWaiting = null;
+      assign(banner, "textContent", c.banner);
+      assign(banner, "className", `cue-${c.style}`);
+      assign(banner.style, "display", c.banner ? "block" : "none");
+      assign(hud.style, "display", "block");
+      assign(hudSwatch[0].style, "background", c.colour);
+      assign(hudText[0], "data", c.clearanceText);
+      assign(hudText[1], "data", c.deviationText);
+      assign(hudGhost.style, "display", c.ghost ? "inline" : "none");
     }
     function cues(p) {
       const kind = clearanceClass(p, live.threshold);
@@ -882,13 +905,10 @@
         text = `off the path by ${len(p.deviation, 3)} (tolerance ${len(live.tolerance, 3)}): follow the arrow`;
         style = "deviation";
       }
-      showBanner(text, style);
-      hud.style.display = "block";
-      hud.innerHTML = "";
-      hud.append(el("span", { class: "sw", style: `background:${CUE_COLOURS[kind]}` }), `clearance ${len(p.clearance, 3)}`, el("br"),
-        el("span", { class: "sw", style: `background:${ARROW}` }), `deviation ${len(p.deviation, 3)}`);
-      if (p.ghost) hud.append(el("br"), el("span", { class: "sw", style: `background:${GHOST}` }), "expert ghost");
       S.live.cue = { clearance: kind, colour: CUE_COLOURS[kind], banner: text, closest: p.closest || null, ghost: p.ghost || null };
+      cueWaiting = {
+        ...S.live.cue, style, clearanceText: `clearance ${len(p.clearance, 3)}`, deviationText: `deviation ${len(p.deviation, 3)}`,
+      };
     }
     function onTip(p) {
       if (3 * (live.n + 1) > live.positions.length) {
@@ -909,7 +929,11 @@
       if (S.live.tipTimes.length > 4000) S.live.tipTimes.splice(0, 2000);
       S.live.last = p;
       if (live.guide) cues(p);
-      if (typeof p.wall === "number" && S.live.pending.length < 20000) S.live.pending.push(p.wall);
+      if (typeof p.wall === "number" && S.live.pending.length < 20000) {
+        S.live.pending.push(p.wall);
+        S.live.arrivalLatency.push(performance.timeOrigin + performance.now() - 1000 * p.wall);
+        if (S.live.arrivalLatency.length > 200000) S.live.arrivalLatency.splice(0, 100000);
+      }
       state = { stage: live.name, index: liveTs.count - 1, t: p.t, tip: p.tip, clearance: p.clearance, deviation: p.deviation };
       liveDirty = true;
       overlayDirty = true;
@@ -952,6 +976,7 @@
       octx.fill();
     }
     drawOverlay = function () {
+      paintCues();
       octx.clearRect(0, 0, overlay.width, overlay.height);
       const p = S.live.last;
       if (!live.n || !p) return null;
