@@ -192,7 +192,7 @@ def test_the_live_view_shows_the_cues_a_trainee_needs_in_pixels(browser, live_vi
     # to the page's handling of its message, which comes first
     shown, arrived = page.evaluate("[surgiplan.live.cueLatency, surgiplan.live.arrivalLatency]")
     assert len(shown) == len(arrived) == len(samples)
-    assert all(a <= s + 1e-6 for a, s in zip(arrived, shown)), (arrived, shown)
+    assert all(a <= s + 1e-6 for a, s in zip(arrived, shown, strict=True)), (arrived, shown)
     assert page.problems == [] and page.evaluate("surgiplan.errors") == []
     assert offsite(page.requests) == []
     feed.close()
