@@ -135,4 +135,12 @@ def render_cues(results: Path) -> str:
         f"{loads.group(2)} after, 1/5/15 min, 2 shared cores):"
     )
     tail = f"Target p99 under 50 ms: {met(pooled['p99_ms'] < 50)} ({pooled['p99_ms']:.1f} ms over every sample)."
+    arrived = next((r for r in rows if r["case"].startswith("sample to the page's handling")), None)
+    watcher = next((r for r in rows if r["case"].startswith("sample to a watcher")), None)
+    if arrived is not None and watcher is not None:
+        tail += (
+            f" Of the median {pooled['median_ms']:.1f} ms, {arrived['median_ms']:.1f} ms pass before the page's "
+            f"script handles the sample's message (a Python watcher has it after {watcher['median_ms']:.1f} ms); "
+            "the rest is the frame that draws it."
+        )
     return section(head, body, tail)
