@@ -18,10 +18,10 @@ import traceback
 
 from .. import __version__
 from ..errors import SurgiplanError
-from . import benchmark_task, cohort, plugins, run, trainee, view
+from . import benchmark, benchmark_task, can_decode, cohort, export, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
-COMMANDS = (run, view, trainee, benchmark_task, cohort, plugins)
+COMMANDS = (run, view, trainee, benchmark_task, cohort, benchmark, export, can_decode, plugins)
 
 
 class _Formatter(logging.Formatter):
