@@ -18,8 +18,9 @@ Only the numbers are data: the words around them are fixed here, and the judgeme
 changes the sentence, not only the figure.
 
 Each README section's blocks are rendered by a module of :mod:`readme_blocks` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``guide``, ``assessment``, ``devices``), with the formatting they share in
-``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks them.
+``retraction``, ``optmis``, ``fem``, ``guide``, ``assessment``, ``devices``, ``canopen``), with the formatting they
+share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks
+them.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from readme_blocks.assessment import render_assessment, render_cues
+from readme_blocks.canopen import render_canopen_conformance
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
 from readme_blocks.formatting import BENCH, ReadmeError
@@ -67,6 +69,7 @@ BLOCKS: dict[str, Block] = {
     "fem_solvers": Block(render_fem_solvers, ("fem_solvers",)),
     "fem_vs_fenicsx": Block(render_fem_vs_fenicsx, ("fem_vs_fenicsx",)),
     "devices": Block(render_devices, ("devices",)),
+    "canopen_conformance": Block(render_canopen_conformance, ("canopen_conformance",)),
     "mavlink_hall": Block(render_mavlink_hall, ("mavlink",)),
     "mavlink": Block(render_mavlink, ("mavlink",)),
     "guide": Block(render_guide, ("guide",)),
