@@ -40,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import save, table
 from surgiplan import load_pipeline, load_scene, run_pipeline
+from surgiplan.clearance import critical_regions, intervals
 from surgiplan.guidance import GuidanceSettings, Guide, PoseSample, TraineeModel, synthetic_attempt
 from surgiplan.planning import PlanningProblem
 from surgiplan.plugins.planners.safe_prm import SafePRM, SafePRMSettings
@@ -51,12 +52,14 @@ FULCRUM = {"xyz": [0.150, 0.050, 0.130], "rpy": [0.0, np.pi / 2, 0.0]}
 
 
 def recommended(space, start, goal):
-    planner = SafePRM(SafePRMSettings(proficiency="beginner", milestones=5000, k=15, seed=1))
+    settings = SafePRMSettings(proficiency="beginner", milestones=5000, k=15, seed=1)
+    planner = SafePRM(settings)
     artifact = planner.build(PlanningProblem(space.scene, space))
     result = planner.query(artifact, start, goal)
     assert result.solved, result.message
-    regions = [(r["start_m"], r["end_m"]) for r in result.annotations["critical_regions"]]
-    return result.path, regions, result.clearance_threshold
+    # as the plan stage measures them (the planner no longer reports its critical regions itself)
+    regions = intervals(critical_regions(space, result.path, settings.d_thresh))
+    return result.path, regions, settings.d_thresh
 
 
 def analysis_latency(space, path, regions, threshold, seeds) -> list[float]:

@@ -18,8 +18,9 @@ Only the numbers are data: the words around them are fixed here, and the judgeme
 changes the sentence, not only the figure.
 
 Each README section's blocks are rendered by a module of :mod:`readme_blocks` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``guide``, ``devices``, ``canopen``), with the formatting they share in
-``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks them.
+``retraction``, ``optmis``, ``fem``, ``guide``, ``assessment``, ``devices``, ``canopen``), with the formatting they
+share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks
+them.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from readme_blocks.assessment import render_assessment, render_cues
 from readme_blocks.canopen import render_canopen_conformance
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
@@ -71,6 +73,8 @@ BLOCKS: dict[str, Block] = {
     "mavlink_hall": Block(render_mavlink_hall, ("mavlink",)),
     "mavlink": Block(render_mavlink, ("mavlink",)),
     "guide": Block(render_guide, ("guide",)),
+    "assessment": Block(render_assessment, ("assessment",)),
+    "cues": Block(render_cues, ("cues",)),
 }
 
 

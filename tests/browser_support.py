@@ -127,3 +127,29 @@ def red_pixels(pixels: np.ndarray) -> int:
     """Pixels of the below-threshold red (#d62728, shaded)."""
     p = pixels.astype(int)
     return int(np.count_nonzero((p[..., 0] > 150) & (p[..., 1] < 90) & (p[..., 2] < 90)))
+
+
+def start_live_view(exit_after: float = 120.0):
+    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL)."""
+    import re
+    import subprocess
+    import sys
+    import time
+
+    command = [sys.executable, "-m", "surgiplan.cli", "view", "--live", "--port", "0", "--no-browser"]
+    process = subprocess.Popen(
+        [*command, "--exit-after", str(exit_after)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = process.stdout.readline()
+        match = re.search(r"(http://127\.0\.0\.1:\d+/\S*)", line)
+        if match:
+            return process, match.group(1)
+        if not line and process.poll() is not None:
+            break
+    process.kill()
+    raise RuntimeError(f"surgiplan view --live did not start: {process.stderr.read()}")

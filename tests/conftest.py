@@ -126,6 +126,17 @@ def write(path: Path, text: str) -> Path:
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
+@pytest.fixture(scope="session")
+def ghosted(tmp_path_factory):
+    """Experts' attempts recorded, the task's benchmark from them, and a beginner's attempt with an expert ghost
+    (``assessment_support.ghost_run``): (the directory, the record, the beginner run's result.json)."""
+    from assessment_support import ghost_run
+
+    tmp = tmp_path_factory.mktemp("ghost")
+    record, document = ghost_run(tmp)
+    return tmp, record, document
+
+
 PLUGINS = Path(__file__).resolve().parent / "plugins"
 
 

@@ -134,9 +134,25 @@ def test_the_attempts_metrics_follow_from_its_samples(attempt):
     assert m["below_threshold_s"] == pytest.approx(np.diff(samples["t_s"])[both].sum(), abs=1e-6)
     events = guide["annotations"]["events"]
     assert m["contacts"] == sum(e["kind"] == "contact" for e in events)
-    terms = m["score_terms"]
-    assert m["score"] == pytest.approx(100 * terms["completion"] * (0.6 * terms["safety"] + 0.4 * terms["accuracy"]))
-    assert terms["accuracy"] == pytest.approx(np.exp(-m["deviation_rms_m"] / 0.005))
+    # the score: the documented terms (docs/assessment.md), from the samples, weighted by the default weights
+    length, duration = m["recommended_length_m"], samples["t_s"][-1] - samples["t_s"][0]
+    steps = np.linalg.norm(np.diff(tips, axis=0), axis=1)
+    idle = np.diff(samples["t_s"])[steps < 0.002 * np.diff(samples["t_s"])].sum()
+    assert m["idle_s"] == pytest.approx(idle, abs=1e-9) and m["economy"] == pytest.approx(steps.sum() / length)
+    expected = {
+        "safety": max(0.0, 1 - m["below_threshold_m"] / length - 0.25 * m["contacts"]),
+        "accuracy": np.exp(-m["deviation_rms_m"] / 0.005),
+        "economy": min(1.0, length / steps.sum()),
+        "time": min(1.0, length / 0.025 / duration),
+        "idle": 1 - idle / duration,
+        "smoothness": min(1.0, np.exp(-(abs(m["sparc"]) - 1) / 4)),
+        "corrections": 1 / (1 + m["corrections"] / (100 * length)),
+    }
+    weights = {"safety": 0.3, "accuracy": 0.2, "economy": 0.1, "time": 0.1, "idle": 0.05, "smoothness": 0.1}
+    weights["corrections"] = 0.1  # no depth term: an r3 source without a port measures no insertion
+    assert m["score_terms"] == pytest.approx(expected) and m["score_weights"] == pytest.approx(weights)
+    mean = sum(weights[k] * expected[k] for k in expected) / sum(weights.values())
+    assert m["score"] == pytest.approx(100 * m["completion"] * mean)
     assert {"attempt.png", "attempt-samples.csv"} <= set(guide["files"])
     assert m["latency_median_ms"] < m["latency_max_ms"]  # measured, per sample (values: benchmarks/bench_guide.py)
 

@@ -7,17 +7,24 @@ that loop:
 * :mod:`.source` — :class:`PoseSource`, the plugin interface of pose sources
   (hook ``surgiplan_register_sources``), and :class:`PoseSample`;
 * :mod:`.analysis` — :class:`Guide`: per sample deviation, progress, clearance,
-  critical regions and events; the attempt's metrics and score;
+  critical regions, lateral offset, insertion and events;
 * :mod:`.stage` — the ``guide`` stage;
 * :mod:`.report` — the attempt's figure and samples CSV;
 * :mod:`.record` — :class:`TraineeRecord`, the SQLite record of attempts per
   trainee and task, and proficiency from it;
-* :mod:`.trainee` — a synthetic trainee (seeded, documented parameters).
+* :mod:`.trainee` — a synthetic trainee (seeded, documented parameters);
+* the skill assessment (``docs/assessment.md``): :mod:`.metrics` (the metrics
+  and the score), :mod:`.benchmark` (a task's thresholds and the proficiency
+  gate), :mod:`.cusum`, :mod:`.validity` (construct validity), :mod:`.cohort`
+  and :mod:`.assessment_figures` (learning curves), :mod:`.ghost` (the expert
+  ghost), :mod:`.assessment` (an attempt into the record, a trainee's
+  standing), :mod:`.schema` (the record's schema and migrations).
 """
 
 from __future__ import annotations
 
 from .analysis import EVENT_KINDS, Event, GuidanceSettings, Guide, Measurement
+from .metrics import METRICS, AssessmentSettings
 from .record import Proficiency, RecordError, TraineeRecord
 from .source import GuideContext, PoseSample, PoseSource, SourceStopped
 from .trainee import LEVELS, TraineeModel, synthetic_attempt
@@ -25,6 +32,8 @@ from .trainee import LEVELS, TraineeModel, synthetic_attempt
 __all__ = [
     "EVENT_KINDS",
     "LEVELS",
+    "METRICS",
+    "AssessmentSettings",
     "Event",
     "GuidanceSettings",
     "Guide",

@@ -26,11 +26,16 @@ that meets its condition (``start_t``) to the last (``end_t``):
                    while going the wrong way)
 =================  ====================================================================
 
-The attempt's **score** (0-100) is ``100 x completion x (0.6 safety + 0.4
-accuracy)``: completion = final progress / path length; safety = 1 - (length
-travelled below d_thresh outside critical regions) / (recommended length) -
-0.25 per contact, at least 0; accuracy = exp(-deviation RMS / tolerance).
-Every term is in the report, so a trainer can see why.
+Each sample also gets the tip's **lateral offset** from its closest path
+point along the path's two normals (a frame transported along the path without
+twisting), and its **insertion depth** (distance from the gimbal's fulcrum, or
+from the assessment's ``port``, to the tip) when there is one: what the skill
+metrics of :mod:`.metrics` count corrections and depth reversals on.
+
+The attempt's metrics and **score** (0-100, a weighted combination of
+safety, accuracy, economy, time, idle, smoothness, corrections and depth,
+times completion) are :func:`surgiplan.guidance.metrics.assess`'s; every term
+is in the report, so a trainer can see why.
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ from ..models import StrictModel
 from ..scene import Scene
 from ..spaces.base import Space
 from ..units import LENGTH_UNITS, Length, PositiveLength
+from .metrics import AssessmentSettings, AttemptSamples, assess
 from .source import PoseSample
 
 #: spacing (m) at which the recommended path is densified before the closest-point search
@@ -93,6 +99,14 @@ class Measurement:
     latency: float
     #: seconds from the source producing the sample to the end of its analysis (set by the stage)
     delay: float = 0.0
+    #: the tip's offset from its closest path point along the path's two normals (m)
+    lateral: tuple[float, float] = (0.0, 0.0)
+    #: distance from the fulcrum (or port) to the tip (m); NaN when there is none
+    insertion: float = math.nan
+    #: the closest point of the recommended path (m)
+    closest: np.ndarray | None = None
+    #: where the expert ghost is at this sample's progress (m; set by the stage when it shows one)
+    ghost: np.ndarray | None = None
 
 
 @dataclass
@@ -138,6 +152,8 @@ class Guide:
         settings: GuidanceSettings,
         *,
         unit: str = "mm",
+        assessment: AssessmentSettings | None = None,
+        port: np.ndarray | None = None,
     ) -> None:
         self.space = space
         self.scene = scene
@@ -154,6 +170,11 @@ class Guide:
         seg_len = np.sqrt(self.seg_len_sq)
         self.arc = np.concatenate([[0.0], np.cumsum(seg_len)])
         self.length = float(self.arc[-1])
+        self.normals = _transported_normals(self.d, seg_len)
+        self.assessment = assessment if assessment is not None else AssessmentSettings()
+        if port is None:
+            port = getattr(space, "fulcrum", None)
+        self.port = None if port is None else np.asarray(port, float).reshape(3)
         radius = settings.tip_radius
         if radius is None:
             radius = float(getattr(space, "tip_radius", 0.0) or 0.0)
@@ -168,6 +189,11 @@ class Guide:
     # ------------------------------------------------------------------ per sample
     def closest(self, tip: np.ndarray) -> tuple[float, float]:
         """(deviation, progress) of a tip position: the exact closest point on the recommended polyline."""
+        deviation, progress, _, _ = self.nearest(tip)
+        return deviation, progress
+
+    def nearest(self, tip: np.ndarray) -> tuple[float, float, np.ndarray, tuple[float, float]]:
+        """(deviation, progress, the closest point, the offset along the path's two normals there)."""
         rel = tip - self.a
         t = np.einsum("ij,ij->i", rel, self.d)
         t = np.clip(np.divide(t, self.seg_len_sq, out=np.zeros_like(t), where=self.seg_len_sq > 0), 0.0, 1.0)
@@ -175,7 +201,9 @@ class Guide:
         dist_sq = np.einsum("ij,ij->i", diff, diff)
         i = int(np.argmin(dist_sq))
         progress = float(self.arc[i] + t[i] * (self.arc[i + 1] - self.arc[i]))
-        return math.sqrt(float(dist_sq[i])), progress
+        offset = diff[i]
+        lateral = (float(offset @ self.normals[i, 0]), float(offset @ self.normals[i, 1]))
+        return math.sqrt(float(dist_sq[i])), progress, tip - offset, lateral
 
     def measure(self, sample: PoseSample) -> tuple[Measurement, list[tuple[str, Event]]]:
         """Measure one sample and update the events; returns the measurement and the event changes
@@ -191,9 +219,12 @@ class Guide:
             distance, index = self.scene.signed_distance(tip[None])
             clearance = float(distance[0]) - self.tip_radius
             obstacle = int(index[0])
-        deviation, progress = self.closest(tip)
+        deviation, progress, closest, lateral = self.nearest(tip)
         critical = any(a <= progress <= b for a, b in self.critical)
         m = Measurement(float(sample.t), tip, deviation, progress, clearance, critical, obstacle, 0.0)
+        m.lateral, m.closest = lateral, closest
+        if self.port is not None:
+            m.insertion = float(np.linalg.norm(tip - self.port))
         changes = self._update_events(m)
         m.latency = time.perf_counter() - started
         self.measurements.append(m)
@@ -279,51 +310,56 @@ class Guide:
         self.events.sort(key=lambda e: (e.start_t, EVENT_KINDS.index(e.kind)))
         return self.events
 
+    def samples(self) -> AttemptSamples:
+        """The measurements as arrays (what the metrics and the record take)."""
+        ms = self.measurements
+        return AttemptSamples(
+            t=np.array([m.t for m in ms], float),
+            tip=np.array([m.tip for m in ms], float).reshape(-1, 3),
+            deviation=np.array([m.deviation for m in ms], float),
+            progress=np.array([m.progress for m in ms], float),
+            clearance=np.array([m.clearance for m in ms], float),
+            critical=np.array([m.critical for m in ms], bool),
+            lateral=np.array([m.lateral for m in ms], float).reshape(-1, 2),
+            insertion=np.array([m.insertion for m in ms], float) if self.port is not None else None,
+        )
+
+    @property
+    def completion(self) -> float:
+        if not self.measurements:
+            return 0.0
+        if self.reached_goal:
+            return 1.0
+        return min(1.0, self.measurements[-1].progress / self.length) if self.length > 0 else 0.0
+
     def metrics(self) -> dict[str, Any]:
-        """The attempt report's numbers (SI)."""
+        """The attempt report's numbers (SI): the skill metrics and score (:func:`.metrics.assess`), the
+        deviation and clearance extremes, the events and the per-sample timing."""
         ms = self.measurements
         if not ms:
             return {"samples": 0}
-        t = np.array([m.t for m in ms])
-        tips = np.array([m.tip for m in ms])
-        deviation = np.array([m.deviation for m in ms])
-        clearance = np.array([m.clearance for m in ms])
-        critical = np.array([m.critical for m in ms])
+        samples = self.samples()
         latency = np.array([m.latency for m in ms])
         delay = np.array([m.delay for m in ms])
-        steps = np.linalg.norm(np.diff(tips, axis=0), axis=1)
-        dt = np.diff(t)
-        # a stretch between two samples counts when both ends meet the condition
-        low = (clearance < self.threshold) & ~critical if self.threshold > 0 else np.zeros(len(ms), dtype=bool)
-        both = low[:-1] & low[1:]
-        below_length = float(steps[both].sum())
-        contacts = sum(1 for e in self.events if e.kind == "contact")
-        progress = float(ms[-1].progress)
-        completion = 1.0 if self.reached_goal else min(1.0, progress / self.length) if self.length > 0 else 0.0
-        safety = max(0.0, 1.0 - below_length / max(self.length, 1e-12) - 0.25 * contacts)
-        rms = float(np.sqrt(np.mean(deviation**2)))
-        accuracy = math.exp(-rms / self.settings.deviation_tolerance)
-        counts = {kind: sum(1 for e in self.events if e.kind == kind) for kind in EVENT_KINDS}
+        assessed = assess(
+            samples,
+            recommended_length=self.length,
+            threshold=self.threshold,
+            tolerance=self.settings.deviation_tolerance,
+            completion=self.completion,
+            settings=self.assessment,
+        )
         return {
             "samples": len(ms),
-            "duration_s": float(t[-1] - t[0]),
-            "path_length_m": float(steps.sum()),
+            **assessed,
             "recommended_length_m": self.length,
-            "length_ratio": float(steps.sum() / self.length) if self.length > 0 else math.nan,
-            "deviation_rms_m": rms,
-            "deviation_max_m": float(deviation.max()),
-            "deviation_p95_m": float(np.percentile(deviation, 95)),
-            "min_clearance_m": float(clearance.min()),
+            "deviation_max_m": float(samples.deviation.max()),
+            "deviation_p95_m": float(np.percentile(samples.deviation, 95)),
+            "min_clearance_m": float(samples.clearance.min()),
             "d_thresh_m": self.threshold,
-            "below_threshold_s": float(dt[both].sum()),
-            "below_threshold_m": below_length,
-            "contacts": contacts,
-            "events": counts,
-            "progress_m": progress,
-            "completion": completion,
+            "events": {kind: sum(1 for e in self.events if e.kind == kind) for kind in EVENT_KINDS},
+            "progress_m": float(ms[-1].progress),
             "reached_goal": self.reached_goal,
-            "score": 100.0 * completion * (0.6 * safety + 0.4 * accuracy),
-            "score_terms": {"completion": completion, "safety": safety, "accuracy": accuracy},
             "latency_median_ms": float(np.median(latency) * 1e3),
             "latency_p99_ms": float(np.percentile(latency, 99) * 1e3),
             "latency_max_ms": float(latency.max() * 1e3),
@@ -337,7 +373,7 @@ class Guide:
         for m in self.measurements:
             if not keep or m.t - keep[-1].t >= 1.0 / rate or m is self.measurements[-1]:
                 keep.append(m)
-        return {
+        out = {
             "t": [m.t for m in keep],
             "tip": [m.tip.tolist() for m in keep],
             "deviation": [m.deviation for m in keep],
@@ -345,6 +381,33 @@ class Guide:
             "progress": [m.progress for m in keep],
             "events": [{"t": e.start_t, **e.to_json()} for e in self.events],
         }
+        if keep and all(m.ghost is not None for m in keep):
+            out["ghost"] = [m.ghost.tolist() for m in keep]
+        return out
+
+
+def _transported_normals(d: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Two unit normals (n, 2, 3) of each segment of a polyline, transported from segment to segment without
+    twisting (the projection of the previous normal); the first is the one closest to +z (or +x)."""
+    n = len(d)
+    out = np.zeros((n, 2, 3))
+    tangent = np.array([1.0, 0.0, 0.0])
+    normal = None
+    for i in range(n):
+        if length[i] > 0:
+            tangent = d[i] / length[i]
+        if normal is None:
+            normal = np.array([0.0, 0.0, 1.0]) if abs(tangent[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        projected = normal - (normal @ tangent) * tangent
+        size = np.linalg.norm(projected)
+        if size < 1e-9:  # the path turned onto the normal: start again from an axis
+            axis = np.array([0.0, 0.0, 1.0]) if abs(tangent[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+            projected = axis - (axis @ tangent) * tangent
+            size = np.linalg.norm(projected)
+        normal = projected / size
+        out[i, 0] = normal
+        out[i, 1] = np.cross(tangent, normal)
+    return out
 
 
 @dataclass

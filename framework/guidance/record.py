@@ -6,22 +6,10 @@ transaction when the attempt ends, so a crash (even ``kill -9``) mid-attempt
 leaves every earlier attempt intact and no half-written one. The file is in
 WAL mode with full synchronisation.
 
-Schema (version :data:`SCHEMA_VERSION`, in ``PRAGMA user_version``;
-:data:`MIGRATIONS` brings an older file up to date when it is opened)::
-
-    trainees(id INTEGER PRIMARY KEY, name TEXT UNIQUE NOT NULL, created TEXT NOT NULL)
-    attempts(id INTEGER PRIMARY KEY, trainee_id INTEGER NOT NULL REFERENCES trainees(id),
-             task TEXT NOT NULL, started TEXT NOT NULL,            -- ISO 8601, local time with offset
-             status TEXT NOT NULL, score REAL, duration_s REAL, d_thresh_m REAL,
-             path_length_m REAL, recommended_length_m REAL, deviation_rms_m REAL, deviation_max_m REAL,
-             deviation_p95_m REAL, min_clearance_m REAL, below_threshold_s REAL, below_threshold_m REAL,
-             contacts INTEGER, completion REAL, events TEXT,       -- JSON list of the events
-             pipeline TEXT, stage TEXT, source TEXT, output_dir TEXT)
-    samples(attempt_id INTEGER NOT NULL REFERENCES attempts(id), i INTEGER NOT NULL,
-            t REAL NOT NULL, x REAL, y REAL, z REAL,               -- tip position, m
-            deviation_m REAL, progress_m REAL, clearance_m REAL, critical INTEGER,
-            PRIMARY KEY (attempt_id, i)) WITHOUT ROWID
-    index attempts_by_trainee_task on attempts(trainee_id, task, started)
+The schema (version :data:`~.schema.SCHEMA_VERSION`, in ``PRAGMA user_version``) and its migrations are
+:mod:`.schema`'s and ``docs/trainee-record.md``'s: trainees (and their level), attempts, their samples and
+metrics, and the proficiency benchmarks of each task. Opening an older file migrates it; a newer one is
+refused. Every write to the file is a method of :class:`TraineeRecord`, each one transaction.
 
 A trainee's **proficiency** on a task (:meth:`TraineeRecord.proficiency`) is
 the ``percentile`` of the tip deviations of their recorded samples on that
@@ -33,6 +21,7 @@ instrument off the obstacles in that share of their motion.
 from __future__ import annotations
 
 import json
+import numbers
 import sqlite3
 import time
 from collections.abc import Sequence
@@ -43,27 +32,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import SurgiplanError
-
-SCHEMA_VERSION = 1
-
-#: MIGRATIONS[v] brings a file of version v to v + 1
-MIGRATIONS: list[str] = [
-    """
-    CREATE TABLE trainees (id INTEGER PRIMARY KEY, name TEXT UNIQUE NOT NULL, created TEXT NOT NULL);
-    CREATE TABLE attempts (
-        id INTEGER PRIMARY KEY, trainee_id INTEGER NOT NULL REFERENCES trainees(id),
-        task TEXT NOT NULL, started TEXT NOT NULL, status TEXT NOT NULL, score REAL, duration_s REAL,
-        d_thresh_m REAL, path_length_m REAL, recommended_length_m REAL, deviation_rms_m REAL,
-        deviation_max_m REAL, deviation_p95_m REAL, min_clearance_m REAL, below_threshold_s REAL,
-        below_threshold_m REAL, contacts INTEGER, completion REAL, events TEXT,
-        pipeline TEXT, stage TEXT, source TEXT, output_dir TEXT);
-    CREATE TABLE samples (
-        attempt_id INTEGER NOT NULL REFERENCES attempts(id), i INTEGER NOT NULL, t REAL NOT NULL,
-        x REAL, y REAL, z REAL, deviation_m REAL, progress_m REAL, clearance_m REAL, critical INTEGER,
-        PRIMARY KEY (attempt_id, i)) WITHOUT ROWID;
-    CREATE INDEX attempts_by_trainee_task ON attempts(trainee_id, task, started);
-    """,
-]
+from .benchmark import Benchmark, Threshold
+from .metrics import METRIC_BY_NAME, AttemptSamples
+from .schema import SCHEMA_VERSION, migrate
 
 ATTEMPT_COLUMNS = (
     "status",
@@ -105,28 +76,32 @@ class TraineeRecord:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.db = sqlite3.connect(self.path, timeout=10.0)
+            version = self._version()  # before anything writes to the file: a newer one is left as it is
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.execute("PRAGMA foreign_keys=ON")
-            self._migrate()
+            migrate(self.db, version)
         except sqlite3.DatabaseError as exc:
             raise RecordError(f"cannot open the trainee record {self.path}: {exc}") from None
+        except (ValueError, TypeError, KeyError) as exc:  # a migration's backfill met data it cannot read
+            self.db.close()
+            raise RecordError(
+                f"cannot migrate the trainee record {self.path} to schema version {SCHEMA_VERSION} (it is left as "
+                f"it was): {type(exc).__name__}: {exc}"
+            ) from None
         except OSError as exc:
             raise RecordError(f"cannot create the trainee record {self.path}: {exc.strerror or exc}") from None
 
-    def _migrate(self) -> None:
+    def _version(self) -> int:
         version = self.db.execute("PRAGMA user_version").fetchone()[0]
         if version > SCHEMA_VERSION:
+            self.db.close()
             raise RecordError(
                 f"the trainee record {self.path} has schema version {version}, newer than this surgiplan's "
-                f"{SCHEMA_VERSION}; upgrade surgiplan"
+                f"{SCHEMA_VERSION} (written by a newer surgiplan); upgrade surgiplan to read it (the file is "
+                "left as it is)"
             )
-        for v in range(version, SCHEMA_VERSION):
-            try:
-                self.db.executescript(f"BEGIN; {MIGRATIONS[v]} PRAGMA user_version = {v + 1}; COMMIT;")
-            except sqlite3.DatabaseError:
-                self.db.rollback()
-                raise
+        return version
 
     def close(self) -> None:
         self.db.close()
@@ -144,23 +119,28 @@ class TraineeRecord:
         task: str,
         metrics: dict[str, Any],
         events: Sequence[dict[str, Any]],
-        samples: dict[str, np.ndarray],
+        samples: AttemptSamples,
         *,
         status: str,
+        level: str | None = None,
+        assessment: dict[str, Any] | None = None,
         pipeline: str = "",
         stage: str = "",
         source: str = "",
         output_dir: str = "",
     ) -> int:
-        """Store one attempt and its samples in one transaction; returns its id."""
-        n = len(samples["t"])
+        """Store one attempt, its samples and its metrics (those of :data:`~.metrics.METRICS` it has) in one
+        transaction; returns its id. ``level`` (when given) becomes the trainee's level."""
+        n = len(samples.t)
         with self.db:  # one transaction: all of the attempt or none of it
             self.db.execute("INSERT OR IGNORE INTO trainees(name, created) VALUES (?, ?)", (trainee, _now()))
+            if level is not None:
+                self.db.execute("UPDATE trainees SET level = ? WHERE name = ?", (level, trainee))
             trainee_id = self.db.execute("SELECT id FROM trainees WHERE name = ?", (trainee,)).fetchone()[0]
             values = [metrics.get(c) for c in ATTEMPT_COLUMNS[1:]]
             cursor = self.db.execute(
                 f"INSERT INTO attempts(trainee_id, task, started, {', '.join(ATTEMPT_COLUMNS)}, events, pipeline, "
-                f"stage, source, output_dir) VALUES ({', '.join('?' * (len(ATTEMPT_COLUMNS) + 8))})",
+                f"stage, source, output_dir, assessment) VALUES ({', '.join('?' * (len(ATTEMPT_COLUMNS) + 9))})",
                 (
                     trainee_id,
                     task,
@@ -172,29 +152,97 @@ class TraineeRecord:
                     stage,
                     source,
                     output_dir,
+                    json.dumps(assessment or {}),
                 ),
             )
             attempt_id = int(cursor.lastrowid)
-            tip = np.asarray(samples["tip"], float).reshape(n, 3)
+            tip = np.asarray(samples.tip, float).reshape(n, 3)
+            lateral = (
+                np.asarray(samples.lateral, float).reshape(n, 2)
+                if samples.lateral is not None
+                else np.full((n, 2), np.nan)
+            )
+            insertion = np.asarray(samples.insertion, float) if samples.insertion is not None else np.full(n, np.nan)
             rows = zip(
                 [attempt_id] * n,
                 range(n),
-                np.asarray(samples["t"], float).tolist(),
+                np.asarray(samples.t, float).tolist(),
                 tip[:, 0].tolist(),
                 tip[:, 1].tolist(),
                 tip[:, 2].tolist(),
-                np.asarray(samples["deviation"], float).tolist(),
-                np.asarray(samples["progress"], float).tolist(),
-                np.asarray(samples["clearance"], float).tolist(),
-                np.asarray(samples["critical"], int).tolist(),
+                np.asarray(samples.deviation, float).tolist(),
+                np.asarray(samples.progress, float).tolist(),
+                np.asarray(samples.clearance, float).tolist(),
+                np.asarray(samples.critical, int).tolist(),
+                _nullable(lateral[:, 0]),
+                _nullable(lateral[:, 1]),
+                _nullable(insertion),
                 strict=True,
             )
-            self.db.executemany("INSERT INTO samples VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+            self.db.executemany(
+                "INSERT INTO samples(attempt_id, i, t, x, y, z, deviation_m, progress_m, clearance_m, critical, "
+                "lateral_u_m, lateral_v_m, insertion_m) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                rows,
+            )
+            self.db.executemany(
+                "INSERT INTO attempt_metrics VALUES (?, ?, ?)",
+                [
+                    (attempt_id, name, float(value))
+                    for name in METRIC_BY_NAME
+                    if isinstance(value := metrics.get(name), numbers.Real)
+                    and not isinstance(value, bool)
+                    and np.isfinite(value)
+                ],
+            )
         return attempt_id
 
+    def set_level(self, trainee: str, level: str | None) -> None:
+        """The trainee's level (the group a lab puts them in: expert, intermediate, ...; None: none)."""
+        self._trainee_id(trainee)
+        with self.db:
+            self.db.execute("UPDATE trainees SET level = ? WHERE name = ?", (level, trainee))
+
+    def add_benchmark(self, benchmark: Benchmark) -> int:
+        """Store a task's benchmark (it becomes the task's current one); returns its id."""
+        with self.db:
+            cursor = self.db.execute(
+                "INSERT INTO benchmarks(task, created, method, k, percentile, consecutive, experts, attempts) "
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (
+                    benchmark.task,
+                    _now(),
+                    benchmark.method,
+                    benchmark.k,
+                    benchmark.percentile,
+                    benchmark.consecutive,
+                    json.dumps(benchmark.experts),
+                    benchmark.attempts,
+                ),
+            )
+            benchmark_id = int(cursor.lastrowid)
+            self.db.executemany(
+                "INSERT INTO benchmark_thresholds VALUES (?, ?, ?, ?, ?, ?, ?)",
+                [(benchmark_id, t.metric, t.better, t.mean, t.sd, t.value, t.n) for t in benchmark.thresholds.values()],
+            )
+        return benchmark_id
+
     # ------------------------------------------------------------------ reading
-    def trainees(self) -> list[str]:
-        return [r[0] for r in self.db.execute("SELECT name FROM trainees ORDER BY name")]
+    def trainees(self, task: str | None = None) -> list[str]:
+        """Every trainee, or those with an attempt at ``task``, by name."""
+        if task is None:
+            return [r[0] for r in self.db.execute("SELECT name FROM trainees ORDER BY name")]
+        rows = self.db.execute(
+            "SELECT DISTINCT name FROM trainees JOIN attempts ON trainees.id = trainee_id WHERE task = ? ORDER BY name",
+            (task,),
+        )
+        return [r[0] for r in rows]
+
+    def all_tasks(self) -> list[str]:
+        return [r[0] for r in self.db.execute("SELECT DISTINCT task FROM attempts ORDER BY task")]
+
+    def levels(self) -> dict[str, str | None]:
+        """Each trainee's level."""
+        return dict(self.db.execute("SELECT name, level FROM trainees ORDER BY name").fetchall())
 
     def tasks(self, trainee: str) -> list[str]:
         self._trainee_id(trainee)
@@ -224,18 +272,20 @@ class TraineeRecord:
         for row in cursor:
             entry = dict(zip(names, row, strict=True))
             entry["events"] = json.loads(entry["events"] or "[]")
+            entry["assessment"] = json.loads(entry["assessment"] or "{}")
             out.append(entry)
         return out
 
     def samples(self, attempt_id: int) -> dict[str, np.ndarray]:
+        """The attempt's samples as arrays (SI; NaN where a version-1 attempt has no lateral or insertion)."""
         rows = np.array(
             self.db.execute(
-                "SELECT t, x, y, z, deviation_m, progress_m, clearance_m, critical FROM samples "
-                "WHERE attempt_id = ? ORDER BY i",
+                "SELECT t, x, y, z, deviation_m, progress_m, clearance_m, critical, lateral_u_m, lateral_v_m, "
+                "insertion_m FROM samples WHERE attempt_id = ? ORDER BY i",
                 (attempt_id,),
             ).fetchall(),
             dtype=float,
-        ).reshape(-1, 8)
+        ).reshape(-1, 11)
         return {
             "t": rows[:, 0],
             "tip": rows[:, 1:4],
@@ -243,7 +293,60 @@ class TraineeRecord:
             "progress": rows[:, 5],
             "clearance": rows[:, 6],
             "critical": rows[:, 7].astype(bool),
+            "lateral": rows[:, 8:10],
+            "insertion": rows[:, 10],
         }
+
+    def metrics(self, attempt_id: int) -> dict[str, float]:
+        """The attempt's metrics (those it has), by name."""
+        return dict(self.db.execute("SELECT metric, value FROM attempt_metrics WHERE attempt_id = ?", (attempt_id,)))
+
+    def history(self, trainee: str, task: str) -> list[dict[str, Any]]:
+        """The trainee's attempts at the task (oldest first): the attempts table's columns, ``n`` (1-based)
+        and ``metrics`` (by name)."""
+        out = []
+        for n, attempt in enumerate(self.attempts(trainee, task), start=1):
+            attempt["n"] = n
+            attempt["metrics"] = self.metrics(attempt["id"])
+            out.append(attempt)
+        return out
+
+    def attempt(self, attempt_id: int) -> dict[str, Any] | None:
+        cursor = self.db.execute(
+            "SELECT attempts.*, trainees.name AS trainee FROM attempts JOIN trainees ON trainees.id = trainee_id "
+            "WHERE attempts.id = ?",
+            (attempt_id,),
+        )
+        row = cursor.fetchone()
+        return None if row is None else dict(zip([d[0] for d in cursor.description], row, strict=True))
+
+    def benchmark(self, task: str) -> Benchmark | None:
+        """The task's current benchmark (the latest set), or None."""
+        cursor = self.db.execute("SELECT * FROM benchmarks WHERE task = ? ORDER BY id DESC LIMIT 1", (task,))
+        row = cursor.fetchone()
+        if row is None:
+            return None
+        b = dict(zip([d[0] for d in cursor.description], row, strict=True))
+        thresholds = {
+            metric: Threshold(metric, better, mean, sd, value, n)
+            for metric, better, mean, sd, value, n in self.db.execute(
+                "SELECT metric, better, mean, sd, threshold, n FROM benchmark_thresholds WHERE benchmark_id = ?",
+                (b["id"],),
+            )
+        }
+        order = list(METRIC_BY_NAME)
+        return Benchmark(
+            task=b["task"],
+            method=b["method"],
+            k=b["k"],
+            percentile=b["percentile"],
+            consecutive=b["consecutive"],
+            experts=json.loads(b["experts"]),
+            attempts=b["attempts"],
+            thresholds=dict(sorted(thresholds.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99)),
+            id=b["id"],
+            created=b["created"],
+        )
 
     def proficiency(self, trainee: str, task: str, percentile: float = 95.0, last: int | None = None) -> Proficiency:
         """d_thresh from the trainee's recorded deviations on the task (see the module docstring)."""
@@ -264,6 +367,10 @@ class TraineeRecord:
             deviation_median=float(np.median(deviation)),
             deviation_max=float(deviation.max()),
         )
+
+
+def _nullable(values: np.ndarray) -> list[float | None]:
+    return [v if np.isfinite(v) else None for v in np.asarray(values, float).tolist()]
 
 
 def _now() -> str:

@@ -15,7 +15,9 @@ parameters (all overridable):
   paper 000's d_thresh for the level (1, 4 and 8 mm: 2.45 standard
   deviations of a Rayleigh distribution);
 * ``hesitation_rate`` (per s) and ``hesitation`` (s): pauses start at random
-  (Poisson) and last an exponentially distributed time of that mean;
+  (Poisson) and last an exponentially distributed time of that mean; while
+  hesitating the hand holds still (neither progress nor drift), and its
+  drift starts again from rest;
 * ``rate`` (Hz): samples per second.
 
 The values are plausible for a laparoscopic box trainer (tens of mm/s,
@@ -32,6 +34,8 @@ from pydantic import Field, NonNegativeFloat, PositiveFloat
 
 from ..models import StrictModel
 from ..units import Length, PositiveLength
+from .analysis import Guide
+from .source import PoseSample
 
 #: parameters per level (SI)
 LEVELS: dict[str, dict[str, float]] = {
@@ -96,9 +100,14 @@ def synthetic_attempt(tips: np.ndarray, model: TraineeModel) -> tuple[np.ndarray
         points.append(np.asarray(along) + max(fade, 0.0) * lateral)
         if s >= length:
             break
+        still = t < paused_until  # hesitating: the hand holds still, its drift too (the noise is drawn all the same)
         for _ in range(substeps):
-            velocity += h * (-2 * omega * velocity - omega**2 * offset + drive * rng.normal(0.0, 1.0, 3))
-            offset = offset + h * velocity
+            kick = rng.normal(0.0, 1.0, 3)
+            if not still:
+                velocity += h * (-2 * omega * velocity - omega**2 * offset + drive * kick)
+                offset = offset + h * velocity
+        if still:
+            velocity = np.zeros(3)
         factor = factor * decay + rng.normal(0.0, model.speed_variation * noise)
         if t >= paused_until and pause_rate > 0 and rng.random() < pause_rate * dt:
             paused_until = t + rng.exponential(pause_mean)
@@ -106,3 +115,13 @@ def synthetic_attempt(tips: np.ndarray, model: TraineeModel) -> tuple[np.ndarray
             s = min(length, s + speed * max(0.1, 1.0 + factor) * dt)
         t += dt
     return np.asarray(times), np.asarray(points)
+
+
+def follow(guide: Guide, model: TraineeModel) -> Guide:
+    """A synthetic trainee's attempt measured by ``guide`` sample by sample (tip positions), as fast as it runs;
+    returns the guide, its events finished."""
+    times, tips = synthetic_attempt(guide.tips, model)
+    for t, tip in zip(times, tips, strict=True):
+        guide.measure(PoseSample(float(t), tip=tip))
+    guide.finish()
+    return guide

@@ -269,7 +269,7 @@ def plan_figure(path: Path, scene: Scene, view: PathView, *, unit: str, unit_sca
     fig.suptitle(view.title or view.label, fontsize=11)
     fig.tight_layout(rect=(0, 0.08, 1, 1))
     _legend(fig, scene, [view], unit, k)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def overview_figure(
@@ -290,10 +290,11 @@ def overview_figure(
         fig.suptitle(title, fontsize=12)
     fig.tight_layout(rect=(0, 0.6 / (4.6 * rows + 0.6), 1, 1))
     _legend(fig, panels[0][0], [v for _, v in panels], unit, k, top_view=False)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
-def _save(fig, path: Path) -> None:
+def save_figure(fig, path: Path) -> None:
+    """Write ``fig`` to ``path`` as a PNG (110 dpi) atomically, and close it."""
     try:
         with atomic_write(path, "wb") as handle:
             fig.savefig(handle, format="png", dpi=110)

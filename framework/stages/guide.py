@@ -8,7 +8,9 @@
       path_from: beginner              # the plan stage whose path is recommended (default: the last one)
       settings: {level: beginner, seed: 3}
       guidance: {deviation_tolerance: 4 mm}        # surgiplan.guidance.GuidanceSettings
-      trainee: {name: alice, task: block-world}    # record the attempt (optional)
+      assessment: {idle_speed: 2, weights: {safety: 0.4}}   # surgiplan.guidance.metrics.AssessmentSettings
+      trainee: {name: alice, task: block-world, level: beginner}   # record the attempt (optional)
+      ghost: {trainee: ann, attempt: best}         # show an expert's recorded attempt beside the trainee
 
 The source runs in a thread of its own and hands samples over a queue: the
 stage measures each as it arrives (:class:`~surgiplan.guidance.analysis.Guide`)
@@ -19,7 +21,11 @@ reason). Per-sample latency is from the moment the source produced the sample
 to the end of its analysis.
 
 Writes ``<stage>.png`` and ``<stage>-samples.csv``; with ``trainee:``, the
-attempt goes into the trainee record in one transaction.
+attempt (samples and metrics) goes into the trainee record in one transaction,
+and when the task has a proficiency benchmark the stage's metrics say where
+the trainee stands at its gate. With ``ghost:``, each sample carries the
+expert's position at the same progress along their own recommended path
+(:mod:`surgiplan.guidance.ghost`), on the live feed and in the report.
 """
 
 from __future__ import annotations
@@ -36,9 +42,12 @@ import numpy as np
 from pydantic import Field
 
 from ..clearance import ClearanceThreshold, intervals, threshold_value
-from ..errors import StageError, SurgiplanError
+from ..errors import StageError, SurgiplanError, choices_hint
 from ..guidance.analysis import GuidanceSettings, Guide
-from ..guidance.record import TraineeRecord
+from ..guidance.assessment import record_attempt
+from ..guidance.ghost import GhostKeys, load_ghost
+from ..guidance.metrics import AssessmentSettings
+from ..guidance.record import RecordError, TraineeRecord
 from ..guidance.report import attempt_figure, write_samples_csv
 from ..guidance.source import GuideContext, PoseSample, PoseSource, SourceStopped
 from ..hookspecs import PluginSpec, hookspec
@@ -75,6 +84,8 @@ class TraineeKeys(StrictModel):
 
     name: str = Field(min_length=1)
     task: str = Field(min_length=1)
+    #: the trainee's level (the group a lab puts them in: expert, intermediate, beginner, ...), kept in the record
+    level: str | None = Field(default=None, min_length=1)
 
 
 class GuideStageModel(PathStageModel):
@@ -82,13 +93,20 @@ class GuideStageModel(PathStageModel):
 
     #: the analysis (surgiplan.guidance.GuidanceSettings, validated once the file's unit is known)
     guidance: dict[str, Any] | None = None
+    #: the skill metrics and score (surgiplan.guidance.metrics.AssessmentSettings, in the file's unit)
+    assessment: dict[str, Any] | None = None
     trainee: TraineeKeys | None = None
+    ghost: GhostKeys | None = None
 
 
 @dataclass
 class GuideSpec(PathStageSpec):
     guidance: GuidanceSettings | None = None
+    assessment: AssessmentSettings | None = None
+    #: the assessment's port, resolved (m)
+    port: np.ndarray | None = None
     trainee: TraineeKeys | None = None
+    ghost: GhostKeys | None = None
 
 
 _END = object()
@@ -140,6 +158,11 @@ def _check_sample(sample: Any, index: int, previous_t: float, space) -> str:
     return ""
 
 
+def _decimated(points: np.ndarray, most: int = 2000) -> list[list[float]]:
+    step = max(1, math.ceil(len(points) / most))
+    return np.concatenate([points[:-1:step], points[-1:]]).tolist()
+
+
 class _InvalidSample(SurgiplanError):
     """A sample the stage refuses (the stage becomes ``invalid_result``)."""
 
@@ -168,10 +191,60 @@ class GuideKind(StageKind):
                 *where,
                 "threshold",
             )
+        spec.assessment = validate_model(
+            AssessmentSettings,
+            spec.keys.assessment or {},
+            file=files.file,
+            lines=files.lines,
+            prefix=("pipeline", spec.index, "assessment"),
+            context=files.validation,
+        )
         spec.trainee = spec.keys.trainee
+        spec.ghost = spec.keys.ghost
+        if spec.ghost is not None and spec.ghost.task is None and spec.trainee is None:
+            raise files.error(
+                "ghost needs a task: give ghost.task, or a trainee: block", "pipeline", spec.index, "ghost"
+            )
 
     def check(self, spec: GuideSpec, files: FileContext) -> None:
         resolve_path_from(spec, files, "whose path it recommends")
+        port = spec.assessment.port
+        if isinstance(port, str):
+            if files.scene is None:
+                return
+            if port not in files.scene.points:
+                raise files.error(
+                    f"no point named '{port}' in the scene; {choices_hint(port, list(files.scene.points))}",
+                    *("pipeline", spec.index, "assessment", "port"),
+                )
+            spec.port = np.asarray(files.scene.points[port], float)
+        elif port is not None:
+            spec.port = np.asarray(port, float)
+        if spec.ghost is not None:
+            self._check_ghost(spec, files)
+
+    @staticmethod
+    def _check_ghost(spec: GuideSpec, files: FileContext) -> None:
+        """The ghost's attempt is in the record now, or an earlier guide stage of the pipeline records one (it is
+        read when the stage runs)."""
+        from ..guidance.ghost import choose_attempt
+        from ..validation import RECORD_KEY
+
+        task = spec.ghost.task or spec.trainee.task
+        for earlier in files.earlier:
+            keys = getattr(earlier, "trainee", None)
+            if earlier.index < spec.index and keys is not None and (keys.name, keys.task) == (spec.ghost.trainee, task):
+                if spec.ghost.attempt in ("best", "last", "first"):
+                    return
+        path = Path(files.validation.get(RECORD_KEY) or "out/trainees.sqlite")
+        where = ("pipeline", spec.index, "ghost")
+        if not path.is_file():
+            raise files.error(f"no trainee record at {path} to take the ghost from (see record:)", *where)
+        try:
+            with TraineeRecord(path) as record:
+                choose_attempt(record, spec.ghost, task)
+        except RecordError as exc:
+            raise files.error(exc.message, *where) from None
 
     def run(self, run: StageRun) -> StageResult:
         source = planned(run, minimum=2)
@@ -192,7 +265,16 @@ class GuideKind(StageKind):
             critical,
             settings,
             unit=context.length_unit,
+            assessment=spec.assessment,
+            port=spec.port,
         )
+        ghost = None
+        if spec.ghost is not None:
+            try:
+                with TraineeRecord(run.state.record) as record:
+                    ghost = load_ghost(record, spec.ghost, spec.ghost.task or spec.trainee.task)
+            except RecordError as exc:
+                raise StageError(f"ghost: {exc.message}", location=f"{spec.location}.ghost") from None
         gcontext = GuideContext(
             context,
             path,
@@ -215,6 +297,8 @@ class GuideKind(StageKind):
                 "recommended": guide.tips.tolist(),
                 "threshold": guide.threshold,
                 "critical": critical,
+                "deviation_tolerance": settings.deviation_tolerance,
+                **({"ghost": ghost.describe(), "ghost_path": _decimated(ghost.tips)} if ghost else {}),
             },
         )
         source = run.call("construction", spec.plugin.cls, spec.settings)
@@ -255,6 +339,8 @@ class GuideKind(StageKind):
                     received += 1
                     previous_t = float(item.t)
                     m, changes = guide.measure(item)
+                    if ghost is not None:
+                        m.ghost = ghost.at(m.progress / max(guide.length, 1e-12))
                     m.delay = time.perf_counter() - arrived
                     if live.active:
                         live.publish(
@@ -266,6 +352,10 @@ class GuideKind(StageKind):
                                 "clearance": m.clearance,
                                 "progress": m.progress,
                                 "critical": m.critical,
+                                "closest": m.closest.tolist(),
+                                **({"ghost": m.ghost.tolist()} if m.ghost is not None else {}),
+                                # when the sample arrived, on the wall clock (the viewer measures cue latency)
+                                "wall": time.time() - m.delay,
                             },
                         )
                         for what, event in changes:
@@ -312,35 +402,21 @@ class GuideKind(StageKind):
         warnings: list[str] = []
         files += run.recordings(source, warnings)  # e.g. the bus trace of a device the source ran
         if spec.trainee is not None:
-            ms = guide.measurements
-            samples = {
-                "t": np.array([m.t for m in ms]),
-                "tip": np.array([m.tip for m in ms]),
-                "deviation": np.array([m.deviation for m in ms]),
-                "progress": np.array([m.progress for m in ms]),
-                "clearance": np.array([m.clearance for m in ms]),
-                "critical": np.array([m.critical for m in ms]),
-            }
-            record_path = run.state.record
-            with TraineeRecord(record_path) as record:
-                attempt_id = record.add_attempt(
-                    spec.trainee.name,
-                    spec.trainee.task,
-                    metrics,
-                    [e.to_json() for e in events],
-                    samples,
-                    status=status.value,
-                    pipeline=run.state.pipeline_name,
-                    stage=spec.name,
-                    source=spec.plugin.name,
-                    output_dir=str(out),
-                )
-            metrics["record"] = {
-                "path": str(record_path),
-                "attempt": attempt_id,
-                "trainee": spec.trainee.name,
-                "task": spec.trainee.task,
-            }
+            metrics["record"] = record_attempt(
+                run.state.record,
+                spec.trainee,
+                guide,
+                metrics,
+                events,
+                status=status.value,
+                pipeline=run.state.pipeline_name,
+                stage=spec.name,
+                source=spec.plugin.name,
+                output_dir=str(out),
+            )
+            gate = metrics["record"].pop("gate")
+            if gate is not None:
+                metrics["gate"] = gate
         live.publish("status", {"status": status.value, "message": message})
         tips = np.array([m.tip for m in guide.measurements])
         annotations = {
@@ -349,6 +425,9 @@ class GuideKind(StageKind):
             "path_from": spec.path_from,
             "recommended_tips": guide.tips.tolist(),
         }
+        if ghost is not None:
+            annotations["ghost"] = {**ghost.describe(), "tips": _decimated(ghost.tips)}
+            metrics["ghost"] = ghost.describe()
         return run.result(
             status.value,
             path=tips,
@@ -378,12 +457,15 @@ class GuideKind(StageKind):
             return []
         events = m.get("events") or {}
         listed = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in events.items() if n)
-        return [
+        lines = [
             f"score {m['score']:.0f}",
             f"deviation rms {m['deviation_rms_m'] * k:.3g} {unit}, max {m['deviation_max_m'] * k:.3g} {unit}",
             f"events: {listed or 'none'}",
             f"{m.get('duration_s', 0):.3g} s",
         ]
+        if isinstance(m.get("gate"), dict):
+            lines.append(f"gate {m['gate'].get('status', '')}")
+        return lines
 
     def report(self, stage, entry, inputs) -> None:
         motion_report(stage, entry, inputs)

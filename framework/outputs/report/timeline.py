@@ -1,8 +1,10 @@
 """What the report draws of a motion over time (execute and guide stages).
 
 Data contract: ``annotations["timeline"] = {"t": [...], "tip": [[x, y, z], ...], "commanded"?: [[...]],
-"clearance"?: [...], "deviation"?: [...], "events"?: [{"t", "kind", "message"}]}`` (SI). Without a timeline an
-execute stage falls back to ``<stage>-execution.csv`` (columns ``t_s``, ``tip_x_m``, ``tip_y_m``,
+"ghost"?: [[...]], "clearance"?: [...], "deviation"?: [...], "events"?: [{"t", "kind", "message"}]}`` (SI);
+``ghost`` is where an expert's recorded attempt was at each sample's progress, and ``annotations["ghost"] =
+{"trainee", "attempt", "score", "tips": [[x, y, z], ...]}`` says whose (a guide stage with ``ghost:``).
+Without a timeline an execute stage falls back to ``<stage>-execution.csv`` (columns ``t_s``, ``tip_x_m``, ``tip_y_m``,
 ``tip_z_m``, ...) and then to its executed path.
 
 Zones a device keeps the motion in or out of (a vehicle's geofence): ``annotations["zones"] = [{"name",
@@ -49,7 +51,7 @@ def timeline_data(out: Path, entry: Mapping[str, Any], notes: Notes, scene=None)
         tip = as_array(timeline.get("tip"), 3)
         if t is not None and tip is not None and t.ndim == 1 and len(t) == len(tip) and len(t):
             source = "timeline"
-            for key in ("commanded",):
+            for key in ("commanded", "ghost"):
                 value = as_array(timeline.get(key), 3)
                 if value is not None and len(value) == len(t):
                     series[key] = value
@@ -141,6 +143,16 @@ def motion_report(stage: dict[str, Any], entry: Mapping[str, Any], inputs) -> No
     stage["zones"] = zones_data(annotations, inputs.notes, stage["name"])
     source = getattr(spec, "path_from", None) or entry.get("path_from") or annotations.get("path_from")
     reference = inputs.entries.get(source) if isinstance(source, str) else None
+    ghost = annotations.get("ghost")
+    if isinstance(ghost, Mapping):
+        tips = as_array(ghost.get("tips"), 3)
+        if tips is not None and len(tips) >= 2:
+            stage["ghost"] = {
+                "trainee": str(ghost.get("trainee", "")),
+                "attempt": ghost.get("attempt"),
+                "score": ghost.get("score"),
+                "tips": pack(tips),
+            }
     recommended = as_array(annotations.get("recommended_tips"), 3)
     if recommended is not None and len(recommended) >= 2:  # a guide stage records what it recommended
         stage["reference"] = {"name": str(source or "recommended"), "tips": pack(recommended)}

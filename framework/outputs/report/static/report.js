@@ -95,12 +95,18 @@
   scene.add(world);
 
   let dirty = true;
+  // the live view's 2D overlay: redrawn when a sample arrives, reprojected when the view changed (viewVersion)
+  let overlayDirty = false, drawOverlay = null, viewVersion = 0;
   function requestRender() {
     dirty = true;
+    viewVersion++;
   }
   function resize() {
     const w = Math.max(1, view.clientWidth), h = Math.max(1, view.clientHeight);
     renderer.setSize(w, h, false);
+    const overlayCanvas = document.getElementById("overlay");
+    overlayCanvas.width = renderer.domElement.width;
+    overlayCanvas.height = renderer.domElement.height;
     camera.aspect = w / h;
     camera.updateProjectionMatrix();
     requestRender();
@@ -116,6 +122,15 @@
   }
   const RED = colour("#d62728");
   const CRITICAL = colour("#ff7f0e");
+  const GHOST = "#17becf"; // the expert ghost
+  function lineGeometry(points) {
+    const g = new THREE.BufferGeometry();
+    g.setAttribute("position", new THREE.BufferAttribute(points, 3));
+    return g;
+  }
+  function ghostLabel(g) {
+    return `${g.trainee || "expert"}, attempt ${g.attempt}${typeof g.score === "number" ? ", score " + g.score.toFixed(0) : ""}`;
+  }
 
   // a tube along a polyline (n points), coloured per point; parallel-transported frames, `sides` around
   function tube(points, radius, colours, sides) {
@@ -428,6 +443,7 @@
       const tl = st.timeline;
       const t = decode(tl.t), tip = decode(tl.tip);
       const commanded = tl.commanded ? decode(tl.commanded) : null;
+      const expert = tl.ghost ? decode(tl.ghost) : null;
       const clearance = tl.clearance ? decode(tl.clearance) : null, deviation = tl.deviation ? decode(tl.deviation) : null;
       if (st.reference) {
         const ref = decode(st.reference.tips);
@@ -459,6 +475,20 @@
         ghost.userData = { kind: "commanded", stage: st.name, label: `${st.name}: commanded` };
         addLayer(st.name, "timeline", ghost);
       }
+      let expertMarker = null;
+      if (expert) {
+        // the expert ghost: an expert's recorded attempt, where they were at this sample's progress
+        const who = st.ghost ? ghostLabel(st.ghost) : "expert";
+        if (st.ghost) {
+          const path = new THREE.Line(lineGeometry(decode(st.ghost.tips)), new THREE.LineBasicMaterial({ color: colour(GHOST), transparent: true, opacity: 0.55 }));
+          path.userData = { kind: "ghost-path", stage: st.name };
+          addLayer(st.name, "ghost", path);
+        }
+        expertMarker = sphere([expert[0], expert[1], expert[2]], 4.5 * R, GHOST, { transparent: true, opacity: 0.8, depthWrite: false });
+        expertMarker.userData = { kind: "ghost", stage: st.name, label: `${st.name}: expert ghost (${who})` };
+        pickable.push(expertMarker);
+        addLayer(st.name, "ghost", expertMarker);
+      }
       const series = [];
       if (clearance) series.push({ name: "clearance", unit: "m", values: clearance, colour: "#2ca02c", threshold: st.threshold });
       if (deviation) series.push({ name: "deviation", unit: "m", values: deviation, colour: "#9467bd" });
@@ -469,11 +499,13 @@
           i = Math.max(0, Math.min(t.length - 1, i | 0));
           marker.position.set(tip[3 * i], tip[3 * i + 1], tip[3 * i + 2]);
           if (ghost) ghost.position.set(commanded[3 * i], commanded[3 * i + 1], commanded[3 * i + 2]);
+          if (expertMarker) expertMarker.position.set(expert[3 * i], expert[3 * i + 1], expert[3 * i + 2]);
           trailGeometry.setDrawRange(0, i + 1);
           requestRender();
           return {
             index: i, t: t[i], tip: [tip[3 * i], tip[3 * i + 1], tip[3 * i + 2]],
             commanded: commanded ? [commanded[3 * i], commanded[3 * i + 1], commanded[3 * i + 2]] : null,
+            ghost: expert ? [expert[3 * i], expert[3 * i + 1], expert[3 * i + 2]] : null,
             clearance: clearance ? clearance[i] : null, deviation: deviation ? deviation[i] : null,
           };
         },
@@ -517,6 +549,7 @@
       el("span", { class: "sw", style: "background:#ff7f0e;opacity:.6" }), "critical region",
       el("span", { class: "sw", style: "background:#2b2b2b" }), "start",
       el("span", { class: "sw", style: "background:#d4a017" }), "goal");
+    if (stages.some((st) => st.ghost)) L.append(el("span", { class: "sw", style: `background:${GHOST}` }), "expert ghost");
   }
 
   // ------------------------------------------------------------------ the time bar
@@ -669,7 +702,7 @@
 
   // ------------------------------------------------------------------ the API (console, tests)
   function countDrawn() {
-    const c = { obstacles: 0, paths: 0, points: 0, critical_regions: 0, roadmaps: 0, roadmap_edges: 0, path_sets: 0, stored_paths: 0, meshes: 0, mesh_triangles: 0, timelines: 0, zones: 0 };
+    const c = { obstacles: 0, paths: 0, points: 0, critical_regions: 0, roadmaps: 0, roadmap_edges: 0, path_sets: 0, stored_paths: 0, meshes: 0, mesh_triangles: 0, timelines: 0, ghosts: 0, zones: 0 };
     world.traverse((o) => {
       const u = o.userData;
       if (u.kind === "obstacle") c.obstacles++;
@@ -680,6 +713,7 @@
       else if (u.kind === "pathset") { c.path_sets++; c.stored_paths += u.count; }
       else if (u.kind === "mesh") { c.meshes++; c.mesh_triangles += u.triangles; }
       else if (u.kind === "instrument") c.timelines++;
+      else if (u.kind === "ghost") c.ghosts++;
       else if (u.kind === "zone") c.zones++;
     });
     S.counts = c;
@@ -689,6 +723,7 @@
     if (c.path_sets) parts.push(`${c.stored_paths.toLocaleString("en")} stored paths`);
     if (c.meshes) parts.push(`${c.meshes} tissue meshes (${c.mesh_triangles.toLocaleString("en")} triangles)`);
     if (c.timelines) parts.push(`${c.timelines} timelines`);
+    if (c.ghosts) parts.push(`${c.ghosts} expert ghost${c.ghosts > 1 ? "s" : ""}`);
     if (c.zones) parts.push(`${c.zones} geofence zones`);
     document.getElementById("counts").textContent = parts.join(", ");
     return c;
@@ -712,9 +747,19 @@
   S.renderedFrames = () => S.frames;
 
   // ------------------------------------------------------------------ render loop
-  let liveDirty = false;
+  let liveDirty = false, deferred = false;
+  const PIXEL = new Uint8Array(4);
+  const overlay = document.getElementById("overlay");
   function loop() {
     requestAnimationFrame(loop);
+    if (LIVE && dirty && S.live.pending.length && drawOverlay && !deferred) {
+      // a sample waits: its cues first, on their own frame; the 3D view (slow without a GPU) on the next one
+      overlayDirty = false;
+      deferred = true;
+      cuesDrawn(drawOverlay(), false);
+      return;
+    }
+    deferred = false;
     if (playing && active) {
       const span = active.times[active.count - 1] - active.times[0];
       const seconds = (performance.now() - playStart) / 1000;
@@ -723,12 +768,30 @@
       setIndex(Math.min(i, active.count - 1));
       if (i >= active.count - 1 || (span <= 0)) playing = false;
     }
-    if (!dirty) return;
-    dirty = false;
-    renderer.render(scene, camera);
-    S.frames++;
+    let drew = false;
+    if (dirty) {
+      dirty = false;
+      renderer.render(scene, camera);
+      S.frames++;
+      drew = true;
+      if (!S.ready) { S.ready = true; S.loadMs = performance.now(); }
+    }
+    if (!LIVE) return;
+    if ((overlayDirty || drew) && drawOverlay) { overlayDirty = false; cuesDrawn(drawOverlay(), drew); }
+  }
+  // after the live view's overlay is drawn (at the instrument's pixel ``tip``): count the update, and each waiting
+  // sample's latency; with #latency the pixels are read back first, so they exist
+  function cuesDrawn(tip, drew) {
     if (liveDirty) { liveDirty = false; S.live.updates++; S.live.updateTimes.push(performance.now()); if (S.live.updateTimes.length > 4000) S.live.updateTimes.splice(0, 2000); }
-    if (!S.ready) { S.ready = true; S.loadMs = performance.now(); }
+    if (!S.live.pending.length) return;
+    if (S.live.measurePixels) {
+      if (tip) overlay.getContext("2d").getImageData(Math.max(0, tip[0] | 0), Math.max(0, tip[1] | 0), 1, 1);
+      if (drew) { const gl = renderer.getContext(); gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, PIXEL); }
+    }
+    const now = performance.timeOrigin + performance.now();
+    for (const wall of S.live.pending) S.live.cueLatency.push(now - 1000 * wall);
+    S.live.pending.length = 0;
+    if (S.live.cueLatency.length > 200000) S.live.cueLatency.splice(0, 100000);
   }
 
   // ------------------------------------------------------------------ header
@@ -768,12 +831,49 @@
   }
 
   // ------------------------------------------------------------------ the live view
-  S.live = { messages: 0, tips: 0, updates: 0, updateTimes: [], tipTimes: [], connected: false, stage: null, status: null, last: null, events: [], closed: false };
+  // The static scene (obstacles, the recommended path, the ghost's path) is drawn by WebGL, again only when the
+  // view changes; what moves with every sample (the trail, the instrument, and for a guide stage the trainee's
+  // cues: the instrument coloured by clearance, the deviation arrow to the closest path point, the expert ghost,
+  // the critical-region banner) is drawn on a 2D canvas over it, so a sample costs a few 2D strokes, not a 3D
+  // frame: without a GPU (software WebGL) that is what keeps the cues within a frame of their sample.
+  S.live = {
+    messages: 0, tips: 0, updates: 0, updateTimes: [], tipTimes: [], connected: false, stage: null, status: null,
+    last: null, events: [], closed: false, cue: null,
+    // cue latency (ms): from each sample's arrival at the stage (its "wall" clock time) to the end of the first frame
+    // drawn after the page got it; with #latency in the URL that frame is read back (getImageData), so it is in pixels
+    // and (arrivalLatency) to the page's handling of its message, so the page's own share can be told apart
+    pending: [], cueLatency: [], arrivalLatency: [], measurePixels: /latency/.test(location.hash),
+  };
+  const CUE_COLOURS = { clear: "#2ca02c", critical: "#f2b01e", below: "#d62728", contact: "#7f0000" };
+  const ARROW = "#9467bd", TRAIL = "#1f6fb4", INSTRUMENT = "#ff7f0e";
+  // a sample's clearance cue: contact, below d_thresh outside a critical region, in a critical region, clear
+  function clearanceClass(p, threshold) {
+    if (typeof p.clearance !== "number") return p.critical ? "critical" : "clear";
+    if (p.clearance <= 0) return "contact";
+    if (threshold && p.clearance < threshold && !p.critical) return "below";
+    return p.critical ? "critical" : "clear";
+  }
+
   function buildLive() {
     header(DATA.run);
     resize();
     frame("iso");
-    const liveStage = { name: "", trail: null, positions: new Float32Array(3 * 4096), n: 0, marker: null, reference: null, clearance: [], times: [], threshold: null };
+    const live = {
+      name: "", guide: false, threshold: null, tolerance: null, positions: new Float32Array(3 * 4096), n: 0,
+      projected: new Float32Array(2 * 4096), projectedN: 0, projectedFor: -1, reference: null, ghostPath: null,
+      clearance: [], times: [], criticalSince: null,
+    };
+    // the materials a stage's start adds, compiled now (tiny stand-ins drawn once): compiling their shaders when
+    // the stage starts would hold its first samples back by tens of milliseconds on software WebGL
+    const referenceMaterial = new THREE.MeshLambertMaterial({ color: colour("#555555"), transparent: true, opacity: 0.5, depthWrite: false });
+    const ghostPathMaterial = new THREE.LineBasicMaterial({ color: colour(GHOST), transparent: true, opacity: 0.55 });
+    const warm = new THREE.Group();
+    warm.add(new THREE.Mesh(tube(new Float32Array([0, 0, 0, 1e-9, 0, 0]), 1e-10, null, 8), referenceMaterial));
+    warm.add(new THREE.Line(lineGeometry(new Float32Array([0, 0, 0, 1e-9, 0, 0])), ghostPathMaterial));
+    world.add(warm);
+    const overlay = document.getElementById("overlay"), octx = overlay.getContext("2d");
+    const trail = document.getElementById("trail"), tctx = trail.getContext("2d");
+    const banner = document.getElementById("cue-banner"), hud = document.getElementById("cue-hud");
     const info = el("div", { class: "message", id: "live-info" }, "waiting for a running stage…");
     document.getElementById("stages").append(el("details", { class: "stage", open: "" }, el("summary", {}, "live"), info, el("div", { id: "live-events" })));
     timebar.style.display = "block";
@@ -781,63 +881,181 @@
     document.getElementById("play").style.display = "none";
     select.style.display = "none";
     const liveTs = { name: "live", kind: "timeline", count: 0, times: [], timeUnit: "s", series: [], events: [], set() { return {}; } };
-    function ensureTrail() {
-      if (liveStage.trail) return;
-      const g = new THREE.BufferGeometry();
-      g.setAttribute("position", new THREE.BufferAttribute(liveStage.positions, 3));
-      g.setDrawRange(0, 0);
-      liveStage.trail = new THREE.Line(g, new THREE.LineBasicMaterial({ color: colour("#1f6fb4") }));
-      liveStage.trail.userData = { kind: "trail" };
-      world.add(liveStage.trail);
-      liveStage.marker = sphere([0, 0, 0], 4.5 * R, "#ff7f0e");
-      liveStage.marker.userData = { kind: "instrument", label: "instrument" };
-      pickable.push(liveStage.marker);
-      world.add(liveStage.marker);
-    }
     function onStage(p) {
-      liveStage.name = p.name;
-      liveStage.n = 0;
-      liveStage.times = []; liveStage.clearance = []; liveStage.threshold = p.threshold || p.clearance_threshold || null;
-      liveTs.events = []; liveTs.series = [{ name: "clearance", unit: "m", values: liveStage.clearance, colour: "#2ca02c", threshold: liveStage.threshold }];
-      if (liveStage.reference) { world.remove(liveStage.reference); liveStage.reference = null; }
+      live.name = p.name;
+      live.n = live.projectedN = 0;
+      live.times = []; live.clearance = []; live.threshold = p.threshold || p.clearance_threshold || null;
+      live.guide = p.kind === "guide"; live.tolerance = p.deviation_tolerance || null; live.criticalSince = null;
+      liveTs.events = []; liveTs.series = [{ name: "clearance", unit: "m", values: live.clearance, colour: "#2ca02c", threshold: live.threshold }];
+      for (const key of ["reference", "ghostPath"]) if (live[key]) { world.remove(live[key]); live[key] = null; }
       if (p.recommended && p.recommended.length > 1) {
         const g = tube(new Float32Array(p.recommended.flat()), 0.8 * R, null, 8);
-        liveStage.reference = new THREE.Mesh(g, new THREE.MeshLambertMaterial({ color: colour("#555555"), transparent: true, opacity: 0.5, depthWrite: false }));
-        liveStage.reference.userData = { kind: "reference", label: `${p.kind === "guide" ? "recommended" : "planned"} path${p.path_from ? " (" + p.path_from + ")" : ""}` };
-        pickable.push(liveStage.reference);
-        world.add(liveStage.reference);
+        live.reference = new THREE.Mesh(g, referenceMaterial);
+        live.reference.userData = { kind: "reference", label: `${p.kind === "guide" ? "recommended" : "planned"} path${p.path_from ? " (" + p.path_from + ")" : ""}` };
+        pickable.push(live.reference);
+        world.add(live.reference);
       }
-      ensureTrail();
+      if (p.ghost_path && p.ghost_path.length > 1) {
+        live.ghostPath = new THREE.Line(lineGeometry(new Float32Array(p.ghost_path.flat())), ghostPathMaterial);
+        live.ghostPath.userData = { kind: "ghost-path", label: `expert ghost's path (${ghostLabel(p.ghost || {})})` };
+        world.add(live.ghostPath);
+      }
+      banner.style.display = hud.style.display = "none";
+      written.clear();
       S.live.stage = p;
+      S.live.cue = cueWaiting = null;
       info.textContent = `${p.kind || "stage"} ${p.name} (${p.plugin || ""}) running`;
       active = liveTs;
       requestRender();
     }
-    function onTip(p) {
-      ensureTrail();
-      if (3 * (liveStage.n + 1) > liveStage.positions.length) {
-        const bigger = new Float32Array(liveStage.positions.length * 2);
-        bigger.set(liveStage.positions);
-        liveStage.positions = bigger;
-        liveStage.trail.geometry.setAttribute("position", new THREE.BufferAttribute(bigger, 3));
+    // the cues' DOM (banner, numbers): built once, its text and colours written at most once a frame and only
+    // when they change (a style and layout pass per sample would hold the page's messages back)
+    const hudText = [document.createTextNode(""), document.createTextNode(""), document.createTextNode("expert ghost")];
+    const hudSwatch = [el("span", { class: "sw" }), el("span", { class: "sw", style: `background:${ARROW}` }), el("span", { class: "sw", style: `background:${GHOST}` })];
+    const hudGhost = el("span", {}, el("br"), hudSwatch[2], hudText[2]);
+    hud.append(hudSwatch[0], hudText[0], el("br"), hudSwatch[1], hudText[1], hudGhost);
+    let cueWaiting = null;
+    const written = new Map(); // what was last written where (a style reads back normalised: compare with this)
+    function assign(node, key, value) {
+      let was = written.get(node);
+      if (!was) written.set(node, (was = {}));
+      if (was[key] !== value) { node[key] = value; was[key] = value; }
+    }
+    function paintCues() {
+      const c = cueWaiting;
+      if (!c) return;
+      cueWaiting = null;
+      assign(banner, "textContent", c.banner);
+      assign(banner, "className", `cue-${c.style}`);
+      assign(banner.style, "display", c.banner ? "block" : "none");
+      assign(hud.style, "display", "block");
+      assign(hudSwatch[0].style, "background", c.colour);
+      assign(hudText[0], "data", c.clearanceText);
+      assign(hudText[1], "data", c.deviationText);
+      assign(hudGhost.style, "display", c.ghost ? "inline" : "none");
+    }
+    function cues(p) {
+      const kind = clearanceClass(p, live.threshold);
+      if (p.critical && live.criticalSince === null) live.criticalSince = p.t;
+      if (!p.critical) live.criticalSince = null;
+      let text = "", style = kind;
+      if (kind === "contact") text = "CONTACT: the instrument touches an obstacle";
+      else if (kind === "below") text = `too close: clearance ${len(p.clearance, 3)} below d_thresh ${len(live.threshold, 3)}`;
+      else if (p.critical) {
+        text = p.t - live.criticalSince < 1.5
+          ? "entering a critical region: no detour keeps d_thresh here; follow the path"
+          : "in a critical region: follow the path";
+      } else if (live.tolerance && p.deviation > live.tolerance) {
+        text = `off the path by ${len(p.deviation, 3)} (tolerance ${len(live.tolerance, 3)}): follow the arrow`;
+        style = "deviation";
       }
-      liveStage.positions.set(p.tip, 3 * liveStage.n);
-      liveStage.n++;
-      liveStage.trail.geometry.attributes.position.needsUpdate = true;
-      liveStage.trail.geometry.setDrawRange(0, liveStage.n);
-      liveStage.trail.geometry.computeBoundingSphere();
-      liveStage.marker.position.set(p.tip[0], p.tip[1], p.tip[2]);
-      liveStage.times.push(p.t);
-      liveStage.clearance.push(p.clearance === undefined ? NaN : p.clearance);
-      liveTs.times = liveStage.times; liveTs.count = liveStage.times.length;
+      S.live.cue = { clearance: kind, colour: CUE_COLOURS[kind], banner: text, closest: p.closest || null, ghost: p.ghost || null };
+      cueWaiting = {
+        ...S.live.cue, style, clearanceText: `clearance ${len(p.clearance, 3)}`, deviationText: `deviation ${len(p.deviation, 3)}`,
+      };
+    }
+    function onTip(p) {
+      if (3 * (live.n + 1) > live.positions.length) {
+        const bigger = new Float32Array(live.positions.length * 2);
+        bigger.set(live.positions);
+        live.positions = bigger;
+        const projected = new Float32Array(live.projected.length * 2);
+        projected.set(live.projected);
+        live.projected = projected;
+      }
+      live.positions.set(p.tip, 3 * live.n);
+      live.n++;
+      live.times.push(p.t);
+      live.clearance.push(p.clearance === undefined ? NaN : p.clearance);
+      liveTs.times = live.times; liveTs.count = live.times.length;
       S.live.tips++;
       S.live.tipTimes.push(performance.now());
       if (S.live.tipTimes.length > 4000) S.live.tipTimes.splice(0, 2000);
       S.live.last = p;
-      state = { stage: liveStage.name, index: liveTs.count - 1, t: p.t, tip: p.tip, clearance: p.clearance, deviation: p.deviation };
+      if (live.guide) cues(p);
+      if (typeof p.wall === "number" && S.live.pending.length < 20000) {
+        S.live.pending.push(p.wall);
+        S.live.arrivalLatency.push(performance.timeOrigin + performance.now() - 1000 * p.wall);
+        if (S.live.arrivalLatency.length > 200000) S.live.arrivalLatency.splice(0, 100000);
+      }
+      state = { stage: live.name, index: liveTs.count - 1, t: p.t, tip: p.tip, clearance: p.clearance, deviation: p.deviation };
       liveDirty = true;
-      requestRender();
+      overlayDirty = true;
     }
+    // the moving parts, on the 2D canvas over the 3D view (device pixels)
+    const v = new THREE.Vector3();
+    function project(p) {
+      v.set(p[0], p[1], p[2]).project(camera);
+      return v.z < 1 ? [((v.x + 1) / 2) * overlay.width, ((1 - v.y) / 2) * overlay.height] : null;
+    }
+    function disk(at, radius, fill, alpha) {
+      if (!at) return;
+      octx.globalAlpha = alpha;
+      octx.beginPath();
+      octx.arc(at[0], at[1], radius, 0, 2 * Math.PI);
+      octx.fillStyle = fill;
+      octx.fill();
+      octx.globalAlpha = 1;
+      octx.lineWidth = Math.max(1, radius / 5);
+      octx.strokeStyle = "#ffffff";
+      octx.stroke();
+    }
+    function arrow(a, b, width) {
+      if (!a || !b) return;
+      const dx = b[0] - a[0], dy = b[1] - a[1], length = Math.hypot(dx, dy);
+      if (length < 2) return;
+      const head = Math.min(4 * width, 0.6 * length), ux = dx / length, uy = dy / length;
+      octx.strokeStyle = octx.fillStyle = ARROW;
+      octx.lineWidth = width;
+      octx.lineCap = "round";
+      octx.beginPath();
+      octx.moveTo(a[0], a[1]);
+      octx.lineTo(b[0] - head * ux, b[1] - head * uy);
+      octx.stroke();
+      octx.beginPath();
+      octx.moveTo(b[0], b[1]);
+      octx.lineTo(b[0] - head * ux - 0.6 * head * uy, b[1] - head * uy + 0.6 * head * ux);
+      octx.lineTo(b[0] - head * ux + 0.6 * head * uy, b[1] - head * uy - 0.6 * head * ux);
+      octx.closePath();
+      octx.fill();
+    }
+    drawOverlay = function () {
+      paintCues();
+      octx.clearRect(0, 0, overlay.width, overlay.height);
+      const p = S.live.last;
+      if (!live.n || !p) return null;
+      const dpr = window.devicePixelRatio || 1;
+      // the trail: only its new segments, unless the view changed (then all of it, reprojected)
+      let from = Math.max(0, live.projectedN - 1);
+      if (live.projectedFor !== viewVersion || trail.width !== overlay.width || trail.height !== overlay.height) {
+        trail.width = overlay.width; trail.height = overlay.height;
+        tctx.clearRect(0, 0, trail.width, trail.height);
+        live.projectedFor = viewVersion;
+        live.projectedN = from = 0;
+      }
+      for (let i = live.projectedN; i < live.n; i++) {
+        const q = project([live.positions[3 * i], live.positions[3 * i + 1], live.positions[3 * i + 2]]);
+        live.projected[2 * i] = q ? q[0] : NaN; live.projected[2 * i + 1] = q ? q[1] : NaN;
+      }
+      live.projectedN = live.n;
+      tctx.strokeStyle = TRAIL;
+      tctx.lineWidth = 1.5 * dpr;
+      tctx.lineJoin = tctx.lineCap = "round";
+      tctx.beginPath();
+      let open = false;
+      for (let i = from; i < live.n; i++) {
+        const x = live.projected[2 * i], y = live.projected[2 * i + 1];
+        if (!isFinite(x)) { open = false; continue; }
+        if (open) tctx.lineTo(x, y); else { tctx.moveTo(x, y); open = true; }
+      }
+      tctx.stroke();
+      // the cues: the ghost, the instrument coloured by clearance, and on top the arrow to the closest path point
+      const tip = project(p.tip);
+      if (p.ghost) disk(project(p.ghost), 7 * dpr, GHOST, 0.85);
+      disk(tip, 6.5 * dpr, live.guide ? CUE_COLOURS[clearanceClass(p, live.threshold)] : INSTRUMENT, 1);
+      if (live.guide && p.closest) arrow(tip, project(p.closest), 3 * dpr);
+      return tip;
+    };
     let labelPending = false;
     function refreshLabel() {
       labelPending = false;
@@ -848,8 +1066,11 @@
       if (p.deviation !== undefined) text += ` · deviation ${len(p.deviation, 3)}`;
       text += ` · ${S.live.tips} samples`;
       label.textContent = text;
-      drawChart();
+      const now = performance.now();
+      if (now - chartAt > 200) { chartAt = now; drawChart(); } // the history, not a cue: 5 times a second is enough
+      else if (!chartPending) { chartPending = true; setTimeout(() => { chartPending = false; chartAt = performance.now(); drawChart(); }, 200); }
     }
+    let chartAt = 0, chartPending = false;
     function handle(msg) {
       S.live.messages++;
       const p = msg.payload || {};
@@ -872,7 +1093,7 @@
           break;
         case "status":
           S.live.status = p;
-          info.textContent = `${liveStage.name}: ${p.status}${p.message ? ": " + p.message : ""}`;
+          info.textContent = `${live.name}: ${p.status}${p.message ? ": " + p.message : ""}`;
           break;
         case "run_end":
           header(Object.assign({}, DATA.run, p));

@@ -1,0 +1,207 @@
+"""The trainee's cues in the live view: latency from a sample to the pixels that show it, in headless chromium.
+
+A guide stage follows a synthetic beginner paced in real time at 100 samples/s (a 20 s attempt) with an
+expert ghost, fed with ``surgiplan run --live`` into ``surgiplan view --live``; a headless chromium page
+(Debian's, software WebGL: no GPU) watches with ``#latency``. Every sample carries the wall-clock time at
+which it reached the stage from its source; the page records, for every sample, the time from then to the
+end of the first frame it drew after getting it, read back from the canvas (``getImageData``: the pixels
+exist), so each figure is sample to pixels: the stage's analysis, the feed, the viewer's relay, the
+page's handling and the drawing of the cues. Target: p99 under 50 ms.
+
+For scale, the same run with a websocket client in Python in place of the page: sample to arrival at a
+watcher (the stage, feed and relay alone). Medians and percentiles over every sample of ``--runs`` runs
+(default 3) and per run; the load average before and after is recorded (the machine is shared).
+
+    python benchmarks/bench_cues.py [--runs N] [--seconds S] [--quick]   (--quick: 1 run of 8 s, writes nothing)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from browser_support import Browser, start_live_view, wait_for  # noqa: E402
+from common import save, table  # noqa: E402
+
+SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
+PATH_MM = 190.0  # about the beginner's recommended path in the block world
+
+
+def pipeline(tmp: Path, name: str, guide: dict) -> Path:
+    data = {
+        "name": name,
+        "length_unit": "mm",
+        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
+        "record": str(tmp / "record.sqlite"),
+        "pipeline": [
+            {
+                "stage": "plan",
+                "name": "recommended",
+                "plugin": "safe_prm",
+                "settings": {"proficiency": "beginner", "milestones": 2000, "k": 15, "seed": 1},
+                "start": "entry",
+                "goal": "target",
+                "artifact": str(tmp / "roadmap.npz"),
+            },
+            {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "path_from": "recommended", **guide},
+        ],
+        "output": {"dir": str(tmp / name), "figures": False, "gltf": False},
+    }
+    path = tmp / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def run(path: Path, *extra: str) -> None:
+    done = subprocess.run([*SURGIPLAN, "run", str(path), "--quiet", *extra], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"{path}: {done.stderr}")
+
+
+def viewer() -> tuple[subprocess.Popen, str]:
+    return start_live_view(exit_after=600)
+
+
+def page_run(browser: Browser, attempt: Path) -> tuple[list[float], list[float]]:
+    """Sample-to-pixels latencies (ms) of one attempt watched by a page, and sample to the page's handling of it."""
+    process, url = viewer()
+    try:
+        page = browser.page(url + "#latency", ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
+        run(attempt, "--live", url.replace("http://", "ws://").rstrip("/") + "/feed")
+        wait_for(page, "surgiplan.live.status !== null && surgiplan.live.pending.length === 0", 60_000)
+        latencies = page.evaluate("surgiplan.live.cueLatency")
+        arrivals = page.evaluate("surgiplan.live.arrivalLatency")
+        problems = page.problems + page.evaluate("surgiplan.errors")
+        page.close()
+        if problems:
+            raise SystemExit(f"the page reported problems: {problems}")
+        return latencies, arrivals
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+def transport_run(attempt: Path) -> list[float]:
+    """Sample-to-arrival latencies (ms) at a websocket watcher in Python: the stage, the feed and the relay."""
+    from websockets.sync.client import connect
+
+    process, url = viewer()
+    port = url.split(":")[2].split("/")[0]
+    latencies: list[float] = []
+
+    def watch() -> None:
+        with connect(f"ws://127.0.0.1:{port}/watch", origin=f"http://127.0.0.1:{port}") as socket:
+            for _ in range(1_000_000):  # bounded; ends at the stage's status
+                message = json.loads(socket.recv(timeout=60))
+                now = time.time()
+                for item in message if isinstance(message, list) else [message]:
+                    if item["channel"] == "tip" and "wall" in item["payload"]:
+                        latencies.append(1000 * (now - item["payload"]["wall"]))
+                    if item["channel"] == "status":
+                        return
+
+    try:
+        thread = threading.Thread(target=watch, daemon=True)
+        thread.start()
+        time.sleep(1.0)
+        run(attempt, "--live", f"ws://127.0.0.1:{port}/feed")
+        thread.join(60)
+        return latencies
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+def summary(case: str, values: list[float], runs: int) -> dict:
+    a = np.asarray(values, float)
+    return {
+        "case": case,
+        "runs": runs,
+        "samples": len(a),
+        "median_ms": round(float(np.median(a)), 2),
+        "p95_ms": round(float(np.percentile(a, 95)), 2),
+        "p99_ms": round(float(np.percentile(a, 99)), 2),
+        "max_ms": round(float(a.max()), 2),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    runs, seconds = (1, 8.0) if args.quick else (args.runs, args.seconds)
+    load = os.getloadavg()
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        expert = {"settings": {"level": "expert", "seed": 1, "pace": 0}, "trainee": {"name": "ann", "task": "bw"}}
+        run(pipeline(tmp, "expert", expert))  # the ghost's attempt, and the roadmap stored for the runs below
+        guide = {
+            "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
+            "trainee": {"name": "eve", "task": "bw"},
+            "ghost": {"trainee": "ann"},
+        }
+        attempt = pipeline(tmp, "attempt", guide)
+        browser = Browser()
+        pooled, arrived, per_run = [], [], []
+        try:
+            for i in range(runs):
+                latencies, arrivals = page_run(browser, attempt)
+                pooled += latencies
+                arrived += arrivals
+                per_run.append(summary(f"page, run {i + 1}", latencies, 1))
+                print(table(per_run[-1:], list(per_run[-1])), flush=True)
+        finally:
+            browser.close()
+        transport = []
+        for _ in range(runs):
+            transport += transport_run(attempt)
+    rows = [
+        summary("sample to pixels (headless chromium, software WebGL)", pooled, runs),
+        summary("sample to the page's handling of its message (stage, feed, relay, page's queue)", arrived, runs),
+        summary("sample to a watcher in Python (stage, feed, relay)", transport, runs),
+        *per_run,
+    ]
+    print(table(rows, list(rows[0])))
+    if args.quick:
+        return
+    after = os.getloadavg()
+    notes = (
+        f"load average before {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f} and after {after[0]:.2f}/{after[1]:.2f}/"
+        f"{after[2]:.2f} (1/5/15 min; 2 cores, shared); 100 samples/s, {seconds:g} s attempts; target p99 < 50 ms"
+    )
+    chromium = subprocess.run(["chromium", "--version"], capture_output=True, text=True).stdout.strip()
+    print(
+        "wrote",
+        save(
+            "cues",
+            rows,
+            notes,
+            peers={
+                "chromium": {
+                    "version": chromium,
+                    "configuration": "headless, SwiftShader (no GPU), tests/browser_support.py",
+                }
+            },
+        ),
+    )
+
+
+if __name__ == "__main__":
+    main()
