@@ -269,3 +269,22 @@ def test_the_command_refuses_bad_input_clearly(cli):
     assert code == 2 and "--interface socketcan needs --channel" in err
     code, _, err = cli("canopen-conformance", "cast_gimbal", "--family", "XYZ")
     assert code == 2 and "unknown family or case xyz" in err and "Traceback" not in err
+
+
+def test_the_object_scan_gives_up_on_a_drive_that_is_gone(tmp_path):
+    """Nobody on the bus: the scan asks a few times, then counts the rest unanswered (bounded, not 1000 waits)."""
+    from surgiplan.plugins.devices.canopen.conformance.session import SILENT_RUN
+
+    eds = ROOT / "plugins/devices/cast_gimbal/eds/cast_gimbal_yaw.eds"
+    target = BusDrives("virtual", f"ctt-gone-{uuid.uuid4().hex[:8]}")
+    session = Session(target, [Drive("yaw", 1, eds)], Timing(sdo=0.05))
+    session.open()
+    sent = []
+    send = session.network.send_message
+    session.network.send_message = lambda can_id, data, remote=False: (sent.append(can_id), send(can_id, data, remote))
+    try:
+        found = session.upload_many({1: [(0x3000 + k, 0) for k in range(1000)]})
+    finally:
+        session.close()
+    assert len(found[1]) == 1000 and set(found[1].values()) == {-1}  # every request counted unanswered
+    assert sent.count(0x601) == SILENT_RUN  # asked SILENT_RUN times, then given up on (no retry pass either)

@@ -18,6 +18,9 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from . import standard as cia
 
+#: unanswered scan requests in a row after which a drive is given up on (:meth:`Session.upload_many`)
+SILENT_RUN = 5
+
 #: the node-ID this master's heartbeat uses (the drives' heartbeat consumers watch it)
 MASTER_ID = 0x7F
 
@@ -259,15 +262,28 @@ class Session:
         earlier request is not taken for the next one); a request left unanswered is sent once more, as
         canopen's SDO client retries (``SdoClient.MAX_RETRIES``), with a longer wait."""
         out: dict[int, dict] = {node_id: {} for node_id in requests}
-        self._upload_batches(requests, out, self.timing.sdo)
-        silent = {node_id: [key for key, code in found.items() if code == -1] for node_id, found in out.items()}
+        gone = self._upload_batches(requests, out, self.timing.sdo)
+        silent = {
+            node_id: [key for key, code in found.items() if code == -1]
+            for node_id, found in out.items()
+            if node_id not in gone
+        }
         if any(silent.values()):
             self._upload_batches(silent, out, 4 * self.timing.sdo)
         return out
 
-    def _upload_batches(self, requests: dict[int, list[tuple[int, int]]], out: dict[int, dict], timeout: float) -> None:
+    def _upload_batches(
+        self, requests: dict[int, list[tuple[int, int]]], out: dict[int, dict], timeout: float
+    ) -> set[int]:
+        """One pass; returns the nodes given up on: silent for ``SILENT_RUN`` requests in a row (a drive that
+        is gone is not asked thousands of times; its remaining requests count as unanswered)."""
         queues = {node_id: list(items) for node_id, items in requests.items() if items}
+        run = dict.fromkeys(queues, 0)
+        gone: set[int] = set()
         for _ in range(max((len(q) for q in queues.values()), default=0)):
+            for node_id in [n for n in queues if run[n] >= SILENT_RUN]:
+                gone.add(node_id)
+                out[node_id].update(dict.fromkeys(queues.pop(node_id), -1))
             batch = {node_id: q.pop(0) for node_id, q in queues.items() if q}
             if not batch:
                 break
@@ -290,8 +306,11 @@ class Session:
                 code = abort_of(frame.data)
                 data = frame.data[4 : 8 - ((frame.data[0] >> 2) & 3)]
                 out[node_id][batch[node_id]] = code if code is not None else data
+                run[node_id] = 0
             for node_id, _ in wanted.values():
                 out[node_id][batch[node_id]] = -1
+                run[node_id] += 1
+        return gone
 
     def send_raw(self, node_id: int, frame: bytes) -> None:
         self.nodes[node_id].sdo.send_request(bytes(frame))
