@@ -14,7 +14,6 @@ from surgiplan import PlanningProblem
 from surgiplan.geometry.shapes import Box
 from surgiplan.geometry.transforms import Pose
 from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
-from surgiplan.plugins.planners.safe_prm.roadmap import UnionFind
 from surgiplan.scene import Scene
 from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace, R3Space
 
@@ -182,22 +181,33 @@ def test_gimbal_space_keeps_the_whole_shaft_clear(block_world):
         assert shaft.min() >= 2 * MM - 2e-5  # dense sampling between certified motions
 
 
-def test_union_find_matches_scipy_components():
+def test_compiled_components_and_rows_match_scipy():
+    """The roadmaps' component labels and CSR rows (compiled) against scipy's connected_components and CSR."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
+    from surgiplan.plugins.planners.safe_prm.kernels import component_labels, csr_rows
 
     rng = np.random.default_rng(1)
     n = 300
-    edges = rng.integers(0, n, size=(250, 2))
-    uf = UnionFind(n)
-    for i, j in edges:
-        uf.union(int(i), int(j))
-    _, labels = connected_components(coo_matrix((np.ones(len(edges)), edges.T), shape=(n, n)), directed=False)
+    edges = np.unique(np.sort(rng.integers(0, n, size=(250, 2)), axis=1), axis=0)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    cost = rng.uniform(0.1, 1.0, len(edges))
+    mask = rng.uniform(size=len(edges)) < 0.7
+    labels, count = component_labels(n, edges, mask)
+    expected_count, expected = connected_components(
+        coo_matrix((np.ones(mask.sum()), edges[mask].T), shape=(n, n)), directed=False
+    )
+    assert count == expected_count
     for i, j in rng.integers(0, n, size=(2000, 2)):
-        assert uf.same(int(i), int(j)) == (labels[i] == labels[j])
-    seeded = UnionFind.from_labels(labels)
-    for i, j in rng.integers(0, n, size=(2000, 2)):
-        assert seeded.same(int(i), int(j)) == (labels[i] == labels[j])
+        assert (labels[i] == labels[j]) == (expected[i] == expected[j])
+    indptr, indices, data = csr_rows(n, edges, cost, mask, 1e-15)
+    i, j = edges[mask, 0], edges[mask, 1]
+    reference = coo_matrix((np.r_[cost[mask], cost[mask]], (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsr()
+    reference.sort_indices()
+    for row in range(n):
+        span, theirs = slice(indptr[row], indptr[row + 1]), slice(reference.indptr[row], reference.indptr[row + 1])
+        mine = sorted(zip(indices[span].tolist(), data[span].tolist(), strict=True))
+        assert mine == list(zip(reference.indices[theirs].tolist(), reference.data[theirs].tolist(), strict=True))
 
 
 def test_d_thresh_from_recorded_attempts(tmp_path):
