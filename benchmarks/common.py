@@ -53,6 +53,16 @@ def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
     }
 
 
+def package_version(name: str) -> str | None:
+    """An installed distribution's version (a peer's, for :func:`provenance`), or None."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
+
+
 def median_time(fn: Callable[[], object], repeat: int = 5, warmup: int = 1) -> tuple[float, list[float]]:
     """Median wall time (s) of ``fn()`` over ``repeat`` runs after ``warmup`` runs."""
     for _ in range(warmup):

@@ -213,7 +213,7 @@ def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, order, k, s
 
 
 @njit(**_FLAGS)
-def _nearest(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
+def k_s_nearest(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
     if points.shape[1] == 3:
         return _nearest_in_grid3(
             x[0], x[1], x[2], points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance
@@ -232,7 +232,7 @@ def k_s_neighbours(queries, points, origin, dims, cell, first, order, k, s):
     if k == 0 or points.shape[0] == 0:
         return index, distance, counts
     for i in range(m):
-        counts[i] = _nearest(queries[i], points, origin, dims, cell, first, order, k, s, -1, index[i], distance[i])
+        counts[i] = k_s_nearest(queries[i], points, origin, dims, cell, first, order, k, s, -1, index[i], distance[i])
     return index, distance, counts
 
 
@@ -250,7 +250,7 @@ def k_s_pairs(points, origin, dims, cell, first, order, k, s):
         where[order[e]] = e
     for i in range(n):
         e = where[i]
-        counts[i] = _nearest(points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance)
+        counts[i] = k_s_nearest(points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance)
     # bucket every pair by its lower index, then sort and deduplicate each bucket
     size = np.zeros(n + 1, dtype=np.int64)
     for i in range(n):

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from surgiplan.paths import certify_edges
 
-from .query_kernel import SAFE_EDGE, search_and_repair
+from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
 
 __all__ = ["LINK", "RISK", "SAFE", "QueryOutcome", "query"]
@@ -98,6 +98,51 @@ def _link_ends(
     return out
 
 
+def _link_euclidean(
+    ends: np.ndarray, roadmap: RoadmapPair, d_thresh: float, ends_slack: np.ndarray, ends_safe: np.ndarray
+) -> tuple[Links, Links, float, bool]:
+    """:func:`_link_ends` and :func:`_direct` in one compiled call, for a space with Euclidean motions; the space's
+    exact check decides only what the covering balls leave open."""
+    space = roadmap.space
+    grid = roadmap.grid
+    targets, owner, cost, free, keeps, direct, direct_free, direct_keeps = link_ends(
+        ends,
+        ends_slack,
+        ends_safe,
+        d_thresh,
+        grid.points,
+        grid.origin,
+        grid.dims,
+        grid.cell,
+        grid.first,
+        grid.order,
+        roadmap.k,
+        roadmap.s,
+        roadmap.slack,
+        roadmap.safe_flags,
+    )
+    free_ok = free == 1
+    open_free = free == 2
+    if open_free.any():
+        free_ok[open_free] = space.motion_is_clear(ends[owner[open_free]], roadmap.milestones[targets[open_free]], 0.0)
+    safe_ok = keeps == 1
+    open_safe = (keeps == 2) & free_ok
+    if open_safe.any():
+        safe_ok[open_safe] = space.motion_is_clear(
+            ends[owner[open_safe]], roadmap.milestones[targets[open_safe]], d_thresh
+        )
+    safe_ok &= free_ok
+    if direct_free == 2:
+        direct_free = int(space.motion_is_clear(ends[:1], ends[1:], 0.0)[0])
+    if direct_keeps == 2 and direct_free:
+        direct_keeps = int(space.motion_is_clear(ends[:1], ends[1:], d_thresh)[0])
+    links = []
+    for i in (0, 1):
+        mine = free_ok & (owner == i)
+        links.append(Links(targets[mine], cost[mine], safe_ok[mine]))
+    return links[0], links[1], (direct if direct_free else np.inf), bool(direct_free and direct_keeps)
+
+
 def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: float) -> tuple[int, float] | None:
     """The nearest safe milestone reachable from q by a collision-free motion (incremental spheres)."""
     space = roadmap.space
@@ -145,14 +190,19 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     n = roadmap.n
     timings: dict[str, float] = {}
     started = time.perf_counter()
-    ends = np.stack([start, goal])
+    ends = np.array((start, goal), dtype=float)
     clearance = space.clearance(ends)
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
-    start_links, goal_links = _link_ends(ends, roadmap, d_thresh, clearance, workspace, ends_safe)
-    direct_cost, direct_safe = _direct(
-        space, start, goal, np.minimum(clearance, workspace), ends_safe, d_thresh, roadmap.s
-    )
+    if space.euclidean_motions:
+        start_links, goal_links, direct_cost, direct_safe = _link_euclidean(
+            ends, roadmap, d_thresh, np.minimum(clearance, workspace), ends_safe
+        )
+    else:
+        start_links, goal_links = _link_ends(ends, roadmap, d_thresh, clearance, workspace, ends_safe)
+        direct_cost, direct_safe = _direct(
+            space, start, goal, np.minimum(clearance, workspace), ends_safe, d_thresh, roadmap.s
+        )
     # a start or goal in the risk region: project it into the safe region and link it back
     source, target = n, n + 1
     head: list[np.ndarray] = []
@@ -172,24 +222,28 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
 
     started = time.perf_counter()
     scaled = roadmap.scaled(ends)
-    with roadmap.workspace_lock() as work:
-        status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
-            *roadmap.kernel_arrays,
-            start_links.targets,
-            start_links.cost,
-            start_links.safe,
-            scaled[0],
-            goal_links.targets,
-            goal_links.cost,
-            goal_links.safe,
-            scaled[1],
-            ends_safe,
-            direct_cost,
-            direct_safe,
-            source,
-            target,
-            *work,
-        )
+    with roadmap.search_workspace() as work:
+        while True:
+            status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
+                *roadmap.kernel_arrays,
+                start_links.targets,
+                start_links.cost,
+                start_links.safe,
+                scaled[0],
+                goal_links.targets,
+                goal_links.cost,
+                goal_links.safe,
+                scaled[1],
+                ends_safe,
+                direct_cost,
+                direct_safe,
+                source,
+                target,
+                *work.arrays(),
+            )
+            if status != 3:
+                break
+            work.grow()  # more entries than the workspace holds: twice as many, and again
     timings["search_s"] = time.perf_counter() - started
     if status == 1:
         return QueryOutcome(

@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from .astar import search
+from .kernels import k_s_nearest
 
 #: edge kinds in the kernel's output
 SAFE_EDGE, RISK_EDGE = 0, 1
@@ -133,6 +134,7 @@ def search_and_repair(
     safe_indices,
     safe_data,
     scaled,
+    delta,
     safe,
     free_labels,
     free_count,
@@ -151,23 +153,21 @@ def search_and_repair(
     direct_safe,
     source,
     target,
-    stamp,
-    best,
-    heuristic,
+    node,
     parent,
-    closed,
-    end_stamp,
-    end_cost,
-    keys,
-    items,
-    position,
+    end,
+    head,
+    entry_node,
+    entry_key,
+    entry_next,
     generation,
     path,
 ):
     """Algorithms 2-4 from ``source`` to ``target`` (the start n / goal n+1, or a milestone a risky end was
     projected to). Returns (status, nodes, edge kinds, repairs, settled, avoided nodes, avoided offsets):
-    status 0 found, 1 start and goal in different components of R, 2 no path in R; the nodes of each risky
-    stretch a repair replaced are ``avoided[offsets[i]:offsets[i + 1]]``."""
+    status 0 found, 1 start and goal in different components of R, 2 no path in R, 3 the workspace ran out of
+    entries (grow it and ask again); the nodes of each risky stretch a repair replaced are
+    ``avoided[offsets[i]:offsets[i + 1]]``. ``delta`` and the arrays after ``target``: :func:`.astar.search`'s."""
     n = scaled.shape[0]
     every_start = np.ones(start_targets.shape[0], dtype=np.bool_)
     every_goal = np.ones(goal_targets.shape[0], dtype=np.bool_)
@@ -184,6 +184,7 @@ def search_and_repair(
         free_indices,
         free_data,
         scaled,
+        delta,
         source,
         start_targets,
         start_costs,
@@ -195,19 +196,18 @@ def search_and_repair(
         every_goal,
         goal_point,
         direct_cost,
-        stamp,
-        best,
-        heuristic,
+        node,
         parent,
-        closed,
-        end_stamp,
-        end_cost,
-        keys,
-        items,
-        position,
+        end,
+        head,
+        entry_node,
+        entry_key,
+        entry_next,
         generation,
         path,
     )
+    if count < 0:
+        return 3, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
     if count == 0:
         return 2, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
     core = path[:count].copy()
@@ -276,6 +276,7 @@ def search_and_repair(
                 safe_indices,
                 safe_data,
                 scaled,
+                delta,
                 core[l],
                 start_targets,
                 start_costs,
@@ -287,20 +288,19 @@ def search_and_repair(
                 goal_safe,
                 goal_point,
                 no_direct,
-                stamp,
-                best,
-                heuristic,
+                node,
                 parent,
-                closed,
-                end_stamp,
-                end_cost,
-                keys,
-                items,
-                position,
+                end,
+                head,
+                entry_node,
+                entry_key,
+                entry_next,
                 generation,
                 path,
             )
             settled += more
+            if sub < 0:
+                return 3, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
             if sub == 0:  # pragma: no cover - the same component guarantees a path
                 for k in range(l, m):
                     out[size] = core[k]
@@ -335,3 +335,118 @@ def search_and_repair(
         direct_safe,
     )
     return 0, result, result_kinds, repaired, settled, avoided[:avoided_size].copy(), offsets[: stretches + 1].copy()
+
+
+@njit(cache=True, nogil=True)
+def _covered(slack_a, slack_b, reach, margin):
+    """:func:`surgiplan.paths.certify_edges`'s rule for one motion: 1 covered by the two end balls, 0 an end
+    cannot keep ``margin``, 2 undecided (the space's exact check decides)."""
+    if margin <= 0:
+        if not (slack_a > 0 and slack_b > 0):
+            return 0
+    elif not (slack_a >= 0 and slack_b >= 0):
+        return 0
+    return 1 if slack_a + slack_b > reach else 2
+
+
+@njit(cache=True, nogil=True)
+def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell, first, order, k, s, slack, safe):
+    """The start's and goal's K-S neighbours and how their links are certified, for a space whose motions are
+    Euclidean (``Space.euclidean_motions``: the neighbour distance is the link's cost and speed bound).
+
+    ``ends`` (2, d); ``ends_slack`` and ``slack`` (per milestone): the clearance, at most the workspace slack.
+    Returns (targets, owner, cost, free, keeps d_thresh, direct cost, direct free, direct keeps d_thresh): the
+    decisions as :func:`_covered` gives them (1, 0, or 2: ask the space), the direct start-goal motion only when
+    within ``s`` (else its cost is inf)."""
+    kk = max(k, 1)
+    index = np.empty((2, kk), dtype=np.int64)
+    distance = np.empty((2, kk))
+    counts = np.zeros(2, dtype=np.int64)
+    for i in range(2):
+        counts[i] = k_s_nearest(ends[i], points, origin, dims, cell, first, order, k, s, -1, index[i], distance[i])
+    m = counts[0] + counts[1]
+    targets = np.empty(m, dtype=np.int64)
+    owner = np.empty(m, dtype=np.int64)
+    cost = np.empty(m)
+    free = np.empty(m, dtype=np.int8)
+    keeps = np.zeros(m, dtype=np.int8)
+    at = 0
+    for i in range(2):
+        for slot in range(counts[i]):
+            t = index[i, slot]
+            reach = distance[i, slot]
+            targets[at], owner[at], cost[at] = t, i, reach
+            free[at] = _covered(ends_slack[i], slack[t], reach, 0.0)
+            if free[at] != 0 and ends_safe[i] and safe[t]:
+                keeps[at] = (
+                    free[at]
+                    if d_thresh <= 0
+                    else _covered(ends_slack[i] - d_thresh, slack[t] - d_thresh, reach, d_thresh)
+                )
+            at += 1
+    total = 0.0
+    for j in range(ends.shape[1]):
+        diff = ends[1, j] - ends[0, j]
+        total += diff * diff
+    direct = np.sqrt(total)
+    direct_free = direct_keeps = 0
+    if direct <= s:
+        direct_free = _covered(ends_slack[0], ends_slack[1], direct, 0.0)
+        if direct_free != 0 and ends_safe[0] and ends_safe[1]:
+            direct_keeps = (
+                direct_free
+                if d_thresh <= 0
+                else _covered(ends_slack[0] - d_thresh, ends_slack[1] - d_thresh, direct, d_thresh)
+            )
+    else:
+        direct = np.inf
+    return targets, owner, cost, free, keeps, direct, direct_free, direct_keeps
+
+
+def _compile() -> None:
+    """Load (or compile) both kernels for the types :mod:`.query` passes, when this module is imported: no query
+    pays it (a fresh clone's first query included)."""
+    from .astar import Workspace
+    from .kernels import csr_rows, grid_build
+
+    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    edges = np.array([[0, 1]], dtype=np.int64)
+    every = np.ones(1, dtype=np.bool_)
+    rows = csr_rows(2, edges, np.ones(1), every, 1e-15)
+    labels = np.zeros(2, dtype=np.int64)
+    safe = np.ones(2, dtype=np.bool_)
+    origin, dims, first, order, ordered = grid_build(points, 1.0)
+    ends = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.0]])
+    targets, owner, cost, free, _, direct, _, _ = link_ends(
+        ends, np.ones(2), safe, 0.0, ordered, origin, dims, 1.0, first, order, 2, 2.0, np.ones(2), safe
+    )
+    work = Workspace(2, 16)
+    for source, target in ((2, 3), (0, 1)):
+        search_and_repair(
+            *rows,
+            *rows,
+            points,
+            0.1,
+            safe,
+            labels,
+            1,
+            labels,
+            1,
+            targets[owner == 0],
+            cost[owner == 0],
+            free[owner == 0] == 1,
+            ends[0],
+            targets[owner == 1],
+            cost[owner == 1],
+            free[owner == 1] == 1,
+            ends[1],
+            safe,
+            float(direct),
+            True,
+            source,
+            target,
+            *work.arrays(),
+        )
+
+
+_compile()

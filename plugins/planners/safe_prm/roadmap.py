@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
-from .astar import Workspace
+from .astar import Workspace, bucket_width
 from .kernels import component_labels, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
 
 
@@ -89,6 +89,9 @@ class RoadmapPair:
         self._tree: cKDTree | None = None
         #: how far each milestone's body may move before leaving the workspace (m)
         self.workspace = self.space.workspace_slack(self.milestones) if self.n else np.zeros(0)
+        #: each milestone's clearance, at most its workspace slack (what a motion from it may use); safe as booleans
+        self.slack = np.ascontiguousarray(np.minimum(self.clearance, self.workspace), dtype=float)
+        self.safe_flags = np.ascontiguousarray(self.safe, dtype=np.bool_)
         edges = np.ascontiguousarray(self.edges, dtype=np.int64).reshape(-1, 2)
         cost = np.ascontiguousarray(self.edge_cost, dtype=float)
         every = np.ones(len(edges), dtype=np.bool_)
@@ -104,7 +107,8 @@ class RoadmapPair:
             *self.free_rows,
             *self.safe_rows,
             self.scaled_milestones,
-            np.ascontiguousarray(self.safe, dtype=np.bool_),
+            bucket_width(cost),
+            self.safe_flags,
             self.free_labels,
             int(self.free_count),
             self.safe_labels,
@@ -121,12 +125,12 @@ class RoadmapPair:
         return np.atleast_2d(q) * self.space.coordinate_weights
 
     @contextlib.contextmanager
-    def workspace_lock(self) -> Iterator[tuple]:
-        """The searches' per-node arrays (made on first use), held by one query at a time."""
+    def search_workspace(self) -> Iterator[Workspace]:
+        """The searches' arrays (made on first use), held by one query at a time."""
         if self._workspace is None:
-            self._workspace = Workspace(self.n)
+            self._workspace = Workspace(self.n, 2 * len(self.free_rows[1]) + self.n + 64)
         with self._workspace.lock:
-            yield (*self._workspace.arrays(), self._workspace.path)
+            yield self._workspace
 
     def neighbours_of(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The K-S neighbours (at most k within s) of each configuration q[i]: (indices, distances, counts), rows
