@@ -511,3 +511,7 @@ def test_roadmap_edges_are_exactly_the_k_s_pairs_the_exact_check_accepts(block_w
     np.testing.assert_array_equal(roadmap.edges, pairs[free])
     np.testing.assert_array_equal(roadmap.edge_safe, safe[free])
     assert roadmap.covered_edges > 0.8 * len(roadmap.edges)
+    # the edges' costs come from the neighbour search (R3's motions are Euclidean): the space's own distances, bit
+    # for bit
+    a, b = q[roadmap.edges[:, 0]], q[roadmap.edges[:, 1]]
+    np.testing.assert_array_equal(roadmap.edge_cost, space.distance(a, b))

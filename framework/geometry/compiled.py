@@ -209,13 +209,18 @@ def _exact(kind, params, la, lb, segment, axis_a, axis_b):
 
 
 @njit(**_FLAGS)
-def nearest(kinds, rotations, translations, params, centres, radii, a, b, segment, cutoff, distance, index):
+def nearest(kinds, rotations, translations, params, centres, radii, low, high, a, b, segment, cutoff, distance, index):
     """The nearest obstacle's signed distance (and its index) from points ``a[i]`` (``segment`` False) or along
     segments ``a[i] → b[i]``, into ``distance`` and ``index``; as :meth:`Scene._nearest`: exact below
     ``cutoff[i]``, above it a lower bound that is itself at least the cutoff (index -1 when no obstacle was
-    measured exactly)."""
+    measured exactly).
+
+    Broad phase: each obstacle's lower bound is the larger of its bounding sphere's and its world box's (``low``,
+    ``high``; for a segment, the gap between the segment's box and it); obstacles are measured in order of that
+    bound, and one whose bound cannot beat the nearest found so far (or the cutoff) is skipped."""
     m = kinds.shape[0]
     lower = np.empty(m)
+    rank = np.empty(m, dtype=np.int64)
     la = np.empty(3)
     lb = np.empty(3)
     axis_a = np.zeros(3)
@@ -224,17 +229,32 @@ def nearest(kinds, rotations, translations, params, centres, radii, a, b, segmen
         upper = np.inf
         for o in range(m):
             c = centres[o]
+            box_gap = 0.0
             if segment:
                 gap = _point_segment(c[0], c[1], c[2], a[i, 0], a[i, 1], a[i, 2], b[i, 0], b[i, 1], b[i, 2])
+                for k in range(3):
+                    g = max(min(a[i, k], b[i, k]) - high[o, k], low[o, k] - max(a[i, k], b[i, k]), 0.0)
+                    box_gap += g * g
             else:
                 dx, dy, dz = a[i, 0] - c[0], a[i, 1] - c[1], a[i, 2] - c[2]
                 gap = np.sqrt(dx * dx + dy * dy + dz * dz)
-            lower[o] = gap - radii[o]
+                for k in range(3):
+                    g = max(a[i, k] - high[o, k], low[o, k] - a[i, k], 0.0)
+                    box_gap += g * g
+            # outside the world box, at least the gap to it; within it (maybe inside), only the sphere's bound
+            lower[o] = max(gap - radii[o], np.sqrt(box_gap)) if box_gap > 0 else gap - radii[o]
             upper = min(upper, gap)  # every primitive contains its centre: a bound from above
+            # insertion by lower bound: the likely nearest first
+            j = o
+            while j > 0 and lower[rank[j - 1]] > lower[o]:
+                rank[j] = rank[j - 1]
+                j -= 1
+            rank[j] = o
         best = np.inf
         nearest_index = -1
         floor = np.inf
-        for o in range(m):
+        for r in range(m):
+            o = rank[r]
             if lower[o] >= min(upper, cutoff[i], best):
                 floor = min(floor, lower[o])
                 continue
@@ -269,13 +289,31 @@ def pack(obstacles, centres: np.ndarray, radii: np.ndarray) -> tuple | None:
         else:
             return None
     m = len(kinds)
+    kinds = np.asarray(kinds, dtype=np.int64)
+    rotations = np.ascontiguousarray(np.array([o.pose.rotation for o in obstacles], dtype=float).reshape(m, 3, 3))
+    translations = np.ascontiguousarray(np.array([o.pose.translation for o in obstacles], dtype=float).reshape(m, 3))
+    params = np.ascontiguousarray(np.array(params, dtype=float).reshape(m, 3))
+    # each obstacle's world box, exact (a mesh's vertices would lie inside a sphere's or cylinder's surface)
+    extent = np.empty((m, 3))
+    for o in range(m):
+        r, (p0, p1, p2) = rotations[o], params[o]
+        if kinds[o] == BOX:
+            extent[o] = np.abs(r) @ np.array([p0, p1, p2])
+        elif kinds[o] == SPHERE:
+            extent[o] = p0
+        else:  # cylinder: the axis's reach plus the rim's; capsule: the axis's reach plus the radius
+            along = np.abs(r[:, 2]) * p1
+            extent[o] = along + (p0 * np.sqrt(np.clip(1.0 - r[:, 2] ** 2, 0.0, 1.0)) if kinds[o] == CYLINDER else p0)
+    extent = extent * (1.0 + 1e-12) + 1e-15
     return (
-        np.asarray(kinds, dtype=np.int64),
-        np.ascontiguousarray(np.array([o.pose.rotation for o in obstacles], dtype=float).reshape(m, 3, 3)),
-        np.ascontiguousarray(np.array([o.pose.translation for o in obstacles], dtype=float).reshape(m, 3)),
-        np.ascontiguousarray(np.array(params, dtype=float).reshape(m, 3)),
+        kinds,
+        rotations,
+        translations,
+        params,
         np.ascontiguousarray(centres, dtype=float).reshape(m, 3),
         np.ascontiguousarray(radii, dtype=float).reshape(m),
+        np.ascontiguousarray(translations - extent),
+        np.ascontiguousarray(translations + extent),
     )
 
 
@@ -298,20 +336,23 @@ def compile_all() -> None:
     rotations = np.eye(3)[None].copy()
     vectors = np.zeros((1, 3))
     one = np.ones(1)
-    nearest(
-        kinds,
-        rotations,
-        vectors,
-        np.ones((1, 3)),
-        vectors,
-        one,
-        vectors,
-        vectors,
-        False,
-        one,
-        np.empty(1),
-        np.empty(1, dtype=np.int64),
-    )
+    for segment in (False, True):
+        nearest(
+            kinds,
+            rotations,
+            vectors,
+            np.ones((1, 3)),
+            vectors,
+            one,
+            vectors - 1.0,
+            vectors + 1.0,
+            vectors,
+            vectors,
+            segment,
+            one,
+            np.empty(1),
+            np.empty(1, dtype=np.int64),
+        )
 
 
 compile_all()

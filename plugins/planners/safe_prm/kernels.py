@@ -237,20 +237,87 @@ def k_s_neighbours(queries, points, origin, dims, cell, first, order, k, s):
 
 
 @njit(**_FLAGS)
+def _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, distance, counts):
+    """The K-S neighbours of every point (three coordinates), cell by cell: the points of a cell's 3 x 3 x 3
+    block are gathered once into a contiguous buffer and scanned for each point of the cell; a point whose k-th
+    nearest might lie beyond the block (or within s beyond it) is answered by :func:`k_s_nearest` instead. The
+    same answers, in rows by point index."""
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    s2 = s * s
+    buffer = np.empty((points.shape[0], 3))
+    ids = np.empty(points.shape[0], dtype=np.int64)
+    best = np.empty(k)
+    for cx in range(nx):
+        for cy in range(ny):
+            for cz in range(nz):
+                c = (cx * ny + cy) * nz + cz
+                if first[c] == first[c + 1]:
+                    continue
+                size = 0
+                for ix in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+                    for iy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                        base = (ix * ny + iy) * nz
+                        for e in range(first[base + max(cz - 1, 0)], first[base + min(cz + 1, nz - 1) + 1]):
+                            buffer[size, 0], buffer[size, 1], buffer[size, 2] = points[e, 0], points[e, 1], points[e, 2]
+                            ids[size] = order[e]
+                            size += 1
+                covers_all = cx <= 1 and cy <= 1 and cz <= 1 and cx >= nx - 2 and cy >= ny - 2 and cz >= nz - 2
+                for e in range(first[c], first[c + 1]):
+                    i = order[e]
+                    x0, x1, x2 = points[e, 0], points[e, 1], points[e, 2]
+                    out = index[i]
+                    worst = s2
+                    count = 0
+                    for b in range(size):
+                        a0, a1, a2 = buffer[b, 0] - x0, buffer[b, 1] - x1, buffer[b, 2] - x2
+                        total = a0 * a0 + a1 * a1 + a2 * a2
+                        if total >= worst or ids[b] == i:
+                            continue
+                        slot = count if count < k else k - 1
+                        while slot > 0 and best[slot - 1] > total:
+                            best[slot] = best[slot - 1]
+                            out[slot] = out[slot - 1]
+                            slot -= 1
+                        best[slot] = total
+                        out[slot] = ids[b]
+                        if count < k:
+                            count += 1
+                        if count == k:
+                            worst = best[k - 1]
+                    bound = min(
+                        x0 - (origin[0] + (cx - 1) * cell),
+                        origin[0] + (cx + 2) * cell - x0,
+                        x1 - (origin[1] + (cy - 1) * cell),
+                        origin[1] + (cy + 2) * cell - x1,
+                        x2 - (origin[2] + (cz - 1) * cell),
+                        origin[2] + (cz + 2) * cell - x2,
+                    )
+                    if covers_all or (bound > 0 and bound * bound >= worst):
+                        counts[i] = count
+                        for slot in range(count):
+                            distance[i, slot] = np.sqrt(best[slot])
+                    else:  # the block may miss a nearer point: the ring search from scratch
+                        counts[i] = k_s_nearest(
+                            points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance[i]
+                        )
+
+
+@njit(**_FLAGS)
 def k_s_pairs(points, origin, dims, cell, first, order, k, s):
     """The undirected pairs (lo, hi) of milestones where one is among the other's K-S neighbours, each once,
-    sorted by lo then hi (``points``: sorted by cell, as :func:`grid_build` returns them)."""
+    sorted by lo then hi (``points``: sorted by cell, as :func:`grid_build` returns them), and their lengths
+    (Euclidean, in the points' coordinates)."""
     n = points.shape[0]
     kk = max(k, 1)
     index = np.empty((n, kk), dtype=np.int64)
-    distance = np.empty(kk)
+    distance = np.empty((n, kk))
     counts = np.zeros(n, dtype=np.int64)
-    where = np.empty(n, dtype=np.int64)
-    for e in range(n):
-        where[order[e]] = e
-    for i in range(n):
-        e = where[i]
-        counts[i] = k_s_nearest(points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance)
+    if points.shape[1] == 3 and k > 0:
+        _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, distance, counts)
+    else:
+        for e in range(n):
+            i = order[e]
+            counts[i] = k_s_nearest(points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance[i])
     # bucket every pair by its lower index, then sort and deduplicate each bucket
     size = np.zeros(n + 1, dtype=np.int64)
     for i in range(n):
@@ -260,29 +327,63 @@ def k_s_pairs(points, origin, dims, cell, first, order, k, s):
         size[i + 1] += size[i]
     fill = size[:n].copy()
     partner = np.empty(size[n], dtype=np.int64)
+    length = np.empty(size[n])
     for i in range(n):
         for slot in range(counts[i]):
             j = index[i, slot]
             lo, hi = min(i, j), max(i, j)
             partner[fill[lo]] = hi
+            length[fill[lo]] = distance[i, slot]
             fill[lo] += 1
     pairs = np.empty((size[n], 2), dtype=np.int64)
+    lengths = np.empty(size[n])
     total = 0
     for lo in range(n):
         a, b = size[lo], size[lo + 1]
         for e in range(a + 1, b):  # insertion sort: a bucket holds about 2k entries
             v = partner[e]
+            w = length[e]
             f = e - 1
             while f >= a and partner[f] > v:
                 partner[f + 1] = partner[f]
+                length[f + 1] = length[f]
                 f -= 1
             partner[f + 1] = v
+            length[f + 1] = w
         for e in range(a, b):
             if e == a or partner[e] != partner[e - 1]:
                 pairs[total, 0] = lo
                 pairs[total, 1] = partner[e]
+                lengths[total] = length[e]
                 total += 1
-    return pairs[:total].copy()
+    return pairs[:total].copy(), lengths[:total].copy()
+
+
+@njit(**_FLAGS)
+def cover_pairs(pairs, reach, clearance, inside, safe, d_thresh):
+    """The covering-ball decisions of :func:`.roadmap.certify_roadmap_edges` for every pair: for R and for
+    R_safe, 1 certified by the end balls, 0 impossible (an end cannot keep the margin), 2 undecided; and how many
+    R edges the balls certified."""
+    count = pairs.shape[0]
+    free_state = np.empty(count, dtype=np.int8)
+    safe_state = np.zeros(count, dtype=np.int8)
+    covered = 0
+    for e in range(count):
+        i, j = pairs[e, 0], pairs[e, 1]
+        free_a, free_b = min(clearance[i], inside[i]), min(clearance[j], inside[j])
+        if free_a > 0 and free_b > 0:
+            if free_a + free_b > reach[e]:
+                free_state[e] = 1
+                covered += 1
+            else:
+                free_state[e] = 2
+        else:
+            free_state[e] = 0
+        if d_thresh > 0 and safe[i] and safe[j]:
+            safe_a, safe_b = min(clearance[i] - d_thresh, inside[i]), min(clearance[j] - d_thresh, inside[j])
+            if safe_a >= 0 and safe_b >= 0:
+                safe_state[e] = 1 if safe_a + safe_b > reach[e] else 2
+    return free_state, safe_state, covered
 
 
 @njit(**_FLAGS)
@@ -342,8 +443,8 @@ def component_labels(n, edges, mask):
 
 
 def grid_cell(points: np.ndarray, s: float) -> float:
-    """The cell side for :func:`grid_build`: about four points a cell (the 15 nearest of a point then lie in its
-    ring of 27 cells, mostly), and at least s / 8 (bounded work a ring)."""
+    """The cell side for :func:`grid_build`: about eight points a cell (the 15 nearest of a point then lie in its
+    block of 27 cells, mostly), and at least s / 8 (bounded work a ring)."""
     if len(points) == 0:
         return max(s, 1e-9)
     extent = np.ptp(points, axis=0)
@@ -351,7 +452,7 @@ def grid_cell(points: np.ndarray, s: float) -> float:
     if not extent.size:
         return max(s, 1e-9)
     spacing = float(np.prod(extent) / len(points)) ** (1.0 / len(extent))
-    return max(1.6 * spacing, s / 8.0, 1e-12)
+    return max(2.0 * spacing, s / 8.0, 1e-12)
 
 
 def _compile() -> None:
@@ -360,8 +461,9 @@ def _compile() -> None:
     points[1] = 1.0
     origin, dims, first, order, ordered = grid_build(points, 1.0)
     k_s_neighbours(points, ordered, origin, dims, 1.0, first, order, 2, 2.0)
-    pairs = k_s_pairs(ordered, origin, dims, 1.0, first, order, 2, 2.0)
+    pairs, lengths = k_s_pairs(ordered, origin, dims, 1.0, first, order, 2, 2.0)
     mask = np.ones(len(pairs), dtype=np.bool_)
+    cover_pairs(pairs, lengths, np.ones(2), np.ones(2), mask[:1].repeat(2), 0.5)
     csr_rows(2, pairs, np.ones(len(pairs)), mask, 1e-15)
     component_labels(2, pairs, mask)
 

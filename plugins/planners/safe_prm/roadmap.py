@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
 from .astar import Workspace, bucket_width
-from .kernels import component_labels, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
+from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
 
 
 class Grid(NamedTuple):
@@ -180,64 +180,62 @@ class RoadmapPair:
 
 def certify_roadmap_edges(
     space: Space,
-    a: np.ndarray,
-    b: np.ndarray,
-    clear_a: np.ndarray,
-    clear_b: np.ndarray,
-    inside_a: np.ndarray,
-    inside_b: np.ndarray,
+    q: np.ndarray,
+    pairs: np.ndarray,
+    clearance: np.ndarray,
+    inside: np.ndarray,
+    safe: np.ndarray,
     d_thresh: float,
-    both_safe: np.ndarray,
+    reach: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Which motions a[i] → b[i] are edges of R (clear) and of R_safe (keep d_thresh); certified.
+    """Which motions q[i] → q[j], (i, j) in ``pairs``, are edges of R (clear) and of R_safe (keep d_thresh);
+    certified.
 
-    ``clear_*``: the milestones' clearances, ``inside_*`` their workspace
-    slack. In order of cost: two covering balls at the ends (their slacks
-    add up to the motion's speed bound, as :func:`surgiplan.paths.certify_edges`);
-    for the rest one clearance query at the midpoint, shared by both
-    roadmaps, which either fails the motion outright (the midpoint itself
-    is too close) or covers it with three balls; what is still undecided
-    gets the space's certified motion check. Returns the R decisions, the
-    R_safe decisions (only ``both_safe`` motions can be R_safe edges) and
-    how many R edges the balls alone certified.
+    ``clearance``, ``inside``: the milestones' clearances and workspace slack; ``safe``: which are in C_safe
+    (only motions between two can be R_safe edges); ``reach``: the motions' speed bounds when the caller has
+    them (a space with Euclidean motions: their lengths), else the space's. In order of cost: two covering
+    balls at the ends (their slacks add up to the motion's speed bound, as :func:`surgiplan.paths.certify_edges`;
+    compiled, :func:`.kernels.cover_pairs`); for the rest one clearance query at the midpoint, shared by both
+    roadmaps, which either fails the motion outright (the midpoint itself is too close) or covers it with three
+    balls; what is still undecided gets the space's certified motion check. Returns the R decisions, the R_safe
+    decisions and how many R edges the balls alone certified.
     """
-    reach = space.motion_speed_bound(a, b)
-    free_a, free_b = np.minimum(clear_a, inside_a), np.minimum(clear_b, inside_b)
-    free_ends = (free_a > 0) & (free_b > 0)
-    free_ok = free_ends & (free_a + free_b > reach)
-    covered = int(np.count_nonzero(free_ok))
-    free_open = free_ends & ~free_ok
-    if d_thresh > 0:
-        safe_a, safe_b = np.minimum(clear_a - d_thresh, inside_a), np.minimum(clear_b - d_thresh, inside_b)
-        safe_ends = both_safe & (safe_a >= 0) & (safe_b >= 0)
-        safe_ok = safe_ends & (safe_a + safe_b > reach)
-        safe_open = safe_ends & ~safe_ok
-    else:
-        safe_open = np.zeros(len(a), dtype=bool)
-    need = np.flatnonzero(free_open | safe_open)
+    if reach is None:
+        reach = space.motion_speed_bound(q[pairs[:, 0]], q[pairs[:, 1]])
+    free_state, safe_state, covered = cover_pairs(
+        pairs, np.ascontiguousarray(reach, dtype=float), clearance, inside, safe, float(d_thresh)
+    )
+    free_ok = free_state == 1
+    safe_ok = safe_state == 1
+    need = np.flatnonzero((free_state == 2) | (safe_state == 2))
     if need.size:
-        mid = space.interpolate(a[need], b[need], 0.5)
+        i, j = pairs[need, 0], pairs[need, 1]
+        a, b = q[i], q[j]
+        mid = space.interpolate(a, b, 0.5)
         clear_m = space.clearance(mid, cutoff=d_thresh + reach[need])
         inside_m = space.workspace_slack(mid)
-        first = space.motion_speed_bound(a[need], mid)
-        second = space.motion_speed_bound(mid, b[need])
+        first = space.motion_speed_bound(a, mid)
+        second = space.motion_speed_bound(mid, b)
+        free_a, free_b = np.minimum(clearance[i], inside[i]), np.minimum(clearance[j], inside[j])
         # R: margin 0, strict (touching is a collision)
-        sel = free_open[need]
-        at, m = need[sel], np.minimum(clear_m, inside_m)[sel]
-        three = (m > 0) & (free_a[at] + m > first[sel]) & (m + free_b[at] > second[sel])
-        free_ok[at[three]] = True
+        sel = free_state[need] == 2
+        m = np.minimum(clear_m, inside_m)[sel]
+        three = (m > 0) & (free_a[sel] + m > first[sel]) & (m + free_b[sel] > second[sel])
+        free_ok[need[sel][three]] = True
         covered += int(np.count_nonzero(three))
-        exact = at[(m > 0) & ~three]
+        exact = np.flatnonzero(sel)[(m > 0) & ~three]
         if exact.size:
-            free_ok[exact] = space.motion_is_clear(a[exact], b[exact], 0.0)
+            free_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], 0.0)
         if d_thresh > 0:
-            sel = safe_open[need] & free_ok[need]
-            at, m = need[sel], np.minimum(clear_m - d_thresh, inside_m)[sel]
-            three = (m >= 0) & (safe_a[at] + m > first[sel]) & (m + safe_b[at] > second[sel])
-            safe_ok[at[three]] = True
-            exact = at[(m >= 0) & ~three]
+            safe_a = np.minimum(clearance[i] - d_thresh, inside[i])
+            safe_b = np.minimum(clearance[j] - d_thresh, inside[j])
+            sel = (safe_state[need] == 2) & free_ok[need]
+            m = np.minimum(clear_m - d_thresh, inside_m)[sel]
+            three = (m >= 0) & (safe_a[sel] + m > first[sel]) & (m + safe_b[sel] > second[sel])
+            safe_ok[need[sel][three]] = True
+            exact = np.flatnonzero(sel)[(m >= 0) & ~three]
             if exact.size:
-                safe_ok[exact] = space.motion_is_clear(a[exact], b[exact], d_thresh)
+                safe_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], d_thresh)
     edge_safe = (safe_ok & free_ok) if d_thresh > 0 else free_ok.copy()
     return free_ok, edge_safe, covered
 
@@ -287,15 +285,17 @@ def build_roadmaps(
     with progress.task("connecting milestones (K-S)", total=1) as task:
         scaled = np.ascontiguousarray(q * space.coordinate_weights, dtype=float)
         grid = Grid.of(scaled, s)
-        pairs = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, grid.order, int(k), float(s))
-        i, j = pairs[:, 0], pairs[:, 1]
-        both_safe = safe[i] & safe[j]
+        pairs, length = k_s_pairs(
+            grid.points, grid.origin, grid.dims, grid.cell, grid.first, grid.order, int(k), float(s)
+        )
+        # a space with Euclidean motions: the pairs' lengths (measured by the neighbour search, the same numbers
+        # space.distance gives) are the motions' speed bounds and the edges' costs
+        euclidean = space.euclidean_motions
         free_ok, edge_safe, covered_free = certify_roadmap_edges(
-            space, q[i], q[j], clearance[i], clearance[j], inside[i], inside[j], d_thresh, both_safe
+            space, q, pairs, clearance, inside, safe, d_thresh, length if euclidean else None
         )
         pairs, edge_safe = pairs[free_ok], edge_safe[free_ok]
-        a, b = q[pairs[:, 0]], q[pairs[:, 1]]
-        cost = space.distance(a, b)
+        cost = length[free_ok] if euclidean else space.distance(q[pairs[:, 0]], q[pairs[:, 1]])
         task.advance(1)
     return RoadmapPair(
         space,
