@@ -15,7 +15,8 @@ runs). After rerunning a benchmark::
 
 Only the numbers are data: the words around them are fixed here, and the judgements the text makes
 (a target met or missed, which cases win) are computed from the data too, so a slower result
-changes the sentence, not only the figure.
+changes the sentence, not only the figure. Every block opens with the commit its results came from
+(and the load average before and after), from the results file's provenance.
 
 Each README section's blocks are rendered by a module of :mod:`readme_blocks` (``report``, ``safe_prm``,
 ``retraction``, ``optmis``, ``fem``, ``guide``, ``devices``), with the formatting they share in
@@ -33,7 +34,7 @@ from pathlib import Path
 
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
-from readme_blocks.formatting import BENCH, ReadmeError
+from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
 from readme_blocks.guide import render_guide
 from readme_blocks.optmis import render_optmis
 from readme_blocks.report import render_report
@@ -111,7 +112,8 @@ def regenerate(text: str, results: Path = RESULTS, where: str = "README.md") -> 
         raise ReadmeError(f"{where}: no generated block for {', '.join(missing)}")
     out, pos, changed = [], 0, []
     for name, (start, end) in sorted(found.items(), key=lambda item: item[1][0]):
-        new = "\n" + BLOCKS[name].render(results).strip("\n") + "\n"
+        block = BLOCKS[name]
+        new = "\n" + provenance_note(results, block.sources) + "\n\n" + block.render(results).strip("\n") + "\n"
         if text[start:end] != new:
             changed.append(name)
         out += [text[pos:start], new]
