@@ -50,7 +50,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import save, table
+from common import package_version, save, table
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.plugins.devices.mavlink.gcs import GroundStation
 from surgiplan.plugins.devices.mavlink.link import Endpoint, VehicleError, mavlink
@@ -519,7 +519,8 @@ def main() -> None:
         order = {name: i for i, name in enumerate(SECTIONS)}
         rows = sorted(kept + rows, key=lambda r: order.get(r["benchmark"], len(order)))
 
-    print(f"\nwritten {save('mavlink', rows, notes)}")
+    peers = {"pymavlink": {"version": package_version("pymavlink"), "role": "the MAVLink 2 codec both sides use"}}
+    print(f"\nwritten {save('mavlink', rows, notes, peers=peers)}")
     from surgiplan.storage import write_text_atomic
 
     write_text_atomic(RESULTS / "mavlink.md", markdown(rows))

@@ -75,8 +75,14 @@ def median_time(fn: Callable[[], object], repeat: int = 5, warmup: int = 1) -> t
     return statistics.median(times), times
 
 
-def save(name: str, rows: list[dict], notes: str = "", peers: Mapping[str, Any] | None = None) -> Path:
-    """Write ``results/<name>.json`` atomically, with its :func:`provenance`."""
+def save(
+    name: str,
+    rows: list[dict],
+    notes: str = "",
+    peers: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write ``results/<name>.json`` atomically, with its :func:`provenance` (and ``extra`` top-level keys)."""
     from surgiplan.storage import write_json_atomic
 
     path = RESULTS / f"{name}.json"
@@ -89,6 +95,7 @@ def save(name: str, rows: list[dict], notes: str = "", peers: Mapping[str, Any] 
             "python": info["python"],
             "provenance": info,
             "notes": notes,
+            **dict(extra or {}),
             "rows": rows,
         },
     )

@@ -19,7 +19,7 @@ changes the sentence, not only the figure. Every block opens with the commit its
 (and the load average before and after), from the results file's provenance.
 
 Each README section's blocks are rendered by a module of :mod:`readme_blocks` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``guide``, ``devices``), with the formatting they share in
+``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``devices``), with the formatting they share in
 ``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks them.
 """
 
@@ -40,6 +40,7 @@ from readme_blocks.optmis import render_optmis
 from readme_blocks.report import render_report
 from readme_blocks.retraction import render_retraction, render_retraction_speed
 from readme_blocks.safe_prm import render_safe_prm
+from readme_blocks.tissue import render_tissue
 
 ROOT = BENCH.parent
 RESULTS = BENCH / "results"
@@ -66,6 +67,7 @@ BLOCKS: dict[str, Block] = {
     "fem_locking": Block(render_fem_locking, ("fem",)),
     "fem_solvers": Block(render_fem_solvers, ("fem_solvers",)),
     "fem_vs_fenicsx": Block(render_fem_vs_fenicsx, ("fem_vs_fenicsx",)),
+    "tissue": Block(render_tissue, ("tissue",)),
     "devices": Block(render_devices, ("devices",)),
     "mavlink_hall": Block(render_mavlink_hall, ("mavlink",)),
     "mavlink": Block(render_mavlink, ("mavlink",)),
