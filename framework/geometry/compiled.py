@@ -319,15 +319,22 @@ def pack(obstacles, centres: np.ndarray, radii: np.ndarray) -> tuple | None:
 
 def distances(packed: tuple, a: np.ndarray, b: np.ndarray | None, cutoff) -> tuple[np.ndarray, np.ndarray]:
     """:func:`nearest` on points (``b`` None) or segments: (distance, index) as ``Scene._nearest`` returns them."""
-    a = np.ascontiguousarray(a, dtype=float)
+    a = _plain(a)
     n = len(a)
     cut = np.empty(n)
     cut[:] = cutoff
     distance = np.empty(n)
     index = np.empty(n, dtype=np.int64)
     segment = b is not None
-    nearest(*packed, a, np.ascontiguousarray(b, dtype=float) if segment else a, segment, cut, distance, index)
+    nearest(*packed, a, _plain(b) if segment else a, segment, cut, distance, index)
     return distance, index
+
+
+def _plain(x) -> np.ndarray:
+    """C-contiguous, writeable float64 (a read-only array, such as np.broadcast_arrays returns, is another type
+    to numba: it would compile again)."""
+    x = np.ascontiguousarray(x, dtype=float)
+    return x if x.flags.writeable else x.copy()
 
 
 def compile_all() -> None:
