@@ -87,9 +87,7 @@ def test_the_neighbour_prefilter_finds_exactly_what_the_direct_method_finds():
     """Vertex-sharing pairs decided by a plane-side test first (fast path, compiled and in numpy) against every
     box-overlap candidate classified and tested directly: the same crossing pairs, on plates rolled through
     themselves and on randomly perturbed (folded, crossing) flaps."""
-    from surgiplan.plugins.fem.intersection import _self_intersections_reference
-
-    from surgiplan.plugins.fem.intersection import self_intersections_numpy
+    from surgiplan.plugins.fem.intersection import _self_intersections_reference, self_intersections_numpy
 
     def same(x, triangles):
         fast = self_intersections(x, triangles)  # compiled

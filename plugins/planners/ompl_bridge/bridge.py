@@ -245,6 +245,4 @@ class OmplPlanner(Planner):
                 f"{metrics['clipped_segments']} path segments pass through obstacles between OMPL's "
                 "discretely checked states (motion_check: discrete)"
             )
-        return PlanResult(
-            PlanStatus.SOLVED, waypoints, metrics, message
-        )
+        return PlanResult(PlanStatus.SOLVED, waypoints, metrics, message)

@@ -308,8 +308,10 @@ def shortest_path(
     source_links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     target_links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     direct_cost: float = np.inf,
+    delta: float | None = None,
 ) -> tuple[np.ndarray, float, int]:
-    """:func:`search` on a scipy CSR matrix; ``*_links`` = (milestones, costs, scaled position) of a virtual end.
+    """:func:`search` on a scipy CSR matrix; ``*_links`` = (milestones, costs, scaled position) of a virtual end;
+    ``delta``: the buckets' width (default :func:`bucket_width` of the graph's costs).
 
     Returns (nodes, cost, expanded): the nodes -1 for the virtual start and -2 for the virtual goal, empty when
     the target cannot be reached.
@@ -324,7 +326,7 @@ def shortest_path(
         np.ascontiguousarray(graph.indices, np.int32),
         np.ascontiguousarray(graph.data, np.float64),
         np.ascontiguousarray(scaled, np.float64),
-        bucket_width(graph.data),
+        float(delta) if delta is not None else bucket_width(graph.data),
         n if source_links is not None else int(source),
         np.ascontiguousarray(st, np.int64),
         np.ascontiguousarray(sc, np.float64),

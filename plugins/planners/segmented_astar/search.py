@@ -459,9 +459,7 @@ class SegmentedAStar(Planner):
                 "expanded_junctions": 0,
                 "path_cost_m": straight,
             }
-            return PlanResult(
-                PlanStatus.SOLVED, np.stack([start, goal]), metrics
-            )
+            return PlanResult(PlanStatus.SOLVED, np.stack([start, goal]), metrics)
         (starts, start_kind), (goals, goal_kind) = self._attach(artifact, ends, clearance, counters)
         linked = time.perf_counter()
         metrics: dict[str, Any] = {
