@@ -16,8 +16,8 @@ The framework checks the answer (:mod:`surgiplan.verify`), then measures, whatev
 ``length_m`` (tip path), ``min_clearance_m`` (exact in R3, a certified lower bound elsewhere),
 ``length_below_threshold_m``, ``build_s`` (the build, or the load of a stored one; storing it is
 ``store_s``), ``query_s`` (the query, as the planner times it if it does; ``answer_s`` the whole call), and
-the path's critical regions (:func:`surgiplan.clearance.critical_regions`). A planner that keeps the threshold everywhere and returns a
-path below it gives ``invalid_result``.
+the path's critical regions (:func:`surgiplan.clearance.critical_regions`). A planner that keeps the
+threshold everywhere and returns a path below it gives ``invalid_result``.
 """
 
 from __future__ import annotations
