@@ -23,6 +23,10 @@ START_LOAD = os.getloadavg()
 START_TIME = time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
+#: what the dirty flag ignores: files that a benchmark's own results change
+CLEAN_PATHS = (":(exclude)benchmarks/results", ":(exclude)*.md")
+
+
 def git_state() -> dict[str, Any]:
     """The commit the benchmark ran on and whether the tracked tree differed from it."""
 
@@ -31,7 +35,9 @@ def git_state() -> dict[str, Any]:
 
     try:
         commit = git("rev-parse", "HEAD")
-        dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+        # results files and prose do not change what is measured: a benchmark run after another one's results
+        # (or the README's blocks) changed is still on a clean tree
+        dirty = bool(git("status", "--porcelain", "--untracked-files=no", "--", ".", *CLEAN_PATHS))
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
     return {"commit": commit or None, "dirty": dirty if commit else None}
