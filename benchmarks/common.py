@@ -43,11 +43,15 @@ def git_state() -> dict[str, Any]:
     return {"commit": commit or None, "dirty": dirty if commit else None}
 
 
+#: the commit and dirty flag when the benchmark started (what it measures; a commit made while it runs is not)
+START_GIT = git_state()
+
+
 def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """What produced a result: commit, dirty flag, machine, load before and after, the peers' versions and
     settings (``{"OMPL": {"version": "1.7.0", "configuration": "..."}}``)."""
     return {
-        **git_state(),
+        **START_GIT,
         "machine": platform.platform(),
         "cpus": os.cpu_count(),
         "python": platform.python_version(),
