@@ -132,6 +132,14 @@ def one_way_duration(scene) -> float:
         return float(device.execute(Trajectory(path, space, "bench")).metrics["duration_s"])
 
 
+def release(stack: contextlib.ExitStack) -> None:
+    """Close a device and its drives; one that fails to stop cleanly (a starved drives process) is left behind."""
+    try:
+        stack.close()
+    except (SurgiplanError, RuntimeError) as exc:
+        print(f"  (closing the device: {exc})", flush=True)
+
+
 def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> list[dict]:
     """``runs`` runs of at least ``seconds`` each (the gap path there and back) per rate."""
     space = gimbal_space(scene)
@@ -145,39 +153,54 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
         syncs = 0
         lapses = []
         error = ""
-        try:
-            with gimbal(mode, rate, path[0]) as (device, pid):
-                for k in range(runs):
-                    before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
-                    before_execute = time.process_time()
-                    before_lapses = len(device.controller.missed_log)
-                    report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
-                    execute_cpu += time.process_time() - before_execute
-                    drives_cpu += process_cpu(pid) - before_cpu
-                    syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
-                    if report.metrics.get("refused"):
-                        error = report.message
-                        break
-                    log = device.last_log
-                    loop_cpu += log.cpu_s
-                    periods += np.diff(log.wakeups).tolist()
-                    work += log.work.tolist()
-                    lateness += log.lateness.tolist()
-                    durations.append(log.end - log.start)
-                    missed_per_run.append(report.metrics.get("missed_cycles", 0))
-                    missed += report.metrics.get("missed_cycles", 0)
-                    missing += report.metrics.get("samples_missing", 0)
-                    cycles += report.metrics["cycles"]
-                    completed += report.status == "completed"
-                    load.append(report.metrics["bus_load_percent"])
-                    worst.append(report.metrics["bus_load_worst_case_percent"])
-                    new = device.controller.missed_log[before_lapses:]
-                    lapses += [round(late * 1e3, 1) for due, late, _ in new if log.start <= due <= log.end]
-                    if report.status != "completed":
-                        print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
-                        device.reset_faults()
-        except SurgiplanError as exc:  # on a loaded machine the drives may not even start in time
-            error = str(exc)
+        failures: list[str] = []
+        clean = 0
+        stack = contextlib.ExitStack()
+        device = pid = None
+        for k in range(runs):
+            try:
+                if device is None:  # the first run, or the last one left the drives where a reset could not help
+                    device, pid = stack.enter_context(gimbal(mode, rate, path[0]))
+                before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
+                before_execute = time.process_time()
+                before_lapses = len(device.controller.missed_log)
+                report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                execute_cpu += time.process_time() - before_execute
+                drives_cpu += process_cpu(pid) - before_cpu
+                syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
+                if report.metrics.get("refused"):
+                    error = report.message
+                    break
+                log = device.last_log
+                loop_cpu += log.cpu_s
+                periods += np.diff(log.wakeups).tolist()
+                work += log.work.tolist()
+                lateness += log.lateness.tolist()
+                durations.append(log.end - log.start)
+                missed_per_run.append(report.metrics.get("missed_cycles", 0))
+                missed += report.metrics.get("missed_cycles", 0)
+                missing += report.metrics.get("samples_missing", 0)
+                cycles += report.metrics["cycles"]
+                completed += report.status == "completed"
+                clean += report.status == "completed" and not report.metrics.get("missed_cycles", 0)
+                load.append(report.metrics["bus_load_percent"])
+                worst.append(report.metrics["bus_load_worst_case_percent"])
+                new = device.controller.missed_log[before_lapses:]
+                lapses += [round(late * 1e3, 1) for due, late, _ in new if log.start <= due <= log.end]
+                if report.status != "completed":
+                    print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
+                    failures.append(f"run {k + 1}: {report.message}")
+                    device.reset_faults()
+            except (SurgiplanError, RuntimeError) as exc:
+                # on a loaded machine the drives may not start, or not answer a fault reset, in time: the run
+                # counts as not completed, and the next one starts with a new device and drives
+                print(f"  {mode} {rate} Hz run {k}: {exc}", flush=True)
+                failures.append(f"run {k + 1}: {exc}")
+                error = str(exc)
+                release(stack)
+                stack = contextlib.ExitStack()
+                device = pid = None
+        release(stack)
         period = 1.0 / rate
         row = {
             "drives": mode,
@@ -191,7 +214,8 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             "work_p99_ms": round(percentile(work, 99) * 1e3, 3),
             "missed_cycles": missed,
             "missed_per_run": missed_per_run,
-            "runs_without_missed": f"{sum(1 for x in missed_per_run if x == 0)}/{runs}",
+            # completed with no missed cycle (a run that stopped on a fault is not one)
+            "runs_without_missed": f"{clean}/{runs}",
             "run_seconds_median": round(statistics.median(durations), 2) if durations else None,
             # the loop's jitter: how late each cycle started after its scheduled time
             "jitter_p50_ms": round(percentile(lateness, 50) * 1e3, 4),
@@ -209,6 +233,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             "master_cpu_per_cycle_with_preparation_ms": round(execute_cpu / cycles * 1e3, 3) if cycles else None,
             "drives_cpu_per_sync_ms": round(drives_cpu / syncs * 1e3, 3) if syncs and mode != THREAD else None,
             "error": error,
+            "failures": failures[:10],
         }
         row["held"] = bool(completed == runs and missed == 0 and periods and row["period_p99_ms"] <= 1.1 * period * 1e3)
         rows.append(row)
