@@ -320,6 +320,7 @@ def garbage_collection(scene, runs: int) -> list[dict]:
 
         gc.callbacks.append(timing)
         missed = cycles = 0
+        error = ""
         try:
             with gimbal(SEPARATE, 250, path[0]) as (device, _):
                 controller = device.controller
@@ -344,6 +345,9 @@ def garbage_collection(scene, runs: int) -> list[dict]:
                     cycles += report.metrics.get("cycles", 0)
                     if report.status != "completed":
                         device.reset_faults()
+        except (SurgiplanError, RuntimeError) as exc:  # a loaded machine: the drives stopped or did not start
+            error = str(exc)
+            print(f"  {config}: {error}", flush=True)
         finally:
             gc.callbacks.remove(timing)
         rows.append(
@@ -353,6 +357,7 @@ def garbage_collection(scene, runs: int) -> list[dict]:
                 "cycles": cycles,
                 "missed_cycles": missed,
                 "full_collection_pause_ms_median": round(statistics.median(pauses) * 1e3, 1) if pauses else None,
+                "error": error,
             }
         )
         print(rows[-1], flush=True)

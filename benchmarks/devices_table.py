@@ -50,6 +50,13 @@ def readme_table(data: dict | None = None) -> str:
             f"{'yes' if r['held'] else 'no'} |"
         )
 
+    for r in loops:
+        if r.get("failures"):
+            lines.append(
+                f"- {r['drives']}, {r['rate_hz']:g} Hz: {len(r['failures'])} run(s) stopped; the first: "
+                f"{r['failures'][0]}"
+            )
+
     def clean(r: dict) -> bool:
         return r.get("runs_without_missed", "").split("/")[0] == str(machine["runs_per_rate"])
 
@@ -85,6 +92,7 @@ def readme_table(data: dict | None = None) -> str:
             lines.append(
                 f"- {r['what']}: {r['missed_cycles']} missed cycles of {r['cycles']:,} in {r['runs']} runs "
                 f"(the collection's pause, median: {r['full_collection_pause_ms_median']} ms)"
+                + (f"; stopped: {r['error']}" if r.get("error") else "")
             )
     ceiling = [r for r in rows if r["section"] == "bus_ceiling" and "drives" in r]
     if ceiling:
