@@ -168,9 +168,12 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 execute_cpu += time.process_time() - before_execute
                 drives_cpu += process_cpu(pid) - before_cpu
                 syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
-                if report.metrics.get("refused"):
+                if report.metrics.get("refused"):  # e.g. a fault while holding before it: a run that did not run
                     error = report.message
-                    break
+                    print(f"  {mode} {rate} Hz run {k}: refused: {report.message}", flush=True)
+                    failures.append(f"run {k + 1}: refused: {report.message}")
+                    device.reset_faults()
+                    continue
                 log = device.last_log
                 loop_cpu += log.cpu_s
                 periods += np.diff(log.wakeups).tolist()
