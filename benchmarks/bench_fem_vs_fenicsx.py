@@ -42,7 +42,10 @@ each side (OMP/MKL/OpenBLAS = 1). The whole comparison runs ``--runs`` times
 best at least twice surgiplan's time) must hold in every run, so the row's
 speed-up is the smallest of its runs. The machine has 2 cores shared with
 other work: the load average is recorded at the start, after each case and
-at the end.
+at the end. Each finished case of a run is kept in
+``out/fem_vs_fenicsx.partial.json`` until the results are written: an
+interrupted comparison, started again with the same settings on the same
+commit, resumes where it stopped.
 
 DOLFINx's wheel (``dolfinx-solver-real``, DOLFINx 0.11 with PETSc and
 MUMPS) needs Python 3.12: this script makes its own virtual environment
@@ -415,14 +418,39 @@ def main() -> None:
     tolerance = {"residual_tol": args.residual_tol, "step_tol": args.step_tol}
     per_case: dict[str, list[dict]] = {name: [] for name in cases}
     versions = {}
+    # a long job resumes: each finished (run, case) is kept until the results are written, for the same settings
+    # and commit (an interrupted comparison picks up where it stopped)
+    from common import START_GIT
+    from surgiplan.storage import write_json_atomic
+
+    checkpoint = HERE.parent / "out" / "fem_vs_fenicsx.partial.json"
+    key = {"cases": cases, "runs": runs, "repeats": repeats, **tolerance, "commit": START_GIT.get("commit")}
+    done: dict[str, dict] = {}
+    if not (args.quick or args.cases) and checkpoint.exists():
+        try:
+            kept = json.loads(checkpoint.read_text())
+        except (OSError, ValueError):
+            kept = {}
+        if kept.get("key") == key:
+            done = kept.get("rows", {})
+            print(f"resuming: {len(done)} of {runs * len(cases)} measurements from {checkpoint}", flush=True)
     for run in range(1, runs + 1):
         # a separate run: every case again, each side from scratch (a new model, a new DOLFINx process)
         for name in cases:
+            if f"{run}/{name}" in done:
+                row = done[f"{run}/{name}"]
+                versions = {"dolfinx": row["dolfinx"], "petsc": row["petsc"]}
+                per_case[name].append(row)
+                continue
             model, constraints, start = build_case(name, tolerance)
             row = compare(name, model, constraints, start, tolerance, python, repeats)
             row["load_1min"] = round(os.getloadavg()[0], 2)
             versions = {"dolfinx": row["dolfinx"], "petsc": row["petsc"]}
             per_case[name].append(row)
+            if not (args.quick or args.cases):
+                done[f"{run}/{name}"] = row
+                checkpoint.parent.mkdir(exist_ok=True)
+                write_json_atomic(checkpoint, {"key": key, "rows": done})
             print(
                 f"run {run}, {name}: surgiplan {row['surgiplan_s']} s, DOLFINx ({row.get('dolfinx_best')}) "
                 f"{row.get('dolfinx_s')} s, {row.get('speedup')}x, agreement {row.get('agreement', float('nan')):.2g}",
@@ -453,6 +481,7 @@ def main() -> None:
         }
     }
     print(f"written: {save('fem_vs_fenicsx', rows, note, peers=peers)}")
+    checkpoint.unlink(missing_ok=True)
 
 
 if __name__ == "__main__":
