@@ -22,7 +22,7 @@ $(VENV)/.run-deps: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(BIN)/python
-	$(PIP_QUIET) -e '.[dev,dask,ompl,browser,pardiso,interop]' -e examples/surgiplan-hello
+	$(PIP_QUIET) -e '.[dev,dask,ompl,browser,pardiso,interop,mcap]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
 
 # The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client

@@ -37,7 +37,8 @@ from .runner import run_pipeline
 from .scene import Scene
 from .spaces import CastGimbalSpace, R3Space, SE3Space, Space
 from .status import ExecuteStatus, GuideStatus, PlanStatus, RunStatus, SimulateStatus
-from .units import Angle, Coordinate, Length, PositiveLength, Vec3
+from .units import Angle, Coordinate, Length, PositiveLength, SignedLength, Vec3
+from .validation import file_length_scale, input_path
 
 __all__ = [
     "Angle",
@@ -76,6 +77,7 @@ __all__ = [
     "SE3Space",
     "Scene",
     "SceneError",
+    "SignedLength",
     "SimulateStatus",
     "SourceStopped",
     "Space",
@@ -86,7 +88,9 @@ __all__ = [
     "TaskStore",
     "Trajectory",
     "Vec3",
+    "file_length_scale",
     "hookimpl",
+    "input_path",
     "load_pipeline",
     "load_scene",
     "run_pipeline",

@@ -74,8 +74,15 @@ class ExecutionReport:
     message: str = ""
     #: files the device wrote (figures, logs), relative to the stage context's output directory
     files: list[str] = field(default_factory=list)
-    #: the stage's annotations in result.json, e.g. ``timeline`` (see :mod:`surgiplan.outputs.report.data`)
+    #: the stage's annotations in result.json, e.g. ``timeline`` (see :mod:`surgiplan.outputs.report.timeline`)
     annotations: dict[str, Any] = field(default_factory=dict)
+    #: what the framework re-measures (:mod:`surgiplan.verify_motion`): the executed configurations (n, d) in
+    #: ``executed_space`` (a space with the device's geometry; default: the plan's), else the executed tip path
+    #: as a sphere of ``tip_radius`` (m; default: the r3 plan's tip radius, else 0); ``executed_t``: their times
+    executed_path: np.ndarray | None = None
+    executed_space: Space | None = None
+    executed_t: np.ndarray | None = None
+    tip_radius: float | None = None
 
 
 class Device(ABC):
@@ -104,6 +111,16 @@ class Device(ABC):
         self.settings = settings
         self.state = LifecycleState.UNCONFIGURED
         self.context: StageContext | None = None
+        #: files the device wrote in the output directory besides its report's (relative names), e.g. a bus
+        #: trace written when it releases the bus at shutdown; the execute stage lists those that exist
+        self.recordings: list[str] = []
+
+    @property
+    def safety_margin(self) -> float:
+        """The clearance (m) the device keeps from obstacles: its ``safety_margin`` setting (0 without one). The
+        execute stage marks the stage ``unsafe`` when the executed motion, as the framework measures it, comes
+        closer (or touches)."""
+        return float(getattr(self.settings, "safety_margin", 0.0) or 0.0)
 
     def _transition(self, name: str, action) -> None:
         allowed, target = self._transitions[name]

@@ -157,6 +157,24 @@ class StageRun:
                 location=spec.location,
             ) from exc
 
+    def recordings(self, plugin: Any, warnings: list[str]) -> list[str]:
+        """The files a plugin says it wrote besides its result (its ``recordings``: names relative to the output
+        directory), checked: a name that is not a plain relative name, or a file that does not exist, is left out
+        with a warning in ``warnings``."""
+        names = getattr(plugin, "recordings", None) or []
+        if not isinstance(names, list | tuple):
+            warnings.append(f"plugin '{self.spec.plugin.name}' gave recordings as a {type(names).__name__}")
+            return []
+        out = Path(self.context.output_dir)
+        kept = []
+        for name in names:
+            ok = isinstance(name, str) and name and not Path(name).is_absolute() and ".." not in Path(name).parts
+            if not ok or not (out / name).is_file():
+                warnings.append(f"plugin '{self.spec.plugin.name}' listed a recording that is not a file: {name!r}")
+            elif name not in kept:
+                kept.append(name)
+        return kept
+
     def result(self, status: str, **fields: Any) -> StageResult:
         """A :class:`StageResult` of this stage."""
         spec = self.spec

@@ -285,14 +285,17 @@ class PluginRegistry:
                     )
                     continue
             key = (kind, spec.name)
-            if key in self.plugins:
+            if key in self.plugins:  # the first registration keeps the name; only this one is refused
                 other = self.plugins[key]
-                raise PluginError(
-                    f"two plugins are both named '{spec.name}' ({kind}): one from package "
-                    f"'{other.package}' (entry point '{other.entry_point}'), one from package "
-                    f"'{package}' (entry point '{ep_name}'); uninstall one, or disable one with "
-                    f"SURGIPLAN_DISABLE_PLUGINS={ep_name}"
+                self._fail(
+                    ep_name,
+                    package,
+                    f"{kind.replace('_', ' ')} '{spec.name}' from package '{package}' (entry point '{ep_name}') is "
+                    f"refused: two plugins are both named '{spec.name}', and package '{other.package}' (entry point "
+                    f"'{other.entry_point}') registered it first; rename one, uninstall one, or disable one with "
+                    f"SURGIPLAN_DISABLE_PLUGINS={ep_name}",
                 )
+                continue
             self.plugins[key] = PluginInfo(
                 spec.name, kind, spec.cls, spec.description, package, version, ep_name, spec.unavailable
             )

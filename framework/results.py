@@ -65,6 +65,12 @@ class StageResult:
     #: (written as ``annotations.critical_regions``)
     critical_regions: list[CriticalRegion] = field(default_factory=list)
     annotations: dict[str, Any] = field(default_factory=dict)
+    #: what the framework wants a reader to know that does not change the status (shown by the summary and
+    #: the report), e.g. a device that reported no executed motion
+    warnings: list[str] = field(default_factory=list)
+    #: the distribution and version of the plugin that ran the stage (set by the runner)
+    package: str = ""
+    version: str = ""
 
     @property
     def succeeded(self) -> bool:
@@ -76,6 +82,7 @@ class StageResult:
             "name": self.name,
             "plugin": self.plugin,
             "status": self.status,
+            **({"package": self.package, "version": self.version} if self.package else {}),
             "path": [] if self.path is None else np.asarray(self.path).tolist(),
             "metrics": to_jsonable(self.metrics),
         }
@@ -85,6 +92,8 @@ class StageResult:
             entry["tip_path"] = np.asarray(self.tip_path).tolist()
         if self.message:
             entry["message"] = self.message
+        if self.warnings:
+            entry["warnings"] = list(self.warnings)
         if self.files:
             entry["files"] = list(self.files)
         if self.clearance_threshold is not None:

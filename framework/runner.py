@@ -128,6 +128,8 @@ def run_stage(kind: StageKind, spec: StageSpec, context: StageContext, state: Ru
     if not isinstance(result, StageResult):
         return run.invalid(f"the stage returned a {type(result).__name__}, not a StageResult")
     result.stage, result.name, result.plugin = spec.kind, spec.name, spec.plugin.name if spec.plugin else ""
+    if spec.plugin is not None:  # provenance: which distribution, at which version, ran the stage
+        result.package, result.version = spec.plugin.package, spec.plugin.version
     allowed = kind.plugin_statuses()
     if result.status not in allowed and result.status not in {s.value for s in RunStatus}:
         article = "an" if kind.name[:1] in "aeiou" else "a"

@@ -16,6 +16,8 @@ enum                   values                                                   
 :class:`GuideStatus`   ``completed`` (the goal reached); ``incomplete``, ``stopped``   ``completed``
 :class:`RunStatus`     ``invalid_result`` (the framework refused a plugin's answer:     never
                        a colliding or malformed path, an unknown status),
+                       ``unsafe`` (a device's executed motion, re-measured, touched
+                       an obstacle or came inside the device's safety margin),
                        ``error`` (the plugin raised), ``skipped`` (the stage it
                        depends on gave it nothing to work on), ``not_run`` (an
                        earlier stage ended the run), ``interrupted``
@@ -72,6 +74,7 @@ class RunStatus(enum.StrEnum):
     """Statuses the framework sets on a stage."""
 
     INVALID_RESULT = "invalid_result"
+    UNSAFE = "unsafe"  # what a device executed, re-measured on the scene, touched or came inside its safety margin
     ERROR = "error"
     SKIPPED = "skipped"
     NOT_RUN = "not_run"

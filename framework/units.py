@@ -8,7 +8,8 @@ metres once, when the file is validated. A string with an explicit unit
 (:data:`Angle`) are radians unless written with a unit (``"30 deg"``).
 
 Plugin authors type their settings with these aliases and get the conversion
-for free::
+for free (:data:`Length` refuses negatives and NaN; :data:`PositiveLength` also
+zero; :data:`SignedLength`, alias :data:`Coordinate`, takes any finite value)::
 
     class Settings(StrictModel):
         clearance: Length = 0.004   # m
@@ -120,6 +121,8 @@ Length = Annotated[float, BeforeValidator(_to_metres), AfterValidator(_non_negat
 PositiveLength = Annotated[float, BeforeValidator(_to_metres), AfterValidator(_positive)]
 #: A coordinate in metres (any sign).
 Coordinate = Annotated[float, BeforeValidator(_to_metres), AfterValidator(_finite)]
+#: A length that may be negative (an offset, a signed distance): the same as :data:`Coordinate`.
+SignedLength = Coordinate
 #: An angle in radians (files: radians, or ``"30 deg"``).
 Angle = Annotated[float, BeforeValidator(_to_radians), AfterValidator(_finite)]
 #: A point or vector in metres.

@@ -36,6 +36,21 @@ def base_dir(info: ValidationInfo | None) -> Path:
     return Path(((info.context if info is not None else None) or {}).get(BASE_DIR_KEY, "."))
 
 
+def input_path(name: str | Path, info: ValidationInfo | None) -> Path:
+    """In a pydantic validator: the file a setting names, as an absolute path; a relative name resolves
+    against the directory of the file being validated (``~`` expands), as every input file of surgiplan
+    does. Existence is the caller's to check (and to report as a ``ValueError`` naming the path)."""
+    path = Path(name).expanduser()
+    return (path if path.is_absolute() else base_dir(info) / path).resolve()
+
+
+def file_length_scale(info: ValidationInfo | None) -> float:
+    """In a pydantic validator: metres per length unit of the file being validated (its ``length_unit``;
+    1 when settings are built in Python). Values typed :data:`~surgiplan.units.Length` are already
+    converted; this is for numbers a setting reads from a file of its own."""
+    return float(((info.context if info is not None else None) or {}).get(LENGTH_SCALE_KEY, 1.0))
+
+
 def declared_unit(data: Any, default: str, file: Path, lines: LineMap, prefix: tuple[Any, ...]) -> str:
     """The ``length_unit`` a mapping declares (``default`` if none); an unknown one is a :class:`ConfigError`."""
     unit = data.get("length_unit", default) if isinstance(data, dict) else default

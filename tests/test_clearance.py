@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 from conftest import CONFIGS
-from surgiplan import load_pipeline, run_pipeline
+from surgiplan import StrictModel, load_pipeline, run_pipeline
 from surgiplan.clearance import ClearancePolicy, ClearanceThreshold, CriticalRegion, critical_regions
 from surgiplan.errors import ConfigErrors
 from test_plugins import fake_distribution
@@ -164,20 +164,14 @@ def test_a_planner_without_a_clearance_policy_refuses_a_threshold(tmp_path, monk
 def test_devices_and_guide_stages_read_the_plan_stage_threshold_and_regions(tmp_path):
     """The execute stage hands the device the plan's threshold and regions in its Trajectory; a guide stage
     judges against the same ones (and records them)."""
-    from surgiplan.devices import ExecutionReport
+    from surgiplan.devices import Device, ExecutionReport
 
     seen = {}
 
-    class Recorder:
-        def __init__(self, settings):
-            pass
+    class Recorder(Device):
+        Settings = StrictModel
 
-        def configure(self, context):
-            pass
-
-        activate = deactivate = shutdown = lambda self: None
-
-        def execute(self, trajectory):
+        def run(self, trajectory):
             seen["trajectory"] = trajectory
             return ExecutionReport("completed", executed_tip_path=np.asarray(trajectory.path))
 

@@ -1,8 +1,9 @@
 """The example third-party package (examples/surgiplan-hello): one plugin of each kind, checked on numbers.
 
 These are the README's plugin guide, run: a planner in a space plugin, a deformable model against its
-closed form, and a device that refuses a path closer than its safety margin and otherwise tracks it with
-the lag its model predicts.
+closed form, a device that refuses a path closer than its safety margin and otherwise tracks it with
+the lag its model predicts, and a pose source whose deviation has a closed form. Its stage kind,
+``export``, is tested in tests/test_stage_kinds.py.
 """
 
 from __future__ import annotations
@@ -103,3 +104,50 @@ def test_a_device_refuses_a_path_closer_than_its_safety_margin(cli, tmp_path, wi
     assert execute["status"] == "refused" and execute["path"] == []
     assert "refused before any motion" in execute["message"] and "the safety margin is 5 mm" in execute["message"]
     assert execute["metrics"]["planned_min_clearance_m"] < 0.005
+
+
+STRAIGHT_PLAN = {  # a straight, horizontal recommended path along x, clear of every block
+    "stage": "plan",
+    "name": "straight",
+    "plugin": "via_point",
+    "settings": {"via_points": 50, "seed": 1},
+    "start": [50, 50, 20],
+    "goal": [85, 50, 20],
+}
+
+
+def test_a_pose_source_whose_deviation_has_a_closed_form(cli, tmp_path, with_example_plugin):
+    """A vertical tremor of 0.3 mm at 10 Hz, sampled at 200 Hz (a crest every 20 samples), on a straight path:
+    the stage measures a deviation of |0.3 sin(2 pi 10 t)| mm, largest 0.3 mm, RMS 0.3 / sqrt(2) mm."""
+    hand = {
+        "stage": "guide",
+        "name": "hand",
+        "plugin": "steady_hand",
+        "settings": {"speed": 35, "tremor": 0.3, "frequency": 10, "rate": 200},  # 35 mm in 1 s: 10 periods
+        "guidance": {"deviation_tolerance": 1},
+    }
+    code, err, document = run_file(cli, tmp_path, [STRAIGHT_PLAN, hand])
+    assert code == 0, err
+    plan, guide = document["stages"]
+    assert np.asarray(plan["path"]).shape == (2, 3)  # the straight line itself
+    m = guide["metrics"]
+    assert guide["status"] == "completed" and m["events"].get("deviation", 0) == 0
+    assert m["deviation_max_m"] == pytest.approx(0.0003, abs=1e-9)
+    t = np.arange(201) / 200
+    expected = np.sqrt(np.mean((0.0003 * np.sin(2 * np.pi * 10 * t)) ** 2))
+    assert m["deviation_rms_m"] == pytest.approx(expected, rel=1e-6)
+    assert expected == pytest.approx(0.0003 / np.sqrt(2), rel=0.01)
+    assert m["duration_s"] == pytest.approx(1.0)
+
+
+def test_a_pose_source_that_goes_silent_ends_the_attempt_stopped(cli, tmp_path, with_example_plugin):
+    hand = {
+        "stage": "guide",
+        "plugin": "steady_hand",
+        "settings": {"speed": 35, "silent_after": 0.5},
+        "guidance": {"silence_timeout": 0.3},
+    }
+    code, _, document = run_file(cli, tmp_path, [STRAIGHT_PLAN, hand])
+    guide = document["stages"][1]
+    assert code == 1 and guide["status"] == "stopped"
+    assert "source 'steady_hand' sent no pose for 0.3 s (guidance.silence_timeout)" in guide["message"]

@@ -85,15 +85,33 @@ def test_example_plugin_plans_a_real_path(with_example_plugin, cli, tmp_path):
     assert stage["metrics"]["min_clearance_m"] > 0
 
 
-def test_two_plugins_with_one_name_is_an_error_naming_both(tmp_path, monkeypatch):
-    fake_distribution(tmp_path, "copycat-planners", "copycat_a", GOOD_PLUGIN.replace("{name}", "ompl"), monkeypatch)
-    with pytest.raises(PluginError) as excinfo:
-        PluginRegistry()
-    message = str(excinfo.value)
-    assert "'ompl'" in message and "'surgiplan'" in message and "'copycat-planners'" in message
+def test_two_plugins_with_one_name_refuse_the_second_naming_both(tmp_path, monkeypatch, cli):
+    """A clash refuses one plugin, not the command line: the first registration keeps the name, the rest of the
+    second package keeps working, and `surgiplan plugins` (the command to diagnose it) shows the refusal."""
+    code = GOOD_PLUGIN.replace("{name}", "ompl") + (
+        "\n@hookimpl\ndef surgiplan_register_spaces():\n"
+        "    from surgiplan import R3Space\n    return [PluginSpec('copied_space', R3Space, 'another space')]\n"
+    )
+    fake_distribution(tmp_path, "copycat-planners", "copycat_a", code, monkeypatch)
+    registry = PluginRegistry()
+    assert registry.get("planner", "ompl").package == "surgiplan"
+    assert registry.get("space", "copied_space").package == "copycat-planners"  # the rest of the package loads
+    [failure] = registry.failures
+    assert (failure.package, failure.entry_point) == ("copycat-planners", "copycat_a")
+    assert "planner 'ompl' from package 'copycat-planners' (entry point 'copycat_a') is refused" in failure.error
+    assert "package 'surgiplan' (entry point 'ompl_bridge') registered it first" in failure.error
+    code, out, err = cli("plugins", "--json")
+    assert code == 0 and "Traceback" not in err
+    listing = json.loads(out)
+    assert listing["failures"][0]["error"] == failure.error
+    code, out, _ = cli("plugins")
+    assert code == 0 and "failed:" in out and "copycat-planners" in out
+    # strict mode (for plugin authors) refuses the whole load, naming both
+    with pytest.raises(PluginError, match=r"'copycat-planners'.*'surgiplan'"):
+        PluginRegistry(strict=True)
     # the way out the message suggests works
     registry = PluginRegistry(disabled={"copycat_a"})
-    assert registry.get("planner", "ompl").package == "surgiplan"
+    assert registry.get("planner", "ompl").package == "surgiplan" and not registry.failures
 
 
 def test_disable_by_entry_point_or_plugin_name(tmp_path, monkeypatch):

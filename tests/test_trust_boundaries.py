@@ -21,26 +21,8 @@ import numpy as np
 import pytest
 import yaml
 from conftest import CONFIGS, ROOT
-from surgiplan import registry
 
 PLUGINS = Path(__file__).resolve().parent / "plugins"
-
-
-@pytest.fixture
-def hostile(tmp_path, monkeypatch):
-    """The hostile package, discoverable in this process and in subprocesses; returns their environment."""
-    site = tmp_path / "site"
-    info = site / "surgiplan_hostile-1.0.dist-info"
-    info.mkdir(parents=True)
-    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: surgiplan-hostile\nVersion: 1.0\n")
-    (info / "entry_points.txt").write_text("[surgiplan]\nhostile = surgiplan_hostile\n")
-    monkeypatch.syspath_prepend(str(PLUGINS))
-    monkeypatch.syspath_prepend(str(site))
-    monkeypatch.setenv("SURGIPLAN_PLUGIN_PACKAGES", "surgiplan,surgiplan-hostile")
-    registry.reset_default_registry()
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(site), str(PLUGINS), env.get("PYTHONPATH", "")])
-    return env
 
 
 def pipeline(tmp_path, mode, *, start="entry", goal="target", execute=None, extra=None, workers=1, out=None):

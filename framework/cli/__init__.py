@@ -17,10 +17,10 @@ import traceback
 
 from .. import __version__
 from ..errors import SurgiplanError
-from . import plugins, run, trainee, view
+from . import benchmark, can_decode, export, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
-COMMANDS = (run, view, trainee, plugins)
+COMMANDS = (run, view, trainee, benchmark, export, can_decode, plugins)
 
 
 class _Formatter(logging.Formatter):

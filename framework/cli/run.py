@@ -71,6 +71,8 @@ def _cmd_run(args) -> int:
         )
     logging.getLogger("surgiplan").info("wrote in %s: %s", outcome.output_dir, ", ".join(outcome.files))
     for r in outcome.results:
+        for warning in r.warnings:
+            print(f"warning: {r.stage} stage '{r.name}': {warning}", file=sys.stderr)
         if not r.succeeded:
             print(f"{r.stage} stage '{r.name}': {r.status}" + (f": {r.message}" if r.message else ""), file=sys.stderr)
     return 0 if outcome.ok else 1

@@ -86,6 +86,9 @@ class PoseSource(ABC):
 
     def __init__(self, settings: BaseModel) -> None:
         self.settings = settings
+        #: files the source wrote in the output directory (relative names), e.g. a bus trace; the guide stage
+        #: lists those that exist once the source is closed
+        self.recordings: list[str] = []
 
     def open(self, context: GuideContext) -> None:
         """Start: connect to the instrument, load the file, start the trainee model."""

@@ -47,6 +47,7 @@ def details(result: StageResult, k: float, unit: str, kinds: Mapping[str, StageK
     parts = list(kind.details(result, k, unit)) if kind is not None else []
     if result.message:
         parts.append(result.message)
+    parts += [f"warning: {w}" for w in result.warnings]
     return "; ".join(parts)
 
 

@@ -11,6 +11,11 @@ The device goes through its lifecycle (configure, activate, execute, deactivate;
 and gets a :class:`~surgiplan.devices.Trajectory`: the planned path, its space, and the plan's clearance
 threshold and critical regions. Its :class:`~surgiplan.devices.ExecutionReport` must carry an
 :class:`~surgiplan.status.ExecuteStatus`.
+
+The framework then re-measures the motion the device says it executed (:mod:`surgiplan.verify_motion`):
+a contact, or a clearance below the device's safety margin, makes the stage ``unsafe`` (the run fails)
+with where and how deep; a device that moved but reported no executed motion gets a warning. The
+measurement is ``metrics.verified``.
 """
 
 from __future__ import annotations
@@ -25,7 +30,8 @@ from ..hookspecs import PluginSpec, hookspec
 from ..kinds import PathStageModel, PathStageSpec, PluginKind, StageKind, StageRun, planned, resolve_path_from
 from ..outputs.report.timeline import motion_report
 from ..results import StageResult
-from ..status import ExecuteStatus
+from ..status import ExecuteStatus, RunStatus
+from ..verify_motion import TOLERANCE, unsafe_message, verify_motion
 
 log = logging.getLogger(__name__)
 
@@ -86,20 +92,38 @@ class ExecuteKind(StageKind):
         metrics.setdefault("run_s", time.perf_counter() - started)
         if report.faults:
             metrics.setdefault("faults", report.faults)
+        status, message, warnings = str(report.status), report.message, []
+        if status != ExecuteStatus.REFUSED:  # it may have moved: what it says it did is measured
+            check = verify_motion(report, trajectory)
+            margin = device.safety_margin
+            if check is None:
+                warnings.append(
+                    f"device '{spec.plugin.name}' reported no executed motion (executed_path, executed_tip_path or a "
+                    "timeline): the framework could not check what it did"
+                )
+            else:
+                metrics["verified"] = {**check.to_json(), "safety_margin_m": margin}
+                if check.min_clearance_m <= 0 or check.min_clearance_m < margin - TOLERANCE:
+                    claimed = metrics.get("executed_min_clearance_m")
+                    claimed = float(claimed) if isinstance(claimed, int | float) else None
+                    why = unsafe_message(check, margin, spec.scene, claimed)
+                    device_said = f" (the device said: {status}{': ' + message if message else ''})"
+                    status, message = RunStatus.UNSAFE.value, why + device_said
         return run.result(
-            str(report.status),
+            status,
             # the executed tip path is the stage's path (r3, SI), so result.json and scene.glb both show it
             path=report.executed_tip_path,
             metrics=metrics,
-            message=report.message,
-            files=list(report.files),
+            message=message,
+            warnings=warnings,
+            files=[*report.files, *(f for f in run.recordings(device, warnings) if f not in report.files)],
             tip_path=report.executed_tip_path,
             space="r3",
-            annotations=dict(report.annotations or {}),
+            annotations={**dict(report.annotations or {}), "path_from": spec.path_from},
         )
 
     def details(self, result: StageResult, k: float, unit: str) -> list[str]:
-        if result.status not in (ExecuteStatus.COMPLETED, ExecuteStatus.STOPPED):
+        if result.status not in (ExecuteStatus.COMPLETED, ExecuteStatus.STOPPED, RunStatus.UNSAFE):
             return []
         m = result.metrics
         parts = []

@@ -114,21 +114,29 @@ class _Reader:
             self.queue.put((time.perf_counter(), exc))
 
 
-def _check_sample(sample: Any, previous_t: float, dimension: int) -> str:
-    """Why a source's sample cannot be used ('' if it can)."""
+def _check_sample(sample: Any, index: int, previous_t: float, space) -> str:
+    """Why sample ``index`` of a source cannot be used ('' if it can): not a PoseSample, time not finite or going
+    back, a pose that is not finite numbers, or a tip outside the scene's bounds."""
     if not isinstance(sample, PoseSample):
-        return f"it yielded a {type(sample).__name__}, not a PoseSample"
+        return f"sample {index}: it yielded a {type(sample).__name__}, not a PoseSample"
     if not (isinstance(sample.t, int | float) and math.isfinite(sample.t)):
-        return f"sample time {sample.t!r} is not a finite number"
+        return f"sample {index}: sample time {sample.t!r} is not a finite number"
     if sample.t < previous_t:
-        return f"sample time {sample.t:.6g} s is before the previous sample's {previous_t:.6g} s"
+        return f"sample {index}: sample time {sample.t:.6g} s is before the previous sample's {previous_t:.6g} s"
     if sample.q is None and sample.tip is None:
-        return "a sample has neither q nor tip"
-    value, size = (sample.q, dimension) if sample.q is not None else (sample.tip, 3)
+        return f"sample {index}: it has neither q nor tip"
+    value, size = (sample.q, space.dimension) if sample.q is not None else (sample.tip, 3)
     array = np.asarray(value, dtype=float)
+    what = "q" if sample.q is not None else "tip"
     if array.shape != (size,) or not np.all(np.isfinite(array)):
-        what = "q" if sample.q is not None else "tip"
-        return f"sample {what} {array.tolist()} is not {size} finite numbers"
+        return f"sample {index}: its {what} {array.tolist()} is not {size} finite numbers"
+    scene = space.scene
+    tip = space.tip(array[None])[0] if sample.q is not None else array
+    if not scene.in_bounds(tip)[0]:
+        return (
+            f"sample {index}: its tip {scene.describe_point(tip)} is outside the scene bounds "
+            f"{scene.describe_point(scene.bounds_min)} to {scene.describe_point(scene.bounds_max)}"
+        )
     return ""
 
 
@@ -218,6 +226,7 @@ class GuideKind(StageKind):
             iterator = run.call("samples", source.samples)
             reader = _Reader(iter(iterator))
             previous_t = -math.inf
+            received = 0
             with context.progress.task("following the instrument (% of the path)", total=100) as task:
                 while True:
                     try:
@@ -240,9 +249,10 @@ class GuideKind(StageKind):
                             f"samples of guide stage '{spec.name}': {type(item).__name__}: {item}",
                             location=spec.location,
                         ) from item
-                    problem = _check_sample(item, previous_t, space.dimension)
+                    problem = _check_sample(item, received, previous_t, space)
                     if problem:
                         raise _InvalidSample(problem)
+                    received += 1
                     previous_t = float(item.t)
                     m, changes = guide.measure(item)
                     m.delay = time.perf_counter() - arrived
@@ -299,6 +309,8 @@ class GuideKind(StageKind):
             f"min clearance {metrics['min_clearance_m'] * guide.k:.3g} {guide.unit}, {len(events)} event(s)",
         )
         files.append(png_name)
+        warnings: list[str] = []
+        files += run.recordings(source, warnings)  # e.g. the bus trace of a device the source ran
         if spec.trainee is not None:
             ms = guide.measurements
             samples = {
@@ -348,6 +360,7 @@ class GuideKind(StageKind):
             clearance_threshold=self._judged_against(spec, source_result, guide.threshold),
             critical_regions=regions,
             annotations=annotations,
+            warnings=warnings,
         )
 
     @staticmethod

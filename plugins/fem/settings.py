@@ -26,17 +26,14 @@ from typing import Annotated, Literal
 from pydantic import Field, PositiveFloat, PositiveInt, ValidationInfo, model_validator
 from surgiplan.models import PoseModel, StrictModel
 from surgiplan.units import LENGTH_SCALE_KEY, LENGTH_UNITS, Coordinate, Finite, PositiveLength, Vec3
+from surgiplan.validation import file_length_scale, input_path
 
 LengthUnit = Literal[tuple(LENGTH_UNITS)]  # type: ignore[valid-type]
 PoissonRatio = Annotated[float, Field(ge=-0.99, lt=0.5)]
 
 
 def _resolve(path: str, info: ValidationInfo) -> str:
-    base = (info.context or {}).get("base_dir")
-    p = Path(path).expanduser()
-    if not p.is_absolute() and base is not None:
-        p = Path(base) / p
-    return str(p.resolve())
+    return str(input_path(path, info))
 
 
 class RegionModel(StrictModel):
@@ -92,7 +89,7 @@ class MeshSettings(StrictModel):
             if self.unit is not None:
                 self.file_scale = LENGTH_UNITS[self.unit]
             elif info.context and LENGTH_SCALE_KEY in info.context:
-                self.file_scale = float(info.context[LENGTH_SCALE_KEY])
+                self.file_scale = file_length_scale(info)
         return self
 
 

@@ -19,7 +19,6 @@ does not increase is an error naming the file and the line.
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +26,7 @@ from pydantic import Field, PrivateAttr, ValidationInfo, model_validator
 from surgiplan.guidance import PoseSample, PoseSource
 from surgiplan.guidance.files import read_attempt_csv
 from surgiplan.models import StrictModel
-from surgiplan.units import LENGTH_SCALE_KEY
+from surgiplan.validation import file_length_scale, input_path
 
 from .pacing import Pacer
 
@@ -43,9 +42,8 @@ class RecordedAttemptSettings(StrictModel):
 
     @model_validator(mode="after")
     def _read(self, info: ValidationInfo):
-        context = info.context or {}
-        path = (Path(context.get("base_dir", ".")) / self.file).resolve()
-        self._times, self._values, self._kind = read_attempt_csv(path, context.get(LENGTH_SCALE_KEY, 1.0))
+        path = input_path(self.file, info)
+        self._times, self._values, self._kind = read_attempt_csv(path, file_length_scale(info))
         self.file = str(path)
         return self
 

@@ -14,6 +14,9 @@ exercised by surgiplan's test suite (``tests/test_examples.py``):
 * :mod:`.point_robot` — device ``point_robot``: a simulated 3-axis gantry that
   refuses paths closer to an obstacle than its safety margin, then follows
   them at constant speed with a first-order lag and reports what it did;
+* :mod:`.steady_hand` — pose source ``steady_hand``: a hand following the
+  recommended path at constant speed with a tremor, for ``stage: guide``
+  (its deviation has a closed form);
 * :mod:`.export` — stage kind ``export``: a planned path timed within
   velocity and acceleration limits and written for a robot, by exporter
   plugins of its own plugin kind (``joint_csv``, ``ros_joint_trajectory``).
@@ -32,6 +35,7 @@ from .export import ExportKind, JointCsv, RosJointTrajectory
 from .planar import PlanarSpace
 from .point_robot import PointRobot
 from .spring_chain import SpringChain
+from .steady_hand import SteadyHand
 from .via_point import ViaPointPlanner
 
 __all__ = [
@@ -63,6 +67,11 @@ def surgiplan_register_deformable_models():
 @hookimpl
 def surgiplan_register_devices():
     return [PluginSpec("point_robot", PointRobot, "a simulated 3-axis gantry with a safety margin")]
+
+
+@hookimpl
+def surgiplan_register_sources():
+    return [PluginSpec("steady_hand", SteadyHand, "a hand following the recommended path with a tremor")]
 
 
 @hookimpl

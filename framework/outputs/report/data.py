@@ -118,6 +118,7 @@ def report_data(out: Path, document: Mapping[str, Any], pipeline=None) -> dict[s
             "plugin": entry.get("plugin", ""),
             "status": entry.get("status", ""),
             "message": entry.get("message", ""),
+            "warnings": [str(w) for w in entry.get("warnings", []) or []],
             "colour": PALETTE[index % len(PALETTE)],
             "metrics": _metrics_rows(metrics),
             "threshold": threshold,

@@ -1,5 +1,10 @@
 """What the report draws of tissue: a simulate stage's ``.pvd``/``.vtu`` sequence and a retraction plan's
-``<stage>-states.npz``, coloured by the largest principal stress."""
+``<stage>-states.npz``, coloured by the largest principal stress.
+
+A ``.vtu`` may hold any volume cells meshio reads: tetrahedra, hexahedra, wedges and pyramids, linear or
+quadratic (a quadratic cell is drawn by its corners). The page draws the boundary: every cell face
+(triangles and quadrilaterals, turned outward) that no other cell shares, a quadrilateral as two
+triangles, each triangle coloured by its cell's stress."""
 
 from __future__ import annotations
 
@@ -13,12 +18,72 @@ import numpy as np
 from ...storage import load_bundle
 from .packing import MAX_FRAMES, Notes, inside, pack
 
+#: per volume cell type (meshio's names): corner count, and its faces by local corner index
+_CELL_FACES: dict[str, tuple[int, list[list[int]]]] = {
+    "tetra": (4, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]),
+    "pyramid": (5, [[0, 3, 2, 1], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]),
+    "wedge": (6, [[0, 2, 1], [3, 4, 5], [0, 1, 4, 3], [1, 2, 5, 4], [2, 0, 3, 5]]),
+    "hexahedron": (8, [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]),
+}
+#: quadratic cells: drawn by their corners (the first nodes, as VTK orders them)
+_QUADRATIC = {
+    "tetra10": "tetra",
+    "pyramid13": "pyramid",
+    "pyramid14": "pyramid",
+    "wedge15": "wedge",
+    "wedge18": "wedge",
+    "hexahedron20": "hexahedron",
+    "hexahedron24": "hexahedron",
+    "hexahedron27": "hexahedron",
+}
+
+
+def linear_type(cell_type: str) -> str | None:
+    """The linear volume cell type a meshio cell type is drawn as (None: not a volume cell)."""
+    cell_type = _QUADRATIC.get(cell_type, cell_type)
+    return cell_type if cell_type in _CELL_FACES else None
+
+
+def boundary(blocks: list[tuple[str, np.ndarray]], points: np.ndarray) -> np.ndarray:
+    """Boundary triangles of a mesh of volume cells: ``blocks`` of (meshio cell type, cells), numbered on in
+    order across blocks; (t, 4): three node indices and the owning cell. A face shared by two cells is
+    interior; each boundary face is turned to point away from its cell's centroid (whatever the file's node
+    order), and a quadrilateral becomes two triangles."""
+    by_arity: dict[int, tuple[list[np.ndarray], list[np.ndarray]]] = {3: ([], []), 4: ([], [])}
+    centroids, first = [], 0
+    for cell_type, cells in blocks:
+        corners, local = _CELL_FACES[linear_type(cell_type)]
+        cells = np.asarray(cells, dtype=np.int64)[:, :corners]
+        centroids.append(points[cells].mean(axis=1))
+        for face in local:
+            nodes, owners = by_arity[len(face)]
+            nodes.append(cells[:, face])
+            owners.append(np.arange(len(cells)) + first)
+        first += len(cells)
+    centroid = np.concatenate(centroids) if centroids else np.zeros((0, 3))
+    triangles = []
+    for arity, (nodes, owners) in by_arity.items():
+        if not nodes:
+            continue
+        faces, owner = np.concatenate(nodes), np.concatenate(owners)
+        _, index, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
+        once = index[counts == 1]
+        faces, owner = faces[once], owner[once]
+        corner = points[faces]
+        normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+        inward = np.einsum("ij,ij->i", normal, corner.mean(axis=1) - centroid[owner]) < 0
+        faces[inward] = faces[inward, ::-1]
+        triangles.append(np.column_stack([faces[:, [0, 1, 2]], owner]))
+        if arity == 4:
+            triangles.append(np.column_stack([faces[:, [0, 2, 3]], owner]))
+    return np.concatenate(triangles) if triangles else np.zeros((0, 4), dtype=np.int64)
+
 
 def _surface(cells: np.ndarray) -> np.ndarray:
     """Boundary triangles (faces of one tetrahedron only) of a tetrahedral mesh, outward-ordered; (t, 4):
     three node indices and the owning element."""
     cells = np.asarray(cells, dtype=np.int64)[:, :4]
-    local = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+    local = np.array(_CELL_FACES["tetra"][1])
     faces = cells[:, local].reshape(-1, 3)
     owner = np.repeat(np.arange(len(cells)), 4)
     key = np.sort(faces, axis=1)
@@ -87,20 +152,21 @@ def pvd_entries(text: str) -> list[tuple[float, str]]:
 
 
 def _read_vtu(path: Path):
+    """Points, the volume cell blocks [(type, cells)], and the stress of each of those cells in order (or None)."""
     import meshio
 
     mesh = meshio.read(path)
-    cells = None
-    stress = None
+    blocks, stresses = [], []
+    name = next((n for n in ("max_principal_stress", "stress", "von_mises") if n in mesh.cell_data), None)
     for block_index, block in enumerate(mesh.cells):
-        if block.type in ("tetra", "tetra10"):
-            cells = np.asarray(block.data, dtype=np.int64)
-            for name in ("max_principal_stress", "stress", "von_mises"):
-                if name in mesh.cell_data:
-                    stress = np.asarray(mesh.cell_data[name][block_index], dtype=float).reshape(len(cells), -1)[:, 0]
-                    break
-            break
-    return np.asarray(mesh.points, dtype=float), cells, stress
+        if linear_type(block.type) is None:  # vertices, lines, surface cells: not tissue
+            continue
+        cells = np.asarray(block.data, dtype=np.int64)
+        blocks.append((block.type, cells))
+        if name is not None:
+            stresses.append(np.asarray(mesh.cell_data[name][block_index], dtype=float).reshape(len(cells), -1)[:, 0])
+    stress = np.concatenate(stresses) if name is not None and stresses else None
+    return np.asarray(mesh.points, dtype=float), blocks or None, stress
 
 
 def simulate_mesh(out: Path, entry: Mapping[str, Any], notes: Notes) -> dict[str, Any] | None:
@@ -138,10 +204,11 @@ def simulate_mesh(out: Path, entry: Mapping[str, Any], notes: Notes) -> dict[str
             notes.add(f"{path.name}: not readable ({type(exc).__name__}: {exc}); skipped")
             continue
         if cells is None:
-            notes.add(f"{path.name}: no tetrahedra; skipped")
+            notes.add(f"{path.name}: no volume cells; skipped")
             continue
         if surface is None:
-            surface = _surface(cells)
+            only_tetra = all(t in ("tetra", "tetra10") for t, _ in cells)
+            surface = _surface(cells[0][1]) if only_tetra and len(cells) == 1 else boundary(cells, points)
             count = len(points)
         if len(points) != count:
             notes.add(f"{path.name}: another mesh than the sequence's first; skipped")

@@ -34,8 +34,10 @@ from __future__ import annotations
 
 import gc
 import importlib.resources
+import logging
 import sys
 import textwrap
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -58,6 +60,9 @@ from .refusal import Refusal, certification_refusal, check_path, refused
 from .report import bus_metrics, execution_figure, explain_lost_heartbeats, tracking_metrics, write_log_csv
 from .settings import Cia402DeviceSettings
 from .timing import time_parameterize
+from .trace import trace_name, write_trace
+
+log = logging.getLogger(__name__)
 
 
 class SimulatedDrives(Protocol):
@@ -131,6 +136,8 @@ class Cia402Device(Device):
         self._threshold = None
         self._frozen = False
         self.channel = ""
+        #: wall-clock time (s since the epoch) of the clock's zero: a trace's time stamps are ``epoch + clock``
+        self.epoch = 0.0
 
     # ------------------------------------------------------------------ for subclasses
     def build_model(self, base=None) -> KinematicModel:
@@ -139,6 +146,11 @@ class Cia402Device(Device):
     def joint_path(self, trajectory: Trajectory, current: np.ndarray) -> JointPath:
         """Joint waypoints for the trajectory's path; raise :class:`Refusal` if impossible."""
         raise NotImplementedError
+
+    def executed_geometry(self, q: np.ndarray, trajectory: Trajectory) -> tuple[Any, np.ndarray | None]:
+        """The space (with the device's body) and configurations in which the framework re-measures the executed
+        joints ``q`` (:mod:`surgiplan.verify_motion`); (None, None): the executed tip path is measured."""
+        return None, None
 
     def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
         """Clearance metrics (m) of the executed joint path ``q`` (n, nq), re-measured on the scene,
@@ -161,6 +173,13 @@ class Cia402Device(Device):
     def joints(self) -> Joints:
         """The settings per joint, checked against the model (raises ConfigError): :mod:`.joints`."""
         return resolve_joints(self.settings, self.model, self.default_acceleration)
+
+    def can_nodes(self) -> list[tuple[int, str, Path]]:
+        """(node-id, joint name, EDS file) of each drive as the settings give them (the model is loaded if it is
+        not yet): what ``surgiplan can-decode --device`` decodes a trace with."""
+        if self.model is None:
+            self.model = self.build_model()
+        return list(zip(self.joints().node_ids, self.model.joint_names, self.eds_files(), strict=True))
 
     @classmethod
     def eds_folder(cls) -> Path:
@@ -226,6 +245,7 @@ class Cia402Device(Device):
         self.faults = ArmedFaults(s.bus.faults, self.clock.now)
         inner, self.channel = open_bus(s.bus)
         self.bus = MonitoredBus(inner, self.clock.now, self.faults)
+        self.epoch = time.time() - self.clock.now()
         description = f"{s.bus.interface} channel '{self.channel}'"
         try:
             link = None if realtime else SimulationLink()
@@ -300,8 +320,25 @@ class Cia402Device(Device):
         if self.simulator is not None:
             self.simulator.close()
         if self.bus is not None:
+            self._write_trace()
             self.bus.shutdown()
         self.master = self.simulator = self.bus = self.controller = None
+
+    def _write_trace(self) -> None:
+        """``record.can``: the bus traffic so far as ``<stage>.can.<format>`` (:mod:`.trace`), listed in
+        :attr:`recordings`. Written when the bus is released, however the stage ended: a trace of a failed
+        start-up is what one needs to see why it failed."""
+        fmt = self.settings.record.can
+        if fmt is None or self.context is None:
+            return
+        name = trace_name(self.context.name, fmt)
+        try:
+            write_trace(self.context.output_dir / name, fmt, self.bus.frames, self.bus.own_ids, self.epoch)
+        except OSError as exc:  # a full disk must not hide what the stage did
+            log.warning("could not write the CAN trace %s: %s", name, exc)
+            return
+        if name not in self.recordings:
+            self.recordings.append(name)
 
     # ------------------------------------------------------------------ state (inactive or active)
     def _require_configured(self) -> None:
@@ -464,6 +501,10 @@ class Cia402Device(Device):
         metrics["faults"] = log.faults
         message = log.reason if log.status != "completed" else ""
         report = ExecutionReport(log.status, metrics, tips if len(tips) else None, log.faults, message)
+        report.executed_t = log.t if len(log.t) == len(tips) else None
+        if len(tips):  # what the framework re-measures: the device's own geometry where it has one
+            report.executed_space, report.executed_path = self.executed_geometry(log.measured, trajectory)
+            report.tip_radius = metrics.get("tip_radius_m")
         if s.outputs and self.context is not None and len(tips):
             report.files = self._write_outputs(log, tips, reference_tips, clearance, message)
         return report

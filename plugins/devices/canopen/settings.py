@@ -15,6 +15,7 @@ from surgiplan.models import StrictModel
 from surgiplan.units import Length, PositiveLength
 
 from .bus import BusSettings
+from .trace import RecordSettings
 
 #: encoder resolution defaults: a 17-bit absolute encoder (revolute), 1 um per count (prismatic)
 REVOLUTE_COUNTS = 2**17 / (2 * math.pi)
@@ -95,5 +96,7 @@ class Cia402DeviceSettings(StrictModel):
     fault_reset: bool = False
     #: write <stage>.png (joints, tracking error, clearance over time, faults) and <stage>-execution.csv
     outputs: bool = True
+    #: what else to record: ``can: blf | asc | log`` writes the bus traffic as ``<stage>.can.<format>`` (:mod:`.trace`)
+    record: RecordSettings = Field(default_factory=RecordSettings)
     simulation: SimulationSettings = Field(default_factory=SimulationSettings)
     ik: IKSettings = Field(default_factory=IKSettings)

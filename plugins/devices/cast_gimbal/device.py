@@ -168,6 +168,10 @@ class CastGimbalDevice(Cia402Device):
     def approach_is_clear(self, q_from, q_to, trajectory: Trajectory) -> bool:
         return bool(self.space.motion_is_clear(q_from[None], q_to[None], 0.0)[0])
 
+    def executed_geometry(self, q: np.ndarray, trajectory: Trajectory):
+        """The whole shaft: the measured joints in the gimbal space (the shaft radius is the device's)."""
+        return self.space, q
+
     def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
         space = self.space
         scene = trajectory.space.scene

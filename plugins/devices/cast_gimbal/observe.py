@@ -28,7 +28,6 @@ injected in simulation (``bus: {faults: [...]}``) are timed from the attempt's s
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,7 +35,8 @@ from pydantic import PositiveFloat, PrivateAttr, ValidationInfo, model_validator
 from surgiplan.errors import ConfigError, PlanningInputError
 from surgiplan.guidance import PoseSample, PoseSource, SourceStopped, TraineeModel, synthetic_attempt
 from surgiplan.guidance.files import read_attempt_csv
-from surgiplan.units import LENGTH_SCALE_KEY, PositiveLength
+from surgiplan.units import PositiveLength
+from surgiplan.validation import file_length_scale, input_path
 
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
 
@@ -51,9 +51,8 @@ class HandModel(TraineeModel):
     @model_validator(mode="after")
     def _read(self, info: ValidationInfo):
         if self.replay is not None:
-            context = info.context or {}
-            path = (Path(context.get("base_dir", ".")) / self.replay).resolve()
-            times, values, kind = read_attempt_csv(path, context.get(LENGTH_SCALE_KEY, 1.0))
+            path = input_path(self.replay, info)
+            times, values, kind = read_attempt_csv(path, file_length_scale(info))
             self.replay = str(path)
             self._recorded = (times - times[0], values, kind)
         return self
@@ -205,5 +204,8 @@ class CastGimbalObserver(PoseSource):
 
     def close(self) -> None:
         if self.device is not None:
-            self.device.shutdown()
-            self.device = None
+            try:
+                self.device.shutdown()
+            finally:
+                self.recordings = list(self.device.recordings)  # the device's trace (record.can) is the source's
+                self.device = None

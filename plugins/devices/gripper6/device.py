@@ -250,6 +250,12 @@ class Gripper6Device(Cia402Device):
         q = q_from + np.linspace(0.0, 1.0, count)[:, None] * (q_to - q_from)
         return self._body_clearance(q, trajectory)[0] > 0.0
 
+    def executed_geometry(self, q: np.ndarray, trajectory: Trajectory):
+        """The planned body (the se3 plan's jaws) at the executed joints; else the tool sphere at the tip."""
+        if trajectory.space.kind == "se3":
+            return trajectory.space, self.planned_from_jaws(self.model.tip_poses(q))
+        return None, None
+
     def clearance_along(self, q: np.ndarray, trajectory: Trajectory) -> tuple[dict[str, float], np.ndarray]:
         scene = trajectory.space.scene
         tips = self.model.tip_positions(q)

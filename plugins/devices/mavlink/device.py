@@ -50,6 +50,7 @@ Settings (:mod:`.settings`; lengths in the pipeline's ``length_unit``; speeds m/
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -67,7 +68,10 @@ from .link import Endpoint, VehicleError, enum_name, mavlink, signing_key
 from .local_simulator import LocalSimulator
 from .report import describe, flight_figure, flight_metrics, write_flight_csv
 from .settings import MavlinkVehicleSettings
+from .tlog import TelemetryLog
 from .vehicle_state import capability_names
+
+logger = logging.getLogger(__name__)
 
 #: the PX4 parameters the flight relies on (read at configure; see MavlinkVehicle._limits)
 RELIED_ON = (
@@ -148,6 +152,8 @@ class MavlinkVehicle(Device):
                 key=key,
                 link_id=s.signing.link_id if s.signing else 0,
             )
+            if s.tlog and context is not None:
+                self.endpoint.tlog = TelemetryLog(context.output_dir / f"{context.name}.tlog")
             t = s.timeouts
             self.gcs = GroundStation(
                 self.endpoint,
@@ -236,7 +242,14 @@ class MavlinkVehicle(Device):
     def _release(self) -> None:
         if self.endpoint is not None:
             self.endpoint.close()
+            tlog, self.endpoint.tlog = self.endpoint.tlog, None
             self.endpoint = None
+            if tlog is not None:
+                try:
+                    self.recordings.append(tlog.close().name)
+                except OSError as exc:  # a full disk must not hide what the flight did
+                    tlog.abandon()
+                    logger.warning("could not write the telemetry log %s: %s", tlog.path, exc)
         self._stop_simulator()
 
     # ------------------------------------------------------------------ execution

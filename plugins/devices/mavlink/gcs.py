@@ -41,6 +41,7 @@ from .conventions import px4_mode_command, px4_mode_name
 from .link import Endpoint, VehicleError, is_mavlink2, mavlink
 from .mission import MISSION, MissionItem
 from .mission_gcs import MissionClear, MissionDownload, MissionUpload, UploadStatistics
+from .tlog import RECORDING_STARTED, RECORDING_STOPPED
 from .transactions import RESULT_ACCEPTED, CommandTransaction, ParamTransaction, command_name, result_name
 from .vehicle_state import PositionSample, VehicleState
 
@@ -82,13 +83,25 @@ class GroundStation:
         self.clock = clock
         self.vehicle = VehicleState()
         self.samples: list[PositionSample] = []
-        self.recording = False
+        self._recording = False
         self.check_liveness = True
         self.step = "connect"
         #: called after every pump with the vehicle's messages and the wall time (offboard streaming)
         self.tickers: list[Callable[[list, float], None]] = []
         self._next_heartbeat = -math.inf
         self._transactions: list = []
+
+    @property
+    def recording(self) -> bool:
+        """Whether the vehicle's LOCAL_POSITION_NED are the flight's samples; a change is noted in the telemetry
+        log (:mod:`.tlog`), so that a replay takes the same samples."""
+        return self._recording
+
+    @recording.setter
+    def recording(self, value: bool) -> None:
+        if bool(value) != self._recording:
+            self.link.note(RECORDING_STARTED if value else RECORDING_STOPPED)
+        self._recording = bool(value)
 
     @property
     def target(self) -> tuple[int, int]:

@@ -168,6 +168,8 @@ class Endpoint:
         self._write = self.conn.write
         self.conn.write = self._lossy_write  # every send (pymavlink's mav.send) goes through here
         self.signed = key is not None
+        #: the telemetry log being written (:mod:`.tlog`), if any: what is sent and what arrives
+        self.tlog = None
         if key is not None:
             # no allow_unsigned_callback: an unsigned frame or a wrong signature is rejected
             self.conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
@@ -200,6 +202,8 @@ class Endpoint:
 
     # ------------------------------------------------------------------ sending
     def _lossy_write(self, buf) -> None:
+        if self.tlog is not None:  # what this end sent (a loss on the way is the link's)
+            self.tlog.write(buf)
         if self.loss > 0 and self._rng.random() < self.loss:
             self.stats.dropped_out += 1
             return
@@ -251,6 +255,8 @@ class Endpoint:
                 self.stats.dropped_in += 1
                 continue
             self.stats.received[kind] += 1
+            if self.tlog is not None:
+                self.tlog.write(message.get_msgbuf())
             out.append(message)
         return out
 
@@ -268,6 +274,12 @@ class Endpoint:
     def signature_rejections(self) -> int:
         signing = self.mav.signing
         return int(signing.reject_count + signing.badsig_count)
+
+    def note(self, text: str) -> None:
+        """A STATUSTEXT of this end written in the telemetry log only (never sent): a mark for a replay."""
+        if self.tlog is not None:
+            message = mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_INFO, text.encode()[:50])
+            self.tlog.write(message.pack(self.mav))
 
     def close(self) -> None:
         try:

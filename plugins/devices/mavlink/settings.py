@@ -109,6 +109,8 @@ class MavlinkVehicleSettings(StrictModel):
     #: run the simulated vehicle as a subprocess (the real program) or in a thread
     sim_process: Literal["subprocess", "thread"] = "subprocess"
     figure: bool = True
+    #: write <stage>.tlog, the flight's telemetry log as MAVProxy writes it (pymavlink's tools, MAVExplorer, QGC)
+    tlog: bool = True
 
     @field_validator("mission_frame", mode="before")
     @classmethod

@@ -51,7 +51,8 @@ from surgiplan.clearance import critical_regions as measured_regions
 from surgiplan.models import StrictModel
 from surgiplan.planning import Planner, PlanningProblem, PlanResult, PlanStatus
 from surgiplan.resources import ResourceEstimate
-from surgiplan.units import LENGTH_SCALE_KEY, Length, PositiveLength
+from surgiplan.units import Length, PositiveLength
+from surgiplan.validation import file_length_scale, input_path
 
 from . import query as prm_query
 from .proficiency import DEFAULT_LEVELS, threshold_from_attempts
@@ -90,10 +91,8 @@ class FromAttempts(StrictModel):
 
     @model_validator(mode="after")
     def _read(self, info: ValidationInfo):
-        context = info.context or {}
-        base = Path(context.get("base_dir", "."))
-        path = (base / self.from_attempts).resolve()
-        stats = threshold_from_attempts(path, context.get(LENGTH_SCALE_KEY, 1.0), self.percentile)
+        path = input_path(self.from_attempts, info)
+        stats = threshold_from_attempts(path, file_length_scale(info), self.percentile)
         self.from_attempts = str(path)
         self.d_thresh = stats.d_thresh
         self.attempts = stats.attempts

@@ -92,17 +92,37 @@ class HostilePlanner(Planner):
 
 class DeviceSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    mode: Literal["done", "raises"] = "done"
+    mode: Literal["done", "raises", "swings", "lies", "silent", "grazes"] = "done"
+    safety_margin: float = 0.0
 
 
 class HostileDevice(Device):
+    """Unknown status, a crash, or a motion that is not the plan: it swings 19 mm off the plan through a block,
+    it reports the plan while it scraped 4.8 mm into one (and claims 5 mm of clearance), it reports no motion
+    at all, or it passes inside its own safety margin."""
+
     Settings = DeviceSettings
     moved = False
 
     def run(self, trajectory):
-        if self.settings.mode == "raises":
+        mode = self.settings.mode
+        if mode == "raises":
             raise ValueError("the hostile device fails on purpose")
-        return ExecutionReport("done", executed_tip_path=trajectory.space.tip(trajectory.path))
+        tips = trajectory.space.tip(trajectory.path)
+        if mode == "done":
+            return ExecutionReport("done", executed_tip_path=tips)
+        if mode == "silent":
+            return ExecutionReport("completed", {"executed_min_clearance_m": 0.005})
+        t = np.linspace(0.0, 2.0, 201)
+        line = tips[0] + np.outer(t / 2.0, tips[-1] - tips[0])  # the plan of the tests: one straight segment
+        if mode == "swings":  # joint-space-like interpolation: the middle of the motion bulges 19 mm sideways
+            line[:, 1] += 0.019 * np.sin(np.pi * t / 2.0)
+        elif mode == "lies":  # 4.8 mm into A1 (y 47 mm) half-way through the A gap, and says it kept 5 mm
+            line[:, 1] -= np.where(np.abs(line[:, 0] - 0.040) < 0.004, 0.0078, 0.0)
+        timeline = {"t": t.tolist(), "tip": line.tolist()}
+        return ExecutionReport(
+            "completed", {"executed_min_clearance_m": 0.005}, executed_tip_path=line, annotations={"timeline": timeline}
+        )
 
 
 class ModelSettings(BaseModel):
@@ -140,7 +160,7 @@ def surgiplan_register_deformable_models():
 
 class SourceSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    mode: Literal["silent", "stops", "backwards"] = "silent"
+    mode: Literal["silent", "stops", "backwards", "outside", "nan"] = "silent"
 
 
 class HostileSource(PoseSource):
@@ -158,6 +178,10 @@ class HostileSource(PoseSource):
             time.sleep(30)  # the stage's silence_timeout ends the attempt long before
         elif self.settings.mode == "stops":
             raise SourceStopped("the tracker lost the instrument")
+        elif self.settings.mode == "outside":  # 460 mm above the box
+            yield PoseSample(0.3, tip=self.tips[3] + [0.0, 0.0, 0.46])
+        elif self.settings.mode == "nan":
+            yield PoseSample(0.3, tip=[np.nan, 0.05, 0.02])
         else:
             yield PoseSample(0.05, tip=self.tips[3])
 

@@ -38,6 +38,16 @@
     return a !== 0 && (a < 1e-3 || a >= 1e6) ? v.toExponential(3) : (+v.toPrecision(4)).toString();
   }
   function metricValue(key, v) {
+    if (Array.isArray(v)) {  // lists: each item formatted as its key says (lengths in the run's unit), at most 8
+      if (v.length === 0) return "none";
+      const items = v.slice(0, 8).map((x) => metricValue(key, x));
+      const joined = items.join(v.every((x) => typeof x === "number" || x === null) ? ", " : "; ");
+      return v.length > 8 ? `${joined}; … (${v.length} in all)` : joined;
+    }
+    if (v !== null && typeof v === "object") {  // a small table: name value, name value
+      const text = Object.entries(v).map(([k2, x]) => `${k2.replace(/_(m|s|Pa|J)$/, "")} ${metricValue(k2, x)}`).join(", ");
+      return text.length > 400 ? text.slice(0, 400) + "…" : text;
+    }
     if (typeof v === "number" && /_m$/.test(key) && !/_Jm$/.test(key)) return len(v);
     if (typeof v === "number" && /_s$/.test(key)) return `${num(v)} s`;
     if (typeof v === "number" && /_Pa$/.test(key)) return v >= 1e3 ? `${num(v / 1e3)} kPa` : `${num(v)} Pa`;
@@ -61,6 +71,7 @@
   function badgeClass(status) {
     if (["solved", "completed", "converged", "succeeded", "followed"].includes(status)) return "badge ok";
     if (["stopped", "refused", "no_path", "failed", "timeout", "skipped", "not_run", "incomplete"].includes(status)) return "badge warn";
+    // unsafe, invalid_result, error, interrupted: red
     return "badge bad";
   }
 
@@ -470,6 +481,7 @@
       el("summary", {}, el("span", { class: "sw", style: `background:${st.colour}` }), `${st.name} `,
         el("span", { class: "meta", style: "font-weight:400;color:#666" }, `${st.stage} · ${st.plugin} `), el("span", { class: badgeClass(st.status) }, st.status)),
       st.message ? el("div", { class: "message" }, st.message) : null,
+      ...(st.warnings || []).map((w) => el("div", { class: "message warning" }, "warning: " + w)),
       layers, table, images);
   }
 
