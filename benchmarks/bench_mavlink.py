@@ -18,6 +18,9 @@ Everything over real MAVLink 2 on 127.0.0.1 UDP:
    planned path, and the flown clearance inside the door and outside it, re-measured on the scene.
 3. speed: simulated seconds per wall second the simulator sustains while flying a mission (asked for
    1000x), with PX4's default telemetry streams and with the streams the device leaves on.
+1b. links and fence (mavlink_links.py): the parameters, the hall's fence, rally points and mission through
+   30 % loss each way (attempts, time, the bound the retries put on it); the shipped fence rehearsal
+   (hall_faults_fence.yaml: setpoints through a pillar, the vehicle's geofence holds it).
 4. lockstep: the hall's offboard flight repeated with one seed while the ground station stalls at
    random (0-20 ms in half its pumps, i.e. up to 0.4 s of vehicle time at 20x), with the vehicle in
    lockstep (it never steps past the newest setpoint's stamp) beside the reference it replaces
@@ -27,7 +30,7 @@ Everything over real MAVLink 2 on 127.0.0.1 UDP:
 
 Each section records the load average (1, 5, 15 min) when it starts: the machine is shared.
 
-    python benchmarks/bench_mavlink.py [--quick] [--only hall,upload,tracking,speed,lockstep]
+    python benchmarks/bench_mavlink.py [--quick] [--only hall,upload,links,fence,tracking,speed,lockstep]
 
 A full run writes results/mavlink.json and results/mavlink.md (the tables the README copies; a test
 checks that the README quotes them as written).
@@ -51,6 +54,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import package_version, save, table
+from mavlink_links import bench_fence, bench_links
+from mavlink_table import markdown
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.plugins.devices.mavlink.gcs import GroundStation
 from surgiplan.plugins.devices.mavlink.link import Endpoint, VehicleError, mavlink
@@ -190,6 +195,8 @@ def fly(tmp: Path, artifact: Path, mode: str, gust: float, seed: int, **sim_sett
             "frame": {"local_origin": [2, 6, 0]},
             "cruise_speed": 1.5,
             "figure": False,
+            # these flights measure tracking: in strong gusts they leave the scene's fence, which only warns here
+            "fence": {"action": "warning"},
         }
         path = tmp / f"{mode}-{gust}-{seed}.yaml"
         text = HALL.format(
@@ -369,6 +376,9 @@ def bench_hall(tmp: Path) -> list[dict]:
                 "planned_door_clearance_m": round(plan["metrics"]["min_clearance_m"], 3),
                 "outside_min_clearance_m": round(m["flown_min_clearance_outside_critical_m"], 3),
                 "threshold_m": m["clearance_threshold_m"],
+                "fence_items": m["fence_items"],
+                "fence_verified": m["fence_verified"],
+                "fence_breaches": sum("Geofence breached" in e["message"] for e in m["fence_events"]),
                 "breeze_mps": round(breeze, 2),
                 "gust_mps": wind.gust,
                 "pipeline_wall_s": round(wall, 1),
@@ -379,79 +389,7 @@ def bench_hall(tmp: Path) -> list[dict]:
     return rows
 
 
-def markdown(rows: list[dict]) -> str:
-    """The README's tables, from this run's rows (the README copies them; tests/test_mavlink_readme.py checks)."""
-    out = []
-    hall = [r for r in rows if r["benchmark"] == "hall"]
-    if hall:
-        out += [
-            "| flight | tracking error max / rms | flown min clearance: door (planned "
-            f"{hall[0]['planned_door_clearance_m']:.2f}) | outside the door (threshold {hall[0]['threshold_m']:g}) |",
-            "|---|---|---|---|",
-        ]
-        for r in hall:
-            out.append(
-                f"| {r['flight']} | {r['tracking_error_max_m']:.3f} / {r['tracking_error_rms_m']:.3f} m | "
-                f"{r['door_min_clearance_m']:.3f} m | {r['outside_min_clearance_m']:.3f} m |"
-            )
-        out.append("")
-    upload = [r for r in rows if r["benchmark"] == "upload"]
-    if upload:
-        losses = sorted({r["loss"] for r in upload})
-        out += [
-            "| loss each way | " + " | ".join(f"{100 * p:g} %" if p else "0" for p in losses) + " |",
-            "|---|" + "---|" * len(losses),
-        ]
-        for n in sorted({r["items"] for r in upload}):
-            cells = []
-            for p in losses:
-                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
-                cells.append(f"{r['upload_s_median']:.3g} s ({r['predicted_s']:.3g})")
-            out.append(f"| {n} items: upload (predicted) | " + " | ".join(cells) + " |")
-        for n in sorted({r["items"] for r in upload}):
-            cells = []
-            for p in losses:
-                r = next(r for r in upload if r["items"] == n and r["loss"] == p)
-                cells.append(f"{r['download_s_median']:.3g} s, {r['verified']}")
-            out.append(f"| {n} items: download back, verified | " + " | ".join(cells) + " |")
-        out.append("")
-    tracking = [r for r in rows if r["benchmark"] == "tracking"]
-    if tracking:
-        gusts = sorted({r["gust_mps"] for r in tracking})
-        out += [
-            "| gusts (m/s, 0.5 m/s breeze) | " + " | ".join(f"{g:g}" for g in gusts) + " |",
-            "|---|" + "---|" * len(gusts),
-        ]
-        for mode in ("mission", "offboard"):
-            by = {r["gust_mps"]: r for r in tracking if r["mode"] == mode}
-            out.append(f"| {mode}: completed | " + " | ".join(by[g]["completed"] for g in gusts) + " |")
-            out.append(
-                f"| {mode}: tracking error max | " + " | ".join(f"{by[g]['tracking_error_max_m']:.2f} m" for g in gusts)
-                + " |"
-            )  # fmt: skip
-            out.append(
-                f"| {mode}: door clearance | " + " | ".join(f"{by[g]['door_min_clearance_m']:.2f} m" for g in gusts)
-                + " |"
-            )  # fmt: skip
-        out.append("")
-    speed = [r for r in rows if r["benchmark"] == "speed"]
-    lockstep = [r for r in rows if r["benchmark"] == "lockstep"]
-    if speed or lockstep:
-        out += ["| measure | value |", "|---|---|"]
-        for r in speed:
-            out.append(f"| simulator speed, telemetry {r['streams']} | {r['sustained_x_real_time']:g}x real time |")
-        for r in lockstep:
-            out.append(
-                f"| offboard flight repeated, ground station stalling, lockstep_horizon {r['lockstep_horizon_s']:g} s |"
-                f" setpoint error spread {1000 * r['spread_m']:.1f} mm, {r['wall_s_median']:g} s per flight |"
-            )
-        out.append("")
-    loads = sorted({tuple(r["load_average_at_start"]) for r in rows})
-    out.append("Load average (1, 5, 15 min) at the start of the sections: " + "; ".join(map(str, loads)) + ".")
-    return "\n".join(out) + "\n"
-
-
-SECTIONS = ("hall", "upload", "tracking", "speed", "lockstep")
+SECTIONS = ("hall", "upload", "links", "fence", "tracking", "speed", "lockstep")  # the tables' order
 
 
 def main() -> None:
@@ -484,6 +422,10 @@ def main() -> None:
     if args.quick:
         if "upload" in only:
             rows += bench_upload([20], [0.0, 0.2], 2)
+        if "links" in only:
+            rows += bench_links([0.0, 0.3], 1)
+        if "fence" in only:
+            rows += bench_fence()
         if "tracking" in only:
             rows += bench_tracking([0.3], 1)
         if "speed" in only:
@@ -493,6 +435,10 @@ def main() -> None:
     else:
         if "upload" in only:
             rows += bench_upload([20, 100], [0.0, 0.1, 0.2, 0.3, 0.4], 5)
+        if "links" in only:
+            rows += bench_links([0.0, 0.3], 5)
+        if "fence" in only:
+            rows += bench_fence()
         if "tracking" in only:
             rows += bench_tracking([0.0, 0.3, 0.6, 0.9], 3)
         if "speed" in only:
@@ -506,6 +452,7 @@ def main() -> None:
         "3 transfers), each upload downloaded back (0.5 s per item) and compared; "
         "predicted_s is the mission protocol's expectation from its timeouts; tracking flights at 20x real time; "
         "lockstep: one seed flown repeatedly with a ground station stalling at random (spread 0: reproducible); "
+        "links: the ground station's default timeouts, the vehicle's link dropping that share each way; "
         "load_average_at_start: os.getloadavg() when each section began (a shared machine)"
     )
     print("\n" + markdown(rows))

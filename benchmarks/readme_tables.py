@@ -19,8 +19,9 @@ changes the sentence, not only the figure. Every block opens with the commit its
 (and the load average before and after), from the results file's provenance.
 
 Each README section's blocks are rendered by a module of :mod:`readme_blocks` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``devices``), with the formatting they share in
-``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks them.
+``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``devices``, ``canopen``), with the formatting they
+share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or
+checks them.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from readme_blocks.canopen import render_canopen_conformance
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
 from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
@@ -69,6 +71,7 @@ BLOCKS: dict[str, Block] = {
     "fem_vs_fenicsx": Block(render_fem_vs_fenicsx, ("fem_vs_fenicsx",)),
     "tissue": Block(render_tissue, ("tissue",)),
     "devices": Block(render_devices, ("devices",)),
+    "canopen_conformance": Block(render_canopen_conformance, ("canopen_conformance",)),
     "mavlink_hall": Block(render_mavlink_hall, ("mavlink",)),
     "mavlink": Block(render_mavlink, ("mavlink",)),
     "guide": Block(render_guide, ("guide",)),

@@ -112,7 +112,7 @@ def test_object_dictionary_has_the_profile_objects_at_their_standard_indices():
         if name:
             assert od[index].name == name
     # default PDO mapping: RPDO1 = controlword (16 bit) + target position (32 bit), TPDO1 = statusword + position
-    assert od[0x1400][1].default == 0x205 and od[0x1800][1].default == 0x185
+    assert od[0x1400][1].default == 0x205 and od[0x1800][1].default == 0x40000185  # bit 30: no RTR
     assert [od[0x1600][i].default for i in (1, 2)] == [0x60400010, 0x607A0020]
     assert [od[0x1A00][i].default for i in (1, 2)] == [0x60410010, 0x60640020]
     assert cia402.CSP == 8

@@ -36,7 +36,7 @@ class Bench:
         channel = f"conformance-{uuid.uuid4().hex[:8]}"
         self.axis = AxisHardware(
             1, CPU, 12.0, 1.5, 0.0, name="yaw", lower=-1.0, upper=1.0, following_error_window=0.01,
-            profile_velocity=1.0, profile_acceleration=4.0,
+            profile_velocity=1.0, profile_acceleration=4.0, serial=1,
         )  # fmt: skip
         faults = ArmedFaults([], self.clock.now)
         self.sim = DriveSimulator(can.Bus(interface="virtual", channel=channel), [self.axis], MotorModel(),
@@ -91,10 +91,11 @@ def test_pdo_mapping_follows_the_cia_301_procedure_and_refuses_the_rest(bench):
     node = bench.node
     tpdo_cob = node.sdo[0x1800][1]
     mapping = node.sdo[0x1A00]
-    # mapping a valid PDO: device state
-    assert abort_code(lambda: setattr(mapping[0], "raw", 0)) == 0x08000022
-    tpdo_cob.raw = 0x181 | (1 << 31)  # invalidate
-    assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410010)) == 0x08000022  # number of entries first
+    # mapping a valid PDO: refused (0x06010000, a code CiA's conformance test accepts)
+    assert abort_code(lambda: setattr(mapping[0], "raw", 0)) == 0x06010000
+    assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x181 | (1 << 31))) == 0x06090030  # TPDOs are not RTR'd
+    tpdo_cob.raw = 0x40000181 | (1 << 31)  # invalidate (bit 30: no RTR)
+    assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410010)) == 0x06010000  # number of entries first
     mapping[0].raw = 0
     assert abort_code(lambda: setattr(mapping[1], "raw", 0x60650020)) == 0x06040041  # 0x6065 is not mappable
     assert abort_code(lambda: setattr(mapping[1], "raw", 0x60410020)) == 0x06040041  # wrong length
@@ -102,8 +103,8 @@ def test_pdo_mapping_follows_the_cia_301_procedure_and_refuses_the_rest(bench):
         mapping[sub].raw = entry
     assert abort_code(lambda: setattr(mapping[0], "raw", 3)) == 0x06040042  # 80 bits > 64
     mapping[0].raw = 2
-    tpdo_cob.raw = 0x181
-    assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x191)) == 0x06090030  # the COB-ID of a valid PDO
+    tpdo_cob.raw = 0x40000181
+    assert abort_code(lambda: setattr(tpdo_cob, "raw", 0x40000191)) == 0x06090030  # the COB-ID of a valid PDO
     assert abort_code(lambda: setattr(node.sdo[0x1800][2], "raw", 252)) == 0x06090030  # RTR-only: not offered
     node.nmt.send_command(0x01)  # OPERATIONAL: no PDO changes at all
     assert abort_code(lambda: setattr(node.sdo[0x1800][2], "raw", 1)) == 0x08000022
@@ -266,6 +267,73 @@ def test_the_shipped_eds_files_are_the_dictionaries_the_simulator_serves(tmp_pat
     # and canopen loads each as a node's dictionary, with the values the simulated drive serves
     path = devices["cast_gimbal"].eds_folder() / "cast_gimbal_insertion.eds"
     loaded = canopen.import_od(str(path), 3)
-    assert loaded[0x1800][1].default == 0x183 and loaded[0x1018][4].default == 3
+    assert loaded[0x1800][1].default == 0x40000183 and loaded[0x1018][4].default == 3
     assert loaded[0x607D][2].default == 300_000  # 300 mm at 1 um per count
     assert loaded[0x6502].default == 0x0185 and loaded[0x6060].data_type == canopen.objectdictionary.INTEGER8
+
+
+# ----------------------------------------------------------------------------- what the CTT families cannot see
+def test_an_abandoned_segmented_transfer_is_aborted_after_the_protocol_time_out(bench):
+    """A client that starts a segmented upload and goes quiet: the drive aborts 0x05040000 after 1 s (simulated
+    clock), and serves the next request."""
+    bench.network.send_message(0x601, bytes([0x40, 0x08, 0x10, 0, 0, 0, 0, 0]))  # initiate upload of 0x1008
+    assert bench.frames(0x581)[-1][0] == 0x41  # segmented: size indicated
+    answered = len(bench.frames(0x581))
+    bench.run(0.9)
+    assert len(bench.frames(0x581)) == answered
+    bench.run(0.2)
+    aborts = bench.frames(0x581)[answered:]
+    assert len(aborts) == 1 and aborts[0][0] == 0x80 and struct.unpack("<L", aborts[0][4:])[0] == 0x05040000
+    assert bench.node.sdo[0x1000].raw == cia402.DEVICE_TYPE
+
+
+def _lss(bench, *payload: int) -> bytes | None:
+    before = len(bench.frames(0x7E4))
+    bench.network.send_message(0x7E5, bytes(payload).ljust(8, b"\x00"))
+    answers = bench.frames(0x7E4)[before:]
+    return answers[-1] if answers else None
+
+
+def test_lss_renumbers_a_configured_drive_at_its_next_reset_communication(bench):
+    """CiA 305: a configured drive's new node-ID becomes active at NMT reset communication (a non-configured one's
+    on returning to the waiting state, which the conformance suite checks); the application's values stay."""
+    bench.node.sdo[0x6065].raw = 1234
+    _lss(bench, 0x04, 1)  # every drive to the configuration state
+    assert _lss(bench, 0x5E)[:2] == bytes([0x5E, 1])  # inquire node-ID
+    assert _lss(bench, 0x11, 5)[:3] == bytes([0x11, 0, 0])
+    assert _lss(bench, 0x5E)[:2] == bytes([0x5E, 1])  # still the active one: the new one is pending
+    _lss(bench, 0x04, 0)
+    assert not bench.frames(0x705)  # a configured drive keeps its node-ID until a reset
+    bench.network.send_message(0x000, bytes([0x82, 1]))
+    assert bench.frames(0x705) == [b"\x00"]  # boot-up as node 5
+    node = canopen.RemoteNode(5, bench.dictionary)
+    node.sdo.RESPONSE_TIMEOUT, node.sdo.MAX_RETRIES = 0.05, 1
+    bench.network.add_node(node)
+    assert node.sdo[0x6065].raw == 1234 and node.sdo[0x1018][4].raw == 1  # its serial number stays
+    with pytest.raises(SdoCommunicationError):
+        bench.node.sdo[0x1000].raw  # noqa: B018  (nobody at node-ID 1 now)
+
+
+def test_a_bit_rate_other_than_the_bus_s_takes_the_drive_off_the_bus(bench):
+    _lss(bench, 0x04, 1)
+    assert _lss(bench, 0x13, 0, 2)[:2] == bytes([0x13, 0])  # 500 kbit/s: supported (the EDS's BaudRate_500)
+    start = bench.clock.now()
+    bench.node.sdo[0x1017].raw = 10
+    _lss(bench, 0x15, 20, 0)  # activate, switch delay 20 ms
+    bench.run(0.2)
+    assert bench.frames(0x701, start) == []  # at 500 kbit/s on a 1 Mbit/s bus: nothing from it
+    assert _lss(bench, 0x5E) is None
+    with pytest.raises(SdoCommunicationError):
+        bench.node.sdo[0x1000].raw  # noqa: B018
+
+
+def test_a_damaged_memory_file_is_the_factory_defaults(tmp_path, caplog):
+    from surgiplan.plugins.devices.canopen.sim.storage import Memory
+
+    path = tmp_path / "test_yaw.json"
+    path.write_text('{"parameters": {"6065:0": "zz"}}')
+    with caplog.at_level("WARNING"):
+        memory = Memory(path)
+    assert memory.parameters == {} and "unreadable" in caplog.text
+    memory.store_lss(7, 500_000)
+    assert Memory(path).lss == {"node_id": 7, "bit_rate": 500_000}

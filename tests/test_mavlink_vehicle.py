@@ -191,7 +191,11 @@ def test_bad_settings_are_reported_with_their_yaml_path(tmp_path, roadmap, setti
 def test_mission_flight_through_the_hall(tmp_path, roadmap):
     with simulated() as vehicle:
         outcome, document, stage, table = fly(tmp_path, roadmap, external(vehicle))
+        zones, breaches = list(vehicle.zones), list(vehicle.fence_breaches)
     assert outcome.ok and stage["status"] == "completed"
+    # with the scene's fence on (the default): uploaded, verified, held by the vehicle, never breached
+    assert stage["metrics"]["fence_items"] == 27 and len(zones) == 10 and breaches == []
+    assert stage["metrics"]["fence_unfenced"].keys() == {"lintel"} and stage["metrics"]["fence_events"] == []
     metrics = check_flight_against_independent_measures(document, stage, table, vehicle)
     # the mission the vehicle flew is the one that was planned: change speed, take off to the path's first
     # waypoint, one waypoint per other (thinned) path point, land
@@ -220,7 +224,9 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
     assert {"flight.csv", "flight.png"} <= set(document["files"])
     assert metrics["upload_retransmissions"] == 0 and metrics["signed"] is False
     # the upload was verified by downloading it back (PX4 answers in frame 6; the same mission)
-    assert metrics["mission_verified"] is True and vehicle.sender.completed == 1
+    # three downloads, each acknowledged: the fence and the rally points (before the mission), the mission
+    assert metrics["mission_verified"] is True and vehicle.sender.completed == 3
+    assert metrics["fence_verified"] is True and metrics["rally_verified"] is True
     assert (
         metrics["mission_frame"] == "MAV_FRAME_GLOBAL_RELATIVE_ALT" and metrics["mission_message"] == "MISSION_ITEM_INT"
     )
@@ -232,6 +238,8 @@ def test_mission_flight_through_the_hall(tmp_path, roadmap):
 def test_offboard_flight_streams_setpoints_on_the_vehicle_clock(tmp_path, roadmap):
     with simulated() as vehicle:
         settings = external(vehicle, mode="offboard", acceleration=1.0, corner_deviation=0.05, figure=False)
+        # at 2 m/s it passes B3 a few cm inside the threshold: the fence only warns here (it holds by default)
+        settings["fence"] = {"action": "warning"}
         outcome, document, stage, table = fly(tmp_path, roadmap, settings)
     assert outcome.ok and stage["status"] == "completed"
     metrics = check_flight_against_independent_measures(document, stage, table, vehicle)
@@ -253,7 +261,8 @@ def test_offboard_flight_in_strong_gusts_arrives_in_the_air_and_lands_vertically
     until it arrives; then NAV_LAND. (Streaming the landing leg too, a touchdown the gusts put more than the
     acceptance radius beside the goal never arrived: the flight timed out on the ground.)"""
     with simulated(wind={"mean": [0.3, 0.4, 0.0], "gust": 0.9}) as vehicle:
-        settings = external(vehicle, mode="offboard", cruise_speed=1.5, figure=False)
+        # gusts that push it through the fence (tests/test_mavlink_fence.py): flown here without one
+        settings = external(vehicle, mode="offboard", cruise_speed=1.5, figure=False, fence={"enabled": False})
         outcome, _, stage, _ = fly(tmp_path, roadmap, settings)
         events = [text for _, text in vehicle.events]
         touchdown = np.array(vehicle.trajectory)[-1, 1:4]
@@ -468,7 +477,9 @@ def test_offboard_is_refused_by_a_vehicle_without_the_capability_and_missions_fa
         received = dict(vehicle.received)
     assert report.status == "completed", report.message
     assert report.metrics["mission_message"] == "MISSION_ITEM" and report.metrics["mission_verified"] is True
-    assert received.get("MISSION_ITEM", 0) >= report.metrics["mission_items"] and "MISSION_ITEM_INT" not in received
+    # ... and so do the fence and the rally points uploaded before it
+    assert received.get("MISSION_ITEM", 0) >= report.metrics["mission_items"] + report.metrics["fence_items"]
+    assert "MISSION_ITEM_INT" not in received and report.metrics["fence_verified"] is True
     assert "MISSION_INT" not in report.metrics["autopilot_capabilities"]
 
 
@@ -481,7 +492,10 @@ def test_failsafe_parameters_are_set_and_read_back_before_the_flight(tmp_path):
         changes = dict(vehicle.params.changes)
         settings = vehicle.settings
     assert report.status == "completed", report.message
-    assert report.metrics["parameters_set"] == {"RTL_RETURN_ALT": pytest.approx(1.8), "COM_OBL_RC_ACT": 3}
-    assert changes == {"RTL_RETURN_ALT": pytest.approx(1.8), "COM_OBL_RC_ACT": 3}
+    # and the geofence's: GF_ACTION 2 (hold, the default fence.action), GF_MAX_VER_DIST the hall's top above
+    # home (4 m; GF_PREDICT stays PX4's 0, fence.predict being off)
+    wanted = {"RTL_RETURN_ALT": pytest.approx(1.8), "COM_OBL_RC_ACT": 3, "GF_ACTION": 2, "GF_MAX_VER_DIST": 4.0}
+    assert report.metrics["parameters_set"] == wanted
+    assert changes == wanted
     assert settings.rtl_return_altitude == pytest.approx(1.8) and settings.offboard_loss_action == 3
     assert report.metrics["vehicle_parameters"]["MPC_XY_VEL_MAX"] == 5.0

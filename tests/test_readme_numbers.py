@@ -80,7 +80,9 @@ def test_a_changed_result_changes_the_table(results: Path):
         path,
         lambda d: [r.update(door_min_clearance_m=0.123) for r in d["rows"] if r.get("flight") == "mission"],
     )
-    assert "| mission | 0.093 / 0.054 m | 0.123 m |" in rt.render_mavlink_hall(results)
+    mission = next(r for r in json.loads(path.read_text())["rows"] if r.get("flight") == "mission")
+    tracking = f"{mission['tracking_error_max_m']:.3f} / {mission['tracking_error_rms_m']:.3f} m"
+    assert f"| mission | {tracking} | 0.123 m |" in rt.render_mavlink_hall(results)
 
 
 def test_the_sentences_judge_the_targets_from_the_data(results: Path):

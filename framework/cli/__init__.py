@@ -1,4 +1,5 @@
-"""The ``surgiplan`` command line: run, validate, plugins, trainee, view; one module per command group.
+"""The ``surgiplan`` command line: run, validate, plugins, trainee, view, canopen-conformance; one module per
+command group.
 
 Each module of this package adds its subcommands (``add_parsers(sub)``, each with ``set_defaults(handler=...)``);
 :func:`main` parses, dispatches, and turns errors into exit statuses.
@@ -17,10 +18,10 @@ import traceback
 
 from .. import __version__
 from ..errors import SurgiplanError
-from . import benchmark, can_decode, export, plugins, run, trainee, view
+from . import benchmark, can_decode, canopen_conformance, export, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
-COMMANDS = (run, view, trainee, benchmark, export, can_decode, plugins)
+COMMANDS = (run, view, trainee, benchmark, export, can_decode, canopen_conformance, plugins)
 
 
 class _Formatter(logging.Formatter):

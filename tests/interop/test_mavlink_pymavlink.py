@@ -278,14 +278,15 @@ def test_parameter_protocol_lists_reads_sets_and_refuses(script):
         m = client.expect("PARAM_VALUE", timeout=0.5)
         if m is not None:
             listed[m.param_index] = m
-    assert sorted(listed) == list(range(21)) and {m.param_count for m in listed.values()} == {21}
-    assert [_name(listed[i]) for i in range(21)] == sorted(_name(m) for m in listed.values())
+    count = len(PARAMETERS)  # 26: 21 that drive the airframe and failsafes, 5 of the geofence and return
+    assert count == 26 and sorted(listed) == list(range(count)) and {m.param_count for m in listed.values()} == {count}
+    assert [_name(listed[i]) for i in range(count)] == sorted(_name(m) for m in listed.values())
     types = {_name(m): m.param_type for m in listed.values()}
     assert types["COM_OBL_RC_ACT"] == M.MAV_PARAM_TYPE_INT32 and types["MPC_XY_VEL_MAX"] == M.MAV_PARAM_TYPE_REAL32
     # read by name and by index
     client.mav.param_request_read_send(1, 1, b"NAV_ACC_RAD", -1)
     assert client.expect("PARAM_VALUE", lambda m: _name(m) == "NAV_ACC_RAD").param_value == pytest.approx(0.3)
-    index = [_name(listed[i]) for i in range(21)].index("MPC_Z_VEL_MAX_UP")
+    index = [_name(listed[i]) for i in range(count)].index("MPC_Z_VEL_MAX_UP")
     client.mav.param_request_read_send(1, 1, b"", index)
     assert client.expect("PARAM_VALUE", lambda m: m.param_index == index).param_value == pytest.approx(2.0)
     # an unknown name: no answer (a client times out, as with PX4)

@@ -188,7 +188,8 @@ def test_mavsdk_mission_parameters_offboard_and_return():
     # parameters as the simulation has them; the int decoded bytewise; the new values drive the simulation
     assert out["cruise"] == pytest.approx(1.0) and out["loss_action"] == 4
     assert out["rtl_alt"] == pytest.approx(6.0) and out["loss_action_after"] == 5
-    assert len(out["all"]) == 21 and out["all"]["COM_OBL_RC_ACT"] == 5 and out["all"]["MPC_XY_VEL_MAX"] == 5.0
+    assert len(out["all"]) == 26 and out["all"]["COM_OBL_RC_ACT"] == 5 and out["all"]["MPC_XY_VEL_MAX"] == 5.0
+    assert out["all"]["GF_ACTION"] == 2 and out["all"]["RTL_TYPE"] == 0  # PX4's defaults, as ints
     assert "parameter RTL_RETURN_ALT = 6.0" in events and "parameter COM_OBL_RC_ACT = 5" in events
 
     # MAVSDK 4 sent the waypoints in the current frame 3 as MISSION_ITEM_INT (degrees * 1e7), with its speed items

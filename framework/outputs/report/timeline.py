@@ -4,6 +4,9 @@ Data contract: ``annotations["timeline"] = {"t": [...], "tip": [[x, y, z], ...],
 "clearance"?: [...], "deviation"?: [...], "events"?: [{"t", "kind", "message"}]}`` (SI). Without a timeline an
 execute stage falls back to ``<stage>-execution.csv`` (columns ``t_s``, ``tip_x_m``, ``tip_y_m``,
 ``tip_z_m``, ...) and then to its executed path.
+
+Zones a device keeps the motion in or out of (a vehicle's geofence): ``annotations["zones"] = [{"name",
+"inclusion": bool, "outline": [[x, y], ...], "z": [bottom, top]}]`` (m, scene frame), drawn as prisms.
 """
 
 from __future__ import annotations
@@ -107,6 +110,27 @@ def timeline_data(out: Path, entry: Mapping[str, Any], notes: Notes, scene=None)
     return data
 
 
+def zones_data(annotations: Mapping[str, Any], notes: Notes, name: str) -> list[dict[str, Any]]:
+    """The ``zones`` annotation, checked (a malformed zone is skipped with a note)."""
+    zones = annotations.get("zones") if isinstance(annotations, Mapping) else None
+    out = []
+    for k, zone in enumerate(zones if isinstance(zones, list) else []):
+        outline = as_array(zone.get("outline"), 2) if isinstance(zone, Mapping) else None
+        z = as_array(zone.get("z")) if isinstance(zone, Mapping) else None
+        if outline is None or len(outline) < 3 or z is None or z.shape != (2,) or not np.all(np.isfinite(z)):
+            notes.add(f"stage {name}: zone {k} of its zones annotation is malformed (outline, z); not drawn")
+            continue
+        out.append(
+            {
+                "name": str(zone.get("name", "")),
+                "inclusion": bool(zone.get("inclusion", False)),
+                "outline": pack(outline),
+                "z": [float(z[0]), float(z[1])],
+            }
+        )
+    return out
+
+
 def motion_report(stage: dict[str, Any], entry: Mapping[str, Any], inputs) -> None:
     """A motion over time (execute and guide stages): the timeline, the path followed, and the reference it is
     drawn against: the recommended path a guide stage recorded, else its ``path_from`` stage's path."""
@@ -114,6 +138,7 @@ def motion_report(stage: dict[str, Any], entry: Mapping[str, Any], inputs) -> No
     stage["path"] = path_data(entry, None, inputs.scene, None)
     spec = inputs.specs.get(stage["name"])
     annotations = entry.get("annotations") or {}
+    stage["zones"] = zones_data(annotations, inputs.notes, stage["name"])
     source = getattr(spec, "path_from", None) or entry.get("path_from") or annotations.get("path_from")
     reference = inputs.entries.get(source) if isinstance(source, str) else None
     recommended = as_array(annotations.get("recommended_tips"), 3)

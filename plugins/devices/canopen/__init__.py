@@ -17,7 +17,10 @@ Registers no plugin; the device packages build on it. The master side:
 * :mod:`.settings`, :mod:`.joints`, :mod:`.device`, :mod:`.refusal` — the
   settings (per joint, checked against the model), lifecycle and refusals
   every CiA 402 device shares (:class:`~.device.Cia402Device`);
-* :mod:`.report` — tracking metrics, bus load, the execution figure and log.
+* :mod:`.report` — tracking metrics, bus load, the execution figure and log;
+* :mod:`.conformance` — the CiA conformance test families (EDS, SDO, PDO, EMCY and error control, NMT,
+  store and restore, LSS) on every drive of a CiA 402 device, simulated or real
+  (``surgiplan canopen-conformance DEVICE``).
 
 The simulated drives, the ``loopback`` python-can interface and the EDS
 files of the simulated drives are :mod:`.sim`, which the master side never

@@ -9,10 +9,12 @@ their standard indices, with the standard types and access, so a master that
 speaks CiA 402 (ours, canopen's ``BaseNode402``, a PLC) works with it.
 
 Communication (CiA 301): device type, error register, pre-defined error
-field, SYNC and EMCY COB-IDs, communication cycle period, heartbeat consumer
-and producer, identity, four RPDOs and four TPDOs (the predefined connection
-set's COB-IDs: RPDO n at 0x100 + 0x100 n + node, TPDO n at 0x080 + 0x100 n +
-node). Profile (CiA 402): controlword, statusword, modes of operation and
+field, SYNC and EMCY COB-IDs, communication cycle period, store and restore
+(0x1010/0x1011), heartbeat consumer and producer, identity (the serial number
+the drive's own, part of its LSS address), the SDO server's COB-IDs (0x1200),
+four RPDOs and four TPDOs (the predefined connection set's COB-IDs: RPDO n at
+0x100 + 0x100 n + node, TPDO n at 0x080 + 0x100 n + node, bit 30 set: not
+served by RTR). Profile (CiA 402): controlword, statusword, modes of operation and
 display, supported drive modes (0x6502: profile position 1, profile velocity
 3, cyclic synchronous position 8 and velocity 9), position, velocity and
 following-error objects, software position limits, profile velocity,
@@ -247,6 +249,13 @@ def tpdo_cob_id(n: int, node_id: int) -> int:
 
 PDO_INVALID = 1 << 31
 PDO_NO_RTR = 1 << 30
+#: CiA 301's restricted CAN-IDs (NMT, SDO and NMT error control of the predefined set, reserved): no PDO uses them
+RESTRICTED_IDS = ((0x000, 0x07F), (0x101, 0x180), (0x581, 0x5FF), (0x601, 0x67F), (0x6E0, 0x6FF), (0x701, 0x7FF))
+#: the bit rates the simulated drives support (the EDS's BaudRate_* keys, LSS bit timing)
+BIT_RATES = (125_000, 250_000, 500_000, 1_000_000)
+#: CiA 301 0x1010/0x1011: the signatures that save ("save") and restore defaults ("load"), as UNSIGNED32
+SAVE_SIGNATURE = int.from_bytes(b"save", "little")
+LOAD_SIGNATURE = int.from_bytes(b"load", "little")
 #: default mappings (CiA 402's recommendations, RPDO/TPDO 1 as the master uses them); 2-4 invalid at power-up
 DEFAULT_RPDO = {1: [0x60400010, 0x607A0020], 2: [0x60400010, 0x60600008], 3: [0x60400010, 0x607A0020],
                 4: [0x60400010, 0x60FF0020]}  # fmt: skip
@@ -278,17 +287,27 @@ class DriveDefaults:
     following_error_window: float | None = None
     #: the SYNC watchdog of the cyclic synchronous modes, 0x2000 (s; 0: off)
     sync_watchdog: float = 0.05
+    #: the drive's serial number (0x1018:4): a property of the unit, whatever node-ID it is given; None: the
+    #: node-ID (``$NODEID`` in the EDS)
+    serial_number: int | None = None
 
     def counts(self, value: float | None, fallback: int) -> int:
         return fallback if value is None else round(value * self.counts_per_unit)
 
 
-def _variable(name, index, subindex=0, data_type=od.UNSIGNED32, access="rw", default=0, mappable=False, raw=None):
+def _variable(
+    name, index, subindex=0, data_type=od.UNSIGNED32, access="rw", default=0, mappable=False, raw=None, limits=None
+):
+    """One object; ``limits`` (low, high): the value range the EDS states (LowLimit, HighLimit) and the drive
+    enforces (a value outside is aborted 0x06090031/32). Mappable objects say their direction by their access
+    type (CiA 306): ``ro`` process inputs (TPDO), ``rww`` process outputs (RPDO)."""
     var = od.ODVariable(name, index, subindex)
     var.data_type = data_type
     var.access_type = access
     var.default = default
     var.pdo_mappable = mappable
+    if limits is not None:
+        var.min, var.max = limits
     # the EDS text of the default: exact for negative numbers (canopen writes those as "0x-..."), and
     # relative to the node id where the standard says so ($NODEID+0x180)
     if raw is not None:
@@ -302,12 +321,16 @@ def _variable(name, index, subindex=0, data_type=od.UNSIGNED32, access="rw", def
     return var
 
 
-def _record(name, index, members, array=False):
+def _record(name, index, members, array=False, limits=None):
+    """A RECORD (or ARRAY) of ``members`` (sub, name, type, access, default[, EDS text]); ``limits``: per sub."""
     record = (od.ODArray if array else od.ODRecord)(name, index)
     top = max(sub for sub, *_ in members)
     record.add_member(_variable("Highest sub-index supported", index, 0, od.UNSIGNED8, "const", top))
     for sub, member, data_type, access, default, *raw in members:
-        record.add_member(_variable(member, index, sub, data_type, access, default, raw=raw[0] if raw else None))
+        bounds = (limits or {}).get(sub)
+        record.add_member(
+            _variable(member, index, sub, data_type, access, default, raw=raw[0] if raw else None, limits=bounds)
+        )
     return record
 
 
@@ -315,9 +338,11 @@ def _pdo(direction: str, n: int, node_id: int):
     receive = direction == "R"
     comm_index = (0x1400 if receive else 0x1800) + n - 1
     map_index = (0x1600 if receive else 0x1A00) + n - 1
-    base = (0x100 if receive else 0x080) + 0x100 * n
-    cob_id = base + node_id if n == 1 else (base + node_id) | PDO_INVALID
-    cob_raw = f"$NODEID+0x{base:X}" if n == 1 else f"$NODEID+0x{base | PDO_INVALID:X}"
+    # TPDOs are not served on request (RTR): bit 30 says so (CiA 301); PDOs 2-4 invalid at power-up
+    base = (0x100 if receive else 0x080 | PDO_NO_RTR) + 0x100 * n
+    flags = 0 if n == 1 else PDO_INVALID
+    cob_id = (base + node_id) | flags
+    cob_raw = f"$NODEID+0x{base | flags:X}"
     members = [
         (1, "COB-ID used by PDO", od.UNSIGNED32, "rw", cob_id, cob_raw),
         (2, "Transmission type", od.UNSIGNED8, "rw", 255 if receive else 1),
@@ -364,8 +389,8 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     info.group_messaging = False
     info.nr_of_RXPDO = 4
     info.nr_of_TXPDO = 4
-    info.LSS_supported = False
-    info.allowed_baudrates = {125_000, 250_000, 500_000, 1_000_000}
+    info.LSS_supported = True
+    info.allowed_baudrates = set(BIT_RATES)
     dictionary.comments = (
         f"{d.product_name}.\n"
         f"Positions in encoder counts ({d.counts_per_unit:.9g} counts per {d.unit}), velocities in counts/s,\n"
@@ -384,6 +409,11 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     add(field)
     add(_variable("COB-ID SYNC message", 0x1005, access="ro", default=0x80))
     add(_variable("Communication cycle period", 0x1006, default=0))
+    # store and restore (CiA 301): reading says "saves/restores on command" (bit 0); writing the signature acts
+    for index, what, verb in ((0x1010, "Store parameters", "Save"), (0x1011, "Restore default parameters", "Restore")):
+        areas = [(1, "all"), (2, "communication"), (3, "application")]
+        members = [(sub, f"{verb} {area} parameters", U32, "rw", 1) for sub, area in areas]
+        add(_record(what, index, members, array=True))
     add(_variable("Manufacturer device name", 0x1008, data_type=od.VISIBLE_STRING, access="const",
                   default=d.product_name))  # fmt: skip
     add(_variable("Manufacturer software version", 0x100A, data_type=od.VISIBLE_STRING, access="const",
@@ -395,13 +425,21 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
         consumer.add_member(_variable(f"Consumer heartbeat time {sub}", 0x1016, sub, U32, "rw", 0))
     add(consumer)
     add(_variable("Producer heartbeat time", 0x1017, data_type=U16))
+    serial = (4, "Serial number", U32, "ro", node_id, "$NODEID+0")
+    if d.serial_number is not None:
+        serial = (4, "Serial number", U32, "ro", d.serial_number)
     identity = [
         (1, "Vendor-ID", U32, "ro", VENDOR_ID),
         (2, "Product code", U32, "ro", PRODUCT_CODE),
         (3, "Revision number", U32, "ro", REVISION),
-        (4, "Serial number", U32, "ro", node_id, "$NODEID+0"),
+        serial,
     ]
     add(_record("Identity object", 0x1018, identity))
+    server = [
+        (1, "COB-ID client to server", U32, "ro", 0x600 + node_id, "$NODEID+0x600"),
+        (2, "COB-ID server to client", U32, "ro", 0x580 + node_id, "$NODEID+0x580"),
+    ]
+    add(_record("SDO server parameter", 0x1200, server))
     for n in (1, 2, 3, 4):
         for obj in _pdo("R", n, node_id):
             add(obj)
@@ -412,11 +450,11 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     add(_variable("SYNC watchdog time", 0x2000, data_type=U16, default=round(d.sync_watchdog * 1000)))
     # ---- device profile area (CiA 402)
     add(_variable("Error code", 0x603F, data_type=U16, access="ro", mappable=True))
-    add(_variable("Abort connection option code", 0x6007, data_type=I16, default=3))
-    add(_variable("Controlword", 0x6040, data_type=U16, mappable=True))
+    add(_variable("Abort connection option code", 0x6007, data_type=I16, default=3, limits=(0, 3)))
+    add(_variable("Controlword", 0x6040, data_type=U16, access="rww", mappable=True))
     add(_variable("Statusword", 0x6041, data_type=U16, access="ro", mappable=True))
-    add(_variable("Quick stop option code", 0x605A, data_type=I16, default=6))
-    add(_variable("Modes of operation", 0x6060, data_type=I8, default=CSP, mappable=True))
+    add(_variable("Quick stop option code", 0x605A, data_type=I16, default=6, limits=(0, 6)))
+    add(_variable("Modes of operation", 0x6060, data_type=I8, access="rww", default=CSP, mappable=True))
     add(_variable("Modes of operation display", 0x6061, data_type=I8, access="ro", default=CSP, mappable=True))
     add(_variable("Position demand value", 0x6062, data_type=I32, access="ro", mappable=True))
     add(_variable("Position actual value", 0x6064, data_type=I32, access="ro", mappable=True))
@@ -428,18 +466,19 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     add(_variable("Velocity actual value", 0x606C, data_type=I32, access="ro", mappable=True))
     add(_variable("Velocity window", 0x606D, data_type=U16, default=min(0xFFFF, max(1, velocity // 1000))))
     add(_variable("Velocity window time", 0x606E, data_type=U16, default=0))
-    add(_variable("Target position", 0x607A, data_type=I32, mappable=True))
+    add(_variable("Target position", 0x607A, data_type=I32, access="rww", mappable=True))
     limits = [(1, "Min position limit", I32, "rw", lower), (2, "Max position limit", I32, "rw", upper)]
     add(_record("Software position limit", 0x607D, limits))
-    add(_variable("Max profile velocity", 0x607F, default=velocity, mappable=True))
-    add(_variable("Profile velocity", 0x6081, default=profile, mappable=True))
-    add(_variable("Profile acceleration", 0x6083, default=acceleration, mappable=True))
-    add(_variable("Profile deceleration", 0x6084, default=acceleration, mappable=True))
-    add(_variable("Quick stop deceleration", 0x6085, default=2 * acceleration))
+    positive = (1, 0xFFFFFFFF)
+    add(_variable("Max profile velocity", 0x607F, default=velocity, access="rww", mappable=True))
+    add(_variable("Profile velocity", 0x6081, default=profile, access="rww", mappable=True))
+    add(_variable("Profile acceleration", 0x6083, default=acceleration, access="rww", mappable=True, limits=positive))
+    add(_variable("Profile deceleration", 0x6084, default=acceleration, access="rww", mappable=True, limits=positive))
+    add(_variable("Quick stop deceleration", 0x6085, default=2 * acceleration, limits=positive))
     period = [(1, "Interpolation time period value", U8, "rw", 1), (2, "Interpolation time index", I8, "rw", -3)]
-    add(_record("Interpolation time period", 0x60C2, period))
+    add(_record("Interpolation time period", 0x60C2, period, limits={1: (1, 255), 2: (-6, 0)}))
     add(_variable("Following error actual value", 0x60F4, data_type=I32, access="ro", mappable=True))
-    add(_variable("Target velocity", 0x60FF, data_type=I32, mappable=True))
+    add(_variable("Target velocity", 0x60FF, data_type=I32, access="rww", mappable=True))
     add(_variable("Supported drive modes", 0x6502, access="ro", default=SUPPORTED_DRIVE_MODES))
     return dictionary
 

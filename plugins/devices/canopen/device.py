@@ -183,8 +183,10 @@ class Cia402Device(Device):
 
     @classmethod
     def eds_folder(cls) -> Path:
-        """Where the device package ships its simulated drives' EDS files (``<package>/eds``)."""
-        package = cls.__module__.rpartition(".")[0]
+        """Where the device package ships its simulated drives' EDS files (``<package>/eds``): the package the
+        class is defined in (its ``__init__`` or a module of it)."""
+        module = sys.modules[cls.__module__]
+        package = module.__name__ if hasattr(module, "__path__") else module.__name__.rpartition(".")[0]
         return Path(str(importlib.resources.files(package))) / "eds"
 
     def eds_files(self) -> list[Path]:
@@ -203,6 +205,24 @@ class Cia402Device(Device):
             if not path.is_file():
                 raise ConfigError(f"eds: the EDS file of joint '{name}' does not exist: {path}")
         return files
+
+    # ------------------------------------------------------------------ conformance
+    @classmethod
+    def conformance(cls, name: str, settings: dict[str, Any], progress=None):
+        """Run the CiA conformance test families on this device's drives (``surgiplan canopen-conformance``):
+        its simulated drives in a process of their own, or real ones on the bus ``settings`` names
+        (:class:`.conformance.ConformanceSettings`; raises ConfigError). Returns the
+        :class:`.conformance.Report`: ``as_dict()``, ``failed``."""
+        from pydantic import ValidationError
+
+        from .conformance import ConformanceSettings, run_conformance
+
+        try:
+            parsed = ConformanceSettings.model_validate(settings)
+        except ValidationError as exc:
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise ConfigError(f"canopen-conformance settings: {problems}") from None
+        return run_conformance(cls, name, parsed, progress)
 
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, context) -> None:

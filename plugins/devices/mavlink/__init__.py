@@ -13,6 +13,9 @@ distance from obstacles except in critical regions. The ground-station side:
   :mod:`.transactions` — its command and parameter protocols without I/O;
   :mod:`.vehicle_state` — what it knows of the vehicle;
 * :mod:`.profile`, :mod:`.stream` — the timed offboard path and its stream;
+* :mod:`.zones` — PX4's geofence zones and their items (both ends);
+  :mod:`.scene_fence` — the scene's safety as a geofence; :mod:`.safety` —
+  the fence and rally points uploaded and verified before the mission;
 * :mod:`.flight` — the route, the flight and its watch (failsafes);
 * :mod:`.report` — what was flown, re-measured against the scene;
 * :mod:`.device` — the :class:`MavlinkVehicle` plugin, its :mod:`.settings`,

@@ -27,8 +27,11 @@ Lifecycle (:class:`surgiplan.Device`, ros2_control's):
   clearance (the vehicle a sphere of the plan's ``tip_radius``) is negative
   or below ``safety_margin`` anywhere, whatever planner produced it, or when
   the vehicle's limits (its parameters) are tighter than the flight's
-  profile (naming the parameter); then the parameters the failsafe relies on
-  are set (and read back), :mod:`.flight` (route, mission upload verified by
+  profile (naming the parameter), or when the scene's geofence cannot be
+  made for the route (:mod:`.scene_fence`: beyond the vehicle's capacity,
+  the route outside the bounds); then the parameters the failsafe relies on
+  are set (and read back), the fence and rally points uploaded and verified
+  (:mod:`.safety`), :mod:`.flight` (route, mission upload verified by
   download, or offboard stream, arming and modes with their
   acknowledgements, the watch with the failsafe), then :mod:`.report`
   (tracking error, flown clearance, ``<stage>.csv`` and ``<stage>.png``, named after the stage);
@@ -44,6 +47,8 @@ Settings (:mod:`.settings`; lengths in the pipeline's ``length_unit``; speeds m/
     cruise_speed: 1.0
     safety_margin: 0.1                   # the planned path must keep this much (else refused)
     failsafe: land                       # on heartbeat loss: land, return or hold
+    fence: {action: hold, predict: false}  # the scene's geofence (default on; enabled: false: none)
+    rally_points: [pad_b]                # returns go to the nearest of home and these
     signing: {key: 64 hex digits or a passphrase}
     sim: {speed: 4, packet_loss: 0.2}    # the simulated vehicle, faults included
 """
@@ -66,7 +71,9 @@ from .flight import Flight, Refusal, build_route, check_path_clearance
 from .gcs import GroundStation
 from .link import Endpoint, VehicleError, enum_name, mavlink, signing_key
 from .local_simulator import LocalSimulator
-from .report import describe, flight_figure, flight_metrics, write_flight_csv
+from .report import describe, fence_breaches, fence_position_metrics, flight_figure, flight_metrics, write_flight_csv
+from .safety import upload_safety
+from .scene_fence import FenceRefusal, rally_positions, scene_fence
 from .settings import MavlinkVehicleSettings
 from .tlog import TelemetryLog
 from .vehicle_state import capability_names
@@ -83,6 +90,8 @@ RELIED_ON = (
     "COM_OBL_RC_ACT",  # offboard loss action: set to the failsafe (offboard)
     "RTL_RETURN_ALT",  # a return climbs to this first: not above the route (failsafe return)
 )
+#: ... and with the fence on (GF_PREDICT only when fence.predict: PX4 1.16 has no such parameter)
+FENCE_PARAMETERS = ("GF_ACTION", "GF_MAX_VER_DIST")
 #: streams PX4 sends a ground station by default that this device does not read: switched off
 UNUSED_STREAMS = (
     mavlink.MAVLINK_MSG_ID_ATTITUDE,  # 15 Hz
@@ -188,7 +197,10 @@ class MavlinkVehicle(Device):
                 origin.altitude * 1e-3,
             )
             self.gcs.step = "reading parameters"
-            self.vehicle_params = {name: value for name, (value, _) in self.gcs.read_params(RELIED_ON).items()}
+            names = RELIED_ON
+            if s.fence.enabled:
+                names += FENCE_PARAMETERS + (("GF_PREDICT",) if s.fence.predict else ())
+            self.vehicle_params = {name: value for name, (value, _) in self.gcs.read_params(names).items()}
         except BaseException:
             self._release()
             raise
@@ -209,6 +221,10 @@ class MavlinkVehicle(Device):
         missing = []
         if not bits & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2:
             missing.append("MAVLINK2")
+        if s.fence.enabled and not bits & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE:
+            missing.append("MISSION_FENCE (for the geofence; fence.enabled: false flies without)")
+        if s.rally_points and not bits & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY:
+            missing.append("MISSION_RALLY (for rally_points)")
         if s.mode == "mission":
             if not bits & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT:
                 if bits & mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT:
@@ -276,18 +292,45 @@ class MavlinkVehicle(Device):
             # the ground: where the vehicle stands, or (airborne) the local origin's height, its EKF's ground
             ground = float(position[2]) if on_ground else float(self.frame.origin[2])
             route = build_route(trajectory, position, on_ground, ground, s, threshold)
-        except Refusal as exc:
+            # the scene as the pipeline has it (the plan's space is bounded to its own layer)
+            scene = getattr(context, "scene", None) or trajectory.space.scene
+            radius = float(getattr(trajectory.space, "tip_radius", 0.0))
+            fence = scene_fence(scene, route.points, radius, threshold, s.fence) if s.fence.enabled else None
+            rally = rally_positions(scene, s.rally_points)
+            rogue = self._rogue_target(scene, route)
+        except (Refusal, FenceRefusal) as exc:
             return ExecutionReport(
                 ExecuteStatus.REFUSED,
                 {"refused": True, "vehicle_parameters": self.vehicle_params},
                 message=f"refused before any motion: {exc}",
             )
         self._set_failsafe_parameters(route)
+        projection, home_down, _ = self.geo
+        home_z = float(self.frame.from_ned(np.array([0.0, 0.0, home_down]))[2])
+        safety = upload_safety(
+            gcs, self.frame, projection, home_z, fence, s.fence, rally, self.params_set, self.legacy_missions
+        )
         flight = Flight(gcs, s, self.frame, route, context.progress if context else NullProgress(), self.geo)
         flight.legacy_missions = self.legacy_missions
+        flight.rogue = rogue
+        flight.log.metrics.update(safety)
         log = flight.fly_offboard() if s.mode == "offboard" else flight.fly_mission()
         gcs.recording = False
-        return self._report(trajectory, route, flight, log, threshold, critical)
+        return self._report(trajectory, route, flight, log, threshold, critical, fence)
+
+    def _rogue_target(self, scene, route) -> np.ndarray | None:
+        """The rehearsal's rogue setpoints aim at this point (local NED): an obstacle's centre at the path's
+        start altitude; None without the rehearsal."""
+        name = self.settings.rehearsal.setpoints_through
+        if name is None:
+            return None
+        if name not in scene.obstacle_names:
+            known = ", ".join(scene.obstacle_names)
+            raise FenceRefusal(f"rehearsal.setpoints_through: the scene has no obstacle '{name}' (it has: {known})")
+        low, high = scene.obstacle(name).aabb()
+        target = 0.5 * (low + high)
+        target[2] = route.points[route.path_first][2]
+        return self.frame.to_ned(target)
 
     def _link_metrics(self) -> dict:
         """Messages each way and how many were lost: the vehicle's by the gaps in its sequence numbers (any
@@ -345,7 +388,7 @@ class MavlinkVehicle(Device):
         for name, (value, kind) in wanted.items():
             self.params_set[name] = self.vehicle_params[name] = gcs.set_param(name, value, kind)
 
-    def _report(self, trajectory, route, flight, log, threshold, critical) -> ExecutionReport:
+    def _report(self, trajectory, route, flight, log, threshold, critical, fence=None) -> ExecutionReport:
         s = self.settings
         samples = self.gcs.samples
         t = np.array([x.time for x in samples])
@@ -359,7 +402,7 @@ class MavlinkVehicle(Device):
             # only while the stream flies the profile: before it the vehicle takes off from its pad, after it
             # it lands (NAV_LAND), and "the setpoint" is then the profile's end, which it leaves on purpose
             since = t - log.profile_start
-            setpoints[(since < 0) | (since > log.profile.duration)] = np.nan
+            setpoints[(since < 0) | (since > log.profile.duration) | (t > log.stopped_at)] = np.nan
         metrics, arrays = flight_metrics(
             t, flown, velocity, trajectory.space, planned, log.path_window, threshold, critical, setpoints
         )
@@ -380,6 +423,11 @@ class MavlinkVehicle(Device):
         }
         if len(flown):
             metrics["final_position_error_m"] = float(np.linalg.norm(flown[-1] - route.points[-1]))
+        breaches = fence_breaches(self.gcs.vehicle.fence_events, t, flown)
+        if fence is not None:
+            metrics["fence_events"] = breaches
+            if len(flown):
+                metrics.update(fence_position_metrics(fence, trajectory.space, flown[-1]))
         files: list[str] = []
         context = self.context
         if context is not None and len(t):
@@ -402,9 +450,20 @@ class MavlinkVehicle(Device):
                     title,
                     link=np.array(self.gcs.vehicle.link) if self.gcs.vehicle.link else None,
                     link_text=_link_text(metrics),
+                    zones=fence.zones if fence is not None else None,
+                    breaches=breaches,
+                    setpoints=setpoints,
                 )
                 files.append(f"{name}.png")
-        return ExecutionReport(log.status, metrics, flown if len(flown) else None, log.faults, log.message, files)
+        annotations: dict = {"zones": fence.annotation()} if fence is not None else {}
+        if len(t):  # report.html's time bar: the flight on the vehicle's clock
+            annotations["timeline"] = {
+                "t": t.tolist(),
+                "tip": flown.tolist(),
+                "clearance": arrays["clearance"].tolist(),
+            }  # its events are the faults (metrics), which the report marks on this time axis
+        flown_path = flown if len(flown) else None
+        return ExecutionReport(log.status, metrics, flown_path, log.faults, log.message, files, annotations)
 
 
 def _link_text(metrics: dict) -> str:

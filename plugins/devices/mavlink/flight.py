@@ -166,6 +166,8 @@ class FlightLog:
     #: offboard: the timed route and the vehicle time it started at
     profile: TimedPath | None = None
     profile_start: float = 0.0
+    #: vehicle time (s) the vehicle's geofence took over (inf: it did not)
+    stopped_at: float = math.inf
 
 
 class Flight:
@@ -183,6 +185,10 @@ class Flight:
         #: upload as the deprecated MISSION_ITEM (a vehicle without MAV_PROTOCOL_CAPABILITY_MISSION_INT)
         self.legacy_missions = False
         self.route_ned = frame.to_ned(route.points)
+        #: the rehearsal's rogue offboard setpoints aim through this point (local NED), None in a normal flight
+        self.rogue: np.ndarray | None = None
+        #: the vehicle's geofence events already in the log
+        self._fence_seen = len(gcs.vehicle.fence_events)
 
     # ------------------------------------------------------------------ missions
     def mission_items(self) -> tuple[list[MissionItem], int, int]:
@@ -303,6 +309,12 @@ class Flight:
         # wherever the vehicle arrived (as the mission's NAV_LAND): flown as setpoints, a touchdown a gust
         # put beside the goal could never arrive (the vehicle cannot move on the ground)
         airborne = self.route_ned[: self.route.path_last + 1]
+        if self.rogue is not None:  # the rehearsal: from the path's start straight through the obstacle
+            start = self.route_ned[self.route.path_first]
+            aim = np.asarray(self.rogue, float) - start
+            aim[2] = 0.0
+            reach = float(np.linalg.norm(aim))
+            airborne = np.vstack([self.route_ned[: self.route.path_first + 1], start + aim / reach * (reach + 3.0)])
         profile = TimedPath.along(
             airborne, s.cruise_speed, s.acceleration, s.corner_deviation, vertical_speed=s.vertical_speed
         )
@@ -323,7 +335,7 @@ class Flight:
             passing = profile.waypoint_time
             path_window = (
                 start + passing[self.route.path_first],
-                start + passing[self.route.path_last],
+                start + passing[min(self.route.path_last, len(passing) - 1)],
             )
             goal = airborne[-1]
             end = start + profile.duration
@@ -378,9 +390,12 @@ class Flight:
                 gcs.pump(0.05)
                 advance()
                 log.path_window = window()
+                self._fence_news()
                 if finished():
                     break
                 mode = gcs.vehicle.mode
+                if mode and mode not in allowed and not over() and self._fence_stop(mode):
+                    return
                 if mode and mode not in allowed and not over():
                     log.status = "stopped"
                     log.message = f"the vehicle left {allowed[0]} mode by itself (now {mode})"
@@ -407,6 +422,62 @@ class Flight:
         except KeyboardInterrupt:
             self._failsafe("interrupted")
             raise
+
+    def _fence_news(self) -> list[tuple[float, str]]:
+        """The vehicle's new word on its geofence (STATUSTEXT, SYS_STATUS health), logged as faults."""
+        events = self.gcs.vehicle.fence_events[self._fence_seen :]
+        self._fence_seen += len(events)
+        for when, text in events:
+            self.log.faults.append({"kind": "geofence", "vehicle_time_s": when, "message": text})
+        return events
+
+    def _fence_stop(self, mode: str) -> bool:
+        """The vehicle left the flight's mode by itself: when its geofence says why (a breach and GF_ACTION),
+        the flight ends ``stopped`` and the vehicle is watched until it is at rest (hold) or down (land,
+        return); False when the geofence has nothing to do with it."""
+        gcs = self.gcs
+        vehicle = gcs.vehicle
+        s = self.settings
+        flight_events = [e for e in self.log.faults if e["kind"] == "geofence"]
+        deadline = time.monotonic() + 1.2  # the STATUSTEXT may trail the HEARTBEAT (or be lost: SYS_STATUS)
+        while not (flight_events or vehicle.fence_breached) and time.monotonic() < deadline:
+            gcs.pump(0.05)
+            self._fence_news()
+            flight_events = [e for e in self.log.faults if e["kind"] == "geofence"]
+        if not (flight_events or vehicle.fence_breached):
+            return False
+        # what the vehicle said (its STATUSTEXT), else what its SYS_STATUS showed (the STATUSTEXT lost)
+        words = [e["message"] for e in flight_events if not e["message"].startswith("SYS_STATUS")]
+        said = words[0] if words else "SYS_STATUS: geofence not healthy"
+        log = self.log
+        log.status = "stopped"
+        log.stopped_at = vehicle.vehicle_time
+        log.faults.append({"kind": "geofence_breach", "mode": mode, "vehicle_time_s": vehicle.vehicle_time})
+        for ticker in list(gcs.tickers):
+            gcs.tickers.remove(ticker)  # the vehicle ignores setpoints now; no more of them
+        gcs.step = f"geofence ({mode})"
+        try:
+            if mode in ("land", "return"):
+                gcs.wait_for(lambda: not vehicle.armed, s.timeouts.failsafe, "the vehicle did not land")
+                outcome = "landed"
+            else:
+                still = {"since": None}
+
+                def at_rest() -> bool:
+                    sample = vehicle.position
+                    if sample is None or float(np.linalg.norm(sample.velocity)) > 0.05:
+                        still["since"] = None
+                        return False
+                    still["since"] = sample.time if still["since"] is None else still["since"]
+                    return sample.time - still["since"] >= 1.0
+
+                gcs.wait_for(at_rest, s.timeouts.failsafe, "the vehicle did not come to rest")
+                outcome = "at rest"
+        except VehicleError as exc:
+            outcome = exc.detail
+        self._fence_news()
+        log.message = f"the vehicle's geofence stopped the flight: {mode} by itself ({said}); {outcome}"
+        return True
 
     def flight_allowance(self) -> float:
         """Vehicle seconds the flight may take: the setting, or 3x the route at cruise speed plus a minute."""

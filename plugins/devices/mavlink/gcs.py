@@ -42,7 +42,14 @@ from .link import Endpoint, VehicleError, is_mavlink2, mavlink
 from .mission import MISSION, MissionItem
 from .mission_gcs import MissionClear, MissionDownload, MissionUpload, UploadStatistics
 from .tlog import RECORDING_STARTED, RECORDING_STOPPED
-from .transactions import RESULT_ACCEPTED, CommandTransaction, ParamTransaction, command_name, result_name
+from .transactions import (
+    RESULT_ACCEPTED,
+    CommandTransaction,
+    ParamDownload,
+    ParamTransaction,
+    command_name,
+    result_name,
+)
 from .vehicle_state import PositionSample, VehicleState
 
 log = logging.getLogger("surgiplan.devices.mavlink")
@@ -188,7 +195,16 @@ class GroundStation:
         elif kind == "STATUSTEXT":
             text = message.text if isinstance(message.text, str) else message.text.decode("utf-8", "replace")
             v.statustext.append(text)
+            if "geofence" in text.lower():
+                v.fence_events.append((v.vehicle_time, text))
             log.info("vehicle: %s", text)
+        elif kind == "SYS_STATUS":
+            bit = mavlink.MAV_SYS_STATUS_GEOFENCE
+            fence = tuple(bool(int(x) & bit) for x in (message.onboard_control_sensors_present,
+                          message.onboard_control_sensors_enabled, message.onboard_control_sensors_health))  # fmt: skip
+            if v.fence is not None and fence[0] and fence[1] and v.fence[2] and not fence[2]:
+                v.fence_events.append((v.vehicle_time, "SYS_STATUS: geofence not healthy (breached)"))
+            v.fence = fence
 
     def wait_for(self, condition: Callable[[], bool], timeout: float, what: str) -> None:
         """Pump until ``condition()`` holds; :class:`VehicleError` naming ``what`` after ``timeout`` s."""
@@ -455,6 +471,18 @@ class GroundStation:
                     step=self.step,
                 )
         return {read.name: (read.result, read.result_kind) for read in reads}
+
+    def download_params(self) -> ParamDownload:
+        """Every parameter (PARAM_REQUEST_LIST, then by index what a lossy link lost); :attr:`ParamDownload.values`
+        holds them. :class:`VehicleError` when the download is given up (its retries, its time)."""
+        download = ParamDownload(
+            self.target, bytewise=self.bytewise_params, timeout=self.command_timeout, retries=self.command_retries,
+            item_timeout=self.item_timeout, item_retries=self.item_retries,
+        )  # fmt: skip
+        self._run([download])
+        if download.failed:
+            raise VehicleError(f"parameter download: {download.error}", step=self.step)
+        return download
 
     def set_param(self, name: str, value: float | int, kind: int = mavlink.MAV_PARAM_TYPE_REAL32) -> float | int:
         """Set a parameter and check the vehicle's PARAM_VALUE says it took the value; returns it."""

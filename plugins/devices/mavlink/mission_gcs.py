@@ -5,6 +5,12 @@ are fed the vehicle's messages and the time (``on_message``, ``on_timer``)
 and return the messages to send; each sends its last message again after a
 timeout, up to its retries (:class:`_Exchange`).
 
+Bounded in count and in time: each wait by its timeout and retries, and each
+whole transfer by the time those allow once for every message (an upload of
+N items: timeout x (retries + 1) x (N + 1); a download likewise, with the
+item timeout for its items), so that a vehicle that keeps asking for the same
+item cannot hold the ground station for ever.
+
 Robustness beyond the happy path, on purpose:
 
 * the ground station answers *any* request in range, in any order and as
@@ -52,6 +58,8 @@ class _Exchange:
 
     def __init__(self, target: tuple[int, int], timeout: float, retries: int, mission_type: int) -> None:
         self.target = target
+        #: when the whole transfer is given up (wall s), whatever the vehicle keeps asking: see _limit
+        self.give_up_at = math.inf
         self.timeout = float(timeout)
         self.retries = int(retries)
         self.mission_type = mission_type
@@ -67,6 +75,8 @@ class _Exchange:
     @property
     def finished(self) -> bool:
         return self.state in ("done", "failed")
+
+    _started = 0.0
 
     def _send(self, message, now: float, waiting_for: str) -> list:
         self._last = message
@@ -85,7 +95,21 @@ class _Exchange:
     def _progress(self) -> str:
         return ""
 
+    def _limit(self, now: float, seconds: float) -> None:
+        """Give the whole transfer ``seconds`` from ``now``: every message's timeout and retries, once each.
+
+        Each timeout bounds one wait, but a vehicle that keeps asking (the same item, for ever) would
+        restart it for ever; this bounds the transfer in time as the retries bound it in count."""
+        self.give_up_at = now + seconds + self.timeout  # one more wait: each message's own retries end first
+
     def on_timer(self, now: float) -> list:
+        if self.state == "sending" and now >= self.give_up_at:
+            progress = self._progress()
+            return self._finish(
+                "failed",
+                f"the transfer did not finish within {self.give_up_at - self._started:g} s, the time its "
+                f"timeouts and retries allow" + (f"; {progress}" if progress else ""),
+            )
         if self.state != "sending" or now < self.deadline:
             return []
         if self._attempts >= self._retries_now():
@@ -145,6 +169,8 @@ class MissionUpload(_Exchange):
 
     def start(self, now: float) -> list:
         self.state = "sending"
+        self._started = now
+        self._limit(now, self.timeout * (self.retries + 1) * (self.count + 1))
         count = mavlink.MAVLink_mission_count_message(*self.target, self.count, self.mission_type)
         return self._send(count, now, "an answer to MISSION_COUNT")
 
@@ -226,6 +252,8 @@ class MissionDownload(_Exchange):
 
     def start(self, now: float) -> list:
         self.state = "sending"
+        self._started = now
+        self._limit(now, self.timeout * (self.retries + 1))
         request = mavlink.MAVLink_mission_request_list_message(*self.target, self.mission_type)
         return self._send(request, now, "MISSION_COUNT")
 
@@ -255,6 +283,8 @@ class MissionDownload(_Exchange):
         kind = message.get_type()
         if kind == "MISSION_COUNT" and self.count is None:
             self.count = int(message.count)
+            items = self.item_timeout * (self._retries_now() + 1) * self.count
+            self._limit(self._started, self.timeout * (self.retries + 1) + items)
             if self.count == 0:
                 ack = mavlink.MAVLink_mission_ack_message(*self.target, ACCEPTED, self.mission_type)
                 self._finish("done")
@@ -289,6 +319,7 @@ class MissionClear(_Exchange):
 
     def start(self, now: float) -> list:
         self.state = "sending"
+        self._started = now
         clear = mavlink.MAVLink_mission_clear_all_message(*self.target, self.mission_type)
         return self._send(clear, now, "MISSION_ACK")
 

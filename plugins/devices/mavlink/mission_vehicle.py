@@ -36,11 +36,18 @@ class ReceiverFaults:
     reject: int | None = None
     #: ... when this item arrives (None: at MISSION_COUNT)
     reject_at_item: int | None = None
+    #: ... of the lists of this mission type (the mission, by default; fence and rally lists are accepted)
+    reject_type: int = MISSION
     #: request the items in a random order instead of 0, 1, 2, ...
     shuffle: bool = False
     #: probability of requesting an item again after receiving it
     repeat: float = 0.0
     seed: int | None = None
+
+
+def rejecting(faults: ReceiverFaults, mission_type: int) -> bool:
+    """Whether the injected refusal applies to a list of this type."""
+    return faults.reject is not None and mission_type == faults.reject_type
 
 
 @dataclass
@@ -75,6 +82,8 @@ class _Transfer:
 
 #: validate(item, seq, mission_type, int_form) -> None (acceptable) or the MAV_MISSION_RESULT to refuse it with
 Validator = Callable[[MissionItem, int, int, bool], "int | None"]
+#: check(items, mission_type) -> None (acceptable) or the MAV_MISSION_RESULT to refuse the whole list with
+ListCheck = Callable[[list[MissionItem], int], "int | None"]
 
 
 class MissionReceiver:
@@ -82,7 +91,10 @@ class MissionReceiver:
 
     ``validate(item, seq, mission_type, int_form)`` returns None for an
     acceptable item or the MAV_MISSION_RESULT to refuse it with (``int_form``:
-    it came as MISSION_ITEM_INT). ``on_accept(items, mission_type)`` is called
+    it came as MISSION_ITEM_INT); ``check(items, mission_type)`` judges the
+    complete list before it is accepted (PX4's feasibility check: a mission
+    that leaves the geofence), answered with its MAV_MISSION_RESULT in the
+    final MISSION_ACK. ``on_accept(items, mission_type)`` is called
     with the complete list once it is accepted (the previous one stays in
     force until then); :attr:`stored` holds the accepted list of each type.
     """
@@ -96,6 +108,7 @@ class MissionReceiver:
         timeout: float = 0.25,
         retries: int = 10,
         validate: Validator | None = None,
+        check: ListCheck | None = None,
         on_accept: Callable[[list[MissionItem], int], None] | None = None,
         faults: ReceiverFaults | None = None,
         types: Sequence[int] = (MISSION,),
@@ -108,6 +121,7 @@ class MissionReceiver:
         self.timeout = timeout
         self.retries = retries
         self.validate = validate or (lambda item, seq, mission_type, int_form: None)
+        self.check = check or (lambda items, mission_type: None)
         self.on_accept = on_accept or (lambda items, mission_type: None)
         self.faults = faults or ReceiverFaults()
         self.types = tuple(types)
@@ -116,6 +130,8 @@ class MissionReceiver:
         self.stored: dict[int, list[MissionItem]] = {t: [] for t in self.types}
         #: the last accepted transfer's source, type and final item, to re-acknowledge a repeated last item
         self._last_accepted: tuple[tuple[int, int], int, int, MissionItem] | None = None
+        #: likewise the last list refused by ``check`` (with the MAV_MISSION_RESULT), to refuse it again
+        self._last_refused: tuple[tuple[int, int], int, int, MissionItem, int] | None = None
         self._rng = np.random.default_rng(self.faults.seed)
 
     @property
@@ -156,7 +172,8 @@ class MissionReceiver:
     def _on_count(self, count: int, mission_type: int, source: tuple[int, int], now: float) -> list:
         self.stats.transfers += 1
         self.transfer = None
-        if self.faults.reject is not None and self.faults.reject_at_item is None:
+        self._last_refused = None
+        if rejecting(self.faults, mission_type) and self.faults.reject_at_item is None:
             return [self._ack(source, self.faults.reject, mission_type)]
         capacity = self.capacity.get(mission_type, 0) if isinstance(self.capacity, dict) else self.capacity
         if count > capacity:
@@ -176,6 +193,9 @@ class MissionReceiver:
             last = self._last_accepted
             if last is not None and last[:3] == (source, mission_type, seq) and item.same_as(last[3]):
                 return [self._ack(source, ACCEPTED, mission_type)]  # our ACCEPTED was lost; say it again
+            refused = self._last_refused
+            if refused is not None and refused[:3] == (source, mission_type, seq) and item.same_as(refused[3]):
+                return [self._ack(source, refused[4], mission_type)]  # our refusal was lost; say it again
             return [self._ack(source, mavlink.MAV_MISSION_OPERATION_CANCELLED, mission_type)]
         if not int_form:
             transfer.int_mode = False  # as PX4: a MISSION_ITEM switches the rest of the transfer to MISSION_REQUEST
@@ -186,7 +206,7 @@ class MissionReceiver:
             self.stats.out_of_sequence += 1
             self.stats.rerequests += 1
             return self._request(transfer, now)  # spec: drop it, request the expected one again
-        if self.faults.reject is not None and self.faults.reject_at_item == seq:
+        if rejecting(self.faults, mission_type) and self.faults.reject_at_item == seq:
             self.transfer = None
             return [self._ack(source, self.faults.reject, mission_type)]
         refusal = self.validate(item, seq, mission_type, int_form)
@@ -207,6 +227,10 @@ class MissionReceiver:
         if transfer.position >= transfer.count and transfer.repeat is None:
             items = [transfer.items[i] for i in range(transfer.count)]
             self.transfer = None
+            refusal = self.check(items, mission_type)
+            if refusal is not None:
+                self._last_refused = (source, mission_type, transfer.count - 1, items[-1], refusal)
+                return [self._ack(source, refusal, mission_type)]
             self._accept(source, items, mission_type, (transfer.count - 1, items[-1]))
             return [self._ack(source, ACCEPTED, mission_type)]
         return self._request(transfer, now)
@@ -302,7 +326,8 @@ class MissionSender:
                 return [error]
             int_form = kind == "MISSION_REQUEST_INT"
             item = self.provide(seq, mission_type, int_form)
-            return [item.encode(seq, *source, mission_type, legacy=not int_form, current=seq == self.current())]
+            current = mission_type == MISSION and seq == self.current()  # fence and rally items are never current
+            return [item.encode(seq, *source, mission_type, legacy=not int_form, current=current)]
         if kind == "MISSION_ACK" and self.busy and source == self.partner and mission_type == self.mission_type:
             if int(message.type) == ACCEPTED and self.next_seq >= self.total:
                 self.completed += 1

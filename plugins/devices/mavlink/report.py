@@ -155,6 +155,32 @@ def flight_metrics(
     return metrics, arrays
 
 
+def fence_breaches(events, t: np.ndarray, flown: np.ndarray) -> list[dict[str, Any]]:
+    """The vehicle's word on its geofence ((vehicle time s, text) pairs) with where it was (scene m, the sample
+    nearest in time)."""
+    out = []
+    for when, text in events:
+        entry: dict[str, Any] = {"vehicle_time_s": float(when), "message": text}
+        if len(t):
+            entry["position_m"] = [float(x) for x in flown[int(np.argmin(np.abs(t - when)))]]
+        out.append(entry)
+    return out
+
+
+def fence_position_metrics(fence, space, point: np.ndarray) -> dict[str, float]:
+    """Where the flight ended against the fence: its clearance from the obstacles (the vehicle a sphere) and its
+    distance from the fence's nearest edge in plan view (positive inside the fence)."""
+    from .zones import inside_fence
+
+    xy = np.asarray(point, float)[None, :2]
+    edge = min(float(zone.boundary_distance(xy)[0]) for zone in fence.zones)
+    inside = bool(inside_fence(fence.zones, xy)[0])
+    return {
+        "final_clearance_m": float(space.clearance(np.asarray(point, float)[None])[0]),
+        "final_fence_distance_m": edge if inside else -edge,
+    }
+
+
 def write_flight_csv(path: Path, t: np.ndarray, flown: np.ndarray, velocity: np.ndarray, arrays) -> None:
     """The flight log: vehicle time, scene position and velocity, clearance, deviation (SI), atomically."""
     columns = [t, *flown.T, *velocity.T, arrays["clearance"], arrays["deviation"], arrays["in_path"].astype(float)]
@@ -178,6 +204,9 @@ def flight_figure(
     title: str,
     link: np.ndarray | None = None,
     link_text: str = "",
+    zones=None,
+    breaches=(),
+    setpoints: np.ndarray | None = None,
 ) -> None:
     """Planned versus flown: a top view coloured by clearance, and clearance, deviation and (given ``link``)
     the link's losses over time.
@@ -204,6 +233,12 @@ def flight_figure(
         top.annotate(obstacle.name, centre, ha="center", va="center", fontsize=7, color="#333333")
     lo, hi = scene.bounds_min, scene.bounds_max
     top.add_patch(plt.Rectangle(lo[:2], *(hi - lo)[:2], fill=False, edgecolor="black", linewidth=0.8))
+    for i, zone in enumerate(z for z in zones or () if not z.inclusion):
+        outline = zone.outline(72)
+        top.fill(*outline.T, facecolor="#d62728", alpha=0.07, edgecolor="none")
+        top.plot(
+            *outline.T, "--", color="#d62728", linewidth=0.8, label="geofence (exclusion zones)" if i == 0 else None
+        )
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(planned, axis=0), axis=1))])
     for i, (a, b) in enumerate(critical):
         dense = np.linspace(a, b, 50)
@@ -218,6 +253,8 @@ def flight_figure(
         )
     top.plot(*route[:, :2].T, ":", color="#555555", linewidth=1.0, label="route (take-off, approach, landing)")
     top.plot(*planned[:, :2].T, "--", color="#1f6fb4", linewidth=1.6, label="planned path")
+    if setpoints is not None and np.isfinite(setpoints).any():
+        top.plot(*setpoints[:, :2].T, "-", color="#9467bd", linewidth=0.9, label="offboard setpoints")
     if len(flown) >= 2:
         segments = np.stack([flown[:-1, :2], flown[1:, :2]], axis=1)
         value = np.minimum(arrays["clearance"][:-1], arrays["clearance"][1:])
@@ -246,6 +283,9 @@ def flight_figure(
             mew=2,
             label=f"min clearance {metrics['flown_min_clearance_m']:.3f} m",
         )
+    for i, breach in enumerate(b for b in breaches if "position_m" in b):
+        label = "vehicle: geofence" if i == 0 else None
+        top.plot(*breach["position_m"][:2], "D", color="#d62728", markersize=6, mfc="white", mew=1.5, label=label)
     top.plot(*planned[0, :2], "o", color="#2ca02c", label="start")
     top.plot(*planned[-1, :2], "*", color="black", markersize=12, label="goal")
     top.set_xlim(lo[0], hi[0])

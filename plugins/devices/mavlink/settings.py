@@ -15,6 +15,7 @@ from surgiplan.plugins.devices.mavlink.sim.settings import SimSettings
 from surgiplan.units import Angle, Length, PositiveLength, Vec3
 
 from .link import check_connection_string, signing_key
+from .scene_fence import FenceSettings
 
 
 class FrameSettings(StrictModel):
@@ -52,6 +53,15 @@ class Timeouts(StrictModel):
     flight: PositiveFloat | None = None
     #: watching a commanded failsafe (s)
     failsafe: PositiveFloat = 60.0
+
+
+class Rehearsal(StrictModel):
+    """Faults the ground station itself rehearses, to see what the vehicle does about them."""
+
+    #: offboard: once at the path's start, the setpoints leave the plan and fly straight at this obstacle
+    #: (its centre, at the start's altitude) and beyond, as a rogue setpoint source would; the vehicle's
+    #: geofence must stop it before the obstacle's zone
+    setpoints_through: str | None = None
 
 
 class SigningSettings(StrictModel):
@@ -101,6 +111,11 @@ class MavlinkVehicleSettings(StrictModel):
     #: LOCAL_POSITION_NED rate requested from the vehicle (Hz)
     telemetry_rate: PositiveFloat = 20.0
     failsafe: Literal["land", "return", "hold"] = "land"
+    #: the scene's safety as the vehicle's geofence (:mod:`.scene_fence`), uploaded before the mission
+    fence: FenceSettings = Field(default_factory=FenceSettings)
+    #: rally points (scene point names, or coordinates in the scene): a return goes to the nearest (RTL_TYPE)
+    rally_points: list[str | Vec3] = Field(default_factory=list)
+    rehearsal: Rehearsal = Field(default_factory=Rehearsal)
     heartbeat: HeartbeatSettings = Field(default_factory=HeartbeatSettings)
     timeouts: Timeouts = Field(default_factory=Timeouts)
     signing: SigningSettings | None = None
@@ -126,6 +141,12 @@ class MavlinkVehicleSettings(StrictModel):
     @classmethod
     def _connection(cls, value):
         return None if value is None else check_connection_string(value)
+
+    @model_validator(mode="after")
+    def _rehearsal_offboard(self):
+        if self.rehearsal.setpoints_through is not None and self.mode != "offboard":
+            raise ValueError("rehearsal.setpoints_through rehearses a rogue offboard stream: it needs mode: offboard")
+        return self
 
     @model_validator(mode="after")
     def _sim_or_connection(self):

@@ -57,6 +57,15 @@ class VehicleState:
     capabilities: int | None = None
     #: (vehicle time s, messages lost, messages received) of the vehicle's stream, by its sequence numbers
     link: list[tuple[float, int, int]] = field(default_factory=list)
+    #: SYS_STATUS's MAV_SYS_STATUS_GEOFENCE bits: (present, enabled, healthy); None before a SYS_STATUS
+    fence: tuple[bool, bool, bool] | None = None
+    #: (vehicle time s, what) of the vehicle's word on its geofence: STATUSTEXTs naming it, health lost
+    fence_events: list[tuple[float, str]] = field(default_factory=list)
+
+    @property
+    def fence_breached(self) -> bool:
+        """The vehicle says its geofence is breached (SYS_STATUS: present and enabled, not healthy)."""
+        return self.fence is not None and self.fence[0] and self.fence[1] and not self.fence[2]
 
     @property
     def on_ground(self) -> bool:

@@ -277,6 +277,28 @@
     return mesh;
   }
 
+  // a zone a device keeps the motion out of (or in): its outline extruded from z[0] to z[1], walls and rims
+  function drawZone(st, z) {
+    const xy = decode(z.outline), n = xy.length / 2, [z0, z1] = z.z, walls = [], rims = [];
+    for (let i = 0; i < n; i++) {
+      const j = (i + 1) % n, a = [xy[2 * i], xy[2 * i + 1]], b = [xy[2 * j], xy[2 * j + 1]];
+      walls.push(a[0], a[1], z0, b[0], b[1], z0, b[0], b[1], z1, a[0], a[1], z0, b[0], b[1], z1, a[0], a[1], z1);
+      rims.push(a[0], a[1], z0, b[0], b[1], z0, a[0], a[1], z1, b[0], b[1], z1);
+    }
+    const hex = z.inclusion ? "#2ca02c" : "#d62728", group = new THREE.Group();
+    const g = new THREE.BufferGeometry();
+    g.setAttribute("position", new THREE.Float32BufferAttribute(walls, 3));
+    const wall = new THREE.Mesh(g, new THREE.MeshBasicMaterial({ color: colour(hex), transparent: true, opacity: z.inclusion ? 0.03 : 0.1, depthWrite: false, side: THREE.DoubleSide }));
+    wall.userData = { kind: "zone", stage: st.name, label: `${st.name}: geofence ${z.inclusion ? "inclusion" : "exclusion"} zone${z.name ? " (" + z.name + ")" : ""}` };
+    if (!z.inclusion) pickable.push(wall);
+    const r = new THREE.BufferGeometry();
+    r.setAttribute("position", new THREE.Float32BufferAttribute(rims, 3));
+    const rim = new THREE.LineSegments(r, new THREE.LineBasicMaterial({ color: colour(hex), transparent: true, opacity: 0.6 }));
+    rim.userData = { kind: "zone-edges" };
+    group.add(wall, rim);
+    return group;
+  }
+
   function drawRoadmap(st, r) {
     const g = new THREE.BufferGeometry();
     if (r.kind === "roadmap") {
@@ -388,6 +410,7 @@
       addLayer(st.name, "path", m);
     }
     if (st.roadmap) addLayer(st.name, "roadmap", drawRoadmap(st, st.roadmap), false);
+    for (const z of st.zones || []) addLayer(st.name, "geofence", drawZone(st, z));
     if (st.mesh) {
       const m = drawMesh(st, st.mesh);
       addLayer(st.name, "mesh", m.mesh);
@@ -568,7 +591,14 @@
       y += 12;
     }
     ctx.strokeStyle = "#d62728";
-    for (const e of active.events) if (e.t !== null && e.t !== undefined) { ctx.beginPath(); ctx.moveTo(X(e.t), 0); ctx.lineTo(X(e.t), h); ctx.stroke(); ctx.fillStyle = "#d62728"; ctx.fillText(e.kind, X(e.t) + 2, h - 2); }
+    // labels that would overlap the one before are raised a line (events close in time, e.g. a breach and its action)
+    let labelEnd = -Infinity, labelRow = 0;
+    for (const e of active.events) if (e.t !== null && e.t !== undefined) {
+      ctx.beginPath(); ctx.moveTo(X(e.t), 0); ctx.lineTo(X(e.t), h); ctx.stroke(); ctx.fillStyle = "#d62728";
+      labelRow = X(e.t) + 2 < labelEnd ? (labelRow + 1) % 4 : 0;
+      ctx.fillText(e.kind, X(e.t) + 2, h - 2 - 12 * labelRow);
+      labelEnd = Math.max(labelRow ? labelEnd : -Infinity, X(e.t) + 2 + ctx.measureText(e.kind).width + 4);
+    }
     if (state && state.index !== undefined) { ctx.strokeStyle = "#000"; ctx.beginPath(); ctx.moveTo(X(t[state.index]), 0); ctx.lineTo(X(t[state.index]), h); ctx.stroke(); }
   }
   slider.addEventListener("input", () => { playing = false; setIndex(+slider.value); });
@@ -639,7 +669,7 @@
 
   // ------------------------------------------------------------------ the API (console, tests)
   function countDrawn() {
-    const c = { obstacles: 0, paths: 0, points: 0, critical_regions: 0, roadmaps: 0, roadmap_edges: 0, path_sets: 0, stored_paths: 0, meshes: 0, mesh_triangles: 0, timelines: 0 };
+    const c = { obstacles: 0, paths: 0, points: 0, critical_regions: 0, roadmaps: 0, roadmap_edges: 0, path_sets: 0, stored_paths: 0, meshes: 0, mesh_triangles: 0, timelines: 0, zones: 0 };
     world.traverse((o) => {
       const u = o.userData;
       if (u.kind === "obstacle") c.obstacles++;
@@ -650,6 +680,7 @@
       else if (u.kind === "pathset") { c.path_sets++; c.stored_paths += u.count; }
       else if (u.kind === "mesh") { c.meshes++; c.mesh_triangles += u.triangles; }
       else if (u.kind === "instrument") c.timelines++;
+      else if (u.kind === "zone") c.zones++;
     });
     S.counts = c;
     const parts = [`drew ${c.obstacles} obstacles`, `${c.paths} paths`];
@@ -658,6 +689,7 @@
     if (c.path_sets) parts.push(`${c.stored_paths.toLocaleString("en")} stored paths`);
     if (c.meshes) parts.push(`${c.meshes} tissue meshes (${c.mesh_triangles.toLocaleString("en")} triangles)`);
     if (c.timelines) parts.push(`${c.timelines} timelines`);
+    if (c.zones) parts.push(`${c.zones} geofence zones`);
     document.getElementById("counts").textContent = parts.join(", ");
     return c;
   }

@@ -125,7 +125,7 @@ class Communication:
     # ------------------------------------------------------------------ PDOs
     def _on_rpdo(self, i: int, pdo: Pdo, can_id, data, timestamp) -> None:
         node = self.nodes.get(self.ids[i])
-        if node is None or not self.alive[i] or node.nmt._state != NMT_OPERATIONAL:
+        if node is None or not node.on_bus or node.nmt._state != NMT_OPERATIONAL:
             return
         if pdo.trans <= 240:
             self.pending[i][pdo.cob_id] = bytes(data)  # applied at the next SYNC
@@ -155,7 +155,7 @@ class Communication:
         batch = []
         for i, node_id in enumerate(self.ids):
             node = self.nodes.get(node_id)
-            if node is None or not self.alive[i] or node.nmt._state not in (NMT_OPERATIONAL, NMT_PRE_OPERATIONAL):
+            if node is None or not node.on_bus or node.nmt._state not in (NMT_OPERATIONAL, NMT_PRE_OPERATIONAL):
                 continue
             if self.sync_drop is not None and self.sync_drop.drop(0x80):
                 continue  # this drive missed the SYNC: nothing latched, nothing sampled
@@ -168,6 +168,8 @@ class Communication:
                     data = pending.pop(pdo.cob_id, None)
                     if data is not None:
                         node.write_rpdo(pdo, data)
+            if not node.talking:
+                continue  # inside an LSS switch delay: no TPDO
             for pdo in node.tpdos:
                 if not pdo.valid:
                     continue
@@ -188,13 +190,17 @@ class Communication:
         bus = self.network.bus
         send_batch = getattr(bus, "send_batch", None)
         for pdo, payload in batch:
-            pdo.last, pdo.sent_at = payload, now
+            pdo.last = payload
         if send_batch is not None and self.network.link is None:
             send_batch([can.Message(arbitration_id=pdo.cob_id, data=payload, is_extended_id=False)
                         for pdo, payload in batch])  # fmt: skip
-            return
-        for pdo, payload in batch:
-            self.network.send_message(pdo.cob_id, payload)
+        else:
+            for pdo, payload in batch:
+                self.network.send_message(pdo.cob_id, payload)
+        # the inhibit time and the event timer count from when the frame went (a late send does not shorten them)
+        sent = max(now, self.clock.now())
+        for pdo, _ in batch:
+            pdo.sent_at = sent
 
     def _event_tpdos(self, i: int | None = None, now: float | None = None) -> None:
         """Event-driven TPDOs (254/255): on change (after the inhibit time) and on the event timer."""
@@ -204,7 +210,7 @@ class Communication:
             if i is not None and j != i:
                 continue
             node = self.nodes.get(node_id)
-            if node is None or not self.alive[j] or node.nmt._state != NMT_OPERATIONAL:
+            if node is None or not node.talking or node.nmt._state != NMT_OPERATIONAL:
                 continue
             for pdo in node.tpdos:
                 if not pdo.valid or pdo.trans < 254:

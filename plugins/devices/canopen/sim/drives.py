@@ -30,6 +30,7 @@ import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import can
 import numpy as np
@@ -42,12 +43,14 @@ from ..device import Cia402Device
 from ..network import PumpedNetwork, SimulationLink
 from .communication import TICK, Communication
 from .faults import FaultInjection
+from .lss import UNCONFIGURED, LayerSettings, LssSlave
 from .modes import OperatingModes
 from .motor import MotorModel
 from .node import DriveNode
 from .objects import ObjectDictionary
 from .reference import Reference
 from .statemachine import OE, QS, SOD, Cia402StateMachine
+from .storage import Memory
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +69,8 @@ class AxisHardware:
     initial: float = 0.0
     #: the joint's name, its kind ("rad" or "m") and travel: the EDS's product name and default limits
     name: str = "axis"
+    #: the drive's serial number (0x1018:4, part of its LSS address); None: its node-ID
+    serial: int | None = None
     unit: str = "rad"
     lower: float | None = None
     upper: float | None = None
@@ -92,16 +97,22 @@ class AxisHardware:
             ),
             following_error_window=self.following_error_window,
             sync_watchdog=sync_watchdog,
+            serial_number=self.serial,
         )
 
 
-class DriveSimulator(ObjectDictionary, Communication, Cia402StateMachine, OperatingModes, FaultInjection):
+class DriveSimulator(
+    ObjectDictionary, Communication, Cia402StateMachine, OperatingModes, FaultInjection, LayerSettings
+):
     """Simulated drives on a python-can ``bus`` of their own, one :class:`.node.DriveNode` per axis.
 
     The bus is usually a second handle on the master's virtual channel; for the
     stand-alone simulator (:mod:`.process`) any python-can interface.
     ``link`` (simulated clock) delivers frames synchronously; without it (real
-    time) call :meth:`start`.
+    time) call :meth:`start`. ``memory``: the folder of the drives' non-volatile
+    memory (stored parameters, LSS configuration; :mod:`.storage`), None: kept
+    in memory only. ``unconfigured``: the drives start without a node-ID
+    (unless one was stored by LSS) and wait for LSS (:mod:`.lss`).
     """
 
     def __init__(
@@ -113,8 +124,11 @@ class DriveSimulator(ObjectDictionary, Communication, Cia402StateMachine, Operat
         faults: ArmedFaults,
         link: SimulationLink | None,
         device: str = "",
+        memory: Path | None = None,
+        unconfigured: bool = False,
     ) -> None:
         self.axes = axes
+        self.device = device
         self.model = model
         self.clock = clock
         self.faults = faults
@@ -188,19 +202,24 @@ class DriveSimulator(ObjectDictionary, Communication, Cia402StateMachine, Operat
         self._event_time: float | None = None
         #: simulation only: where a hand holds the unpowered axes at time t (see move_by_hand)
         self.hand: Callable[[float], np.ndarray] | None = None
-        self.dictionaries = []
+        self.memories = [Memory(memory / f"{device or 'drive'}_{a.name}.json" if memory else None) for a in axes]
+        self.lss: list[LssSlave] = []
+        #: the bus's bit rate (a drive switched to another by LSS is off the bus)
+        self.bus_bit_rate = bit_rate = getattr(bus, "bitrate", None) or 1_000_000
         for i, axis in enumerate(axes):
-            dictionary = cia402.drive_object_dictionary(axis.node_id, axis.defaults(device, model.sync_timeout))
-            self.dictionaries.append(dictionary)
-            if not self.alive[i]:
-                continue
-            node = DriveNode(axis.node_id, dictionary, self, i)
-            self.network.add_node(node)
-            node.add_read_callback(lambda index, subindex, od, i=i: self.read(i, index, subindex))
-            node.add_write_callback(lambda index, subindex, od, data, i=i: self.write(i, index, subindex, od, data))
-            self.nodes[axis.node_id] = node
-            self._load_parameters(i)
+            stored = self.memories[i].lss.get("node_id", UNCONFIGURED)
+            node_id = (stored if 1 <= stored <= 127 else UNCONFIGURED) if unconfigured else axis.node_id
+            self.ids[i] = node_id
+            identity = cia402.drive_object_dictionary(axis.node_id, axis.defaults(device, model.sync_timeout))[0x1018]
+            address = tuple(int(identity[sub].default) for sub in (1, 2, 3, 4))
+            rate = self.memories[i].lss.get("bit_rate", bit_rate)
+            self.lss.append(LssSlave(self, i, address, node_id, rate, cia402.BIT_RATES))
+            if rate != bit_rate:  # stored by LSS at another bit rate than this bus's: it cannot take part
+                self.lss[i].off_bus = True
+            elif self.alive[i] and node_id != UNCONFIGURED:
+                self.attach(i, node_id, boot=False)
         self.network.subscribe(0x80, self._on_sync)
+        self.network.subscribe(0x7E5, self._on_lss)
         for node in self.nodes.values():  # power-up: boot-up message, then PRE-OPERATIONAL
             node.nmt.boot(application=True)
         self.scheduler.call_every(TICK, self._tick, self.t + TICK)
@@ -337,7 +356,8 @@ class DriveSimulator(ObjectDictionary, Communication, Cia402StateMachine, Operat
 
 def axis_hardware(device: Cia402Device) -> list[AxisHardware]:
     """The simulated hardware of a CiA 402 device's joints, from its settings (:meth:`..device.Cia402Device.joints`;
-    raises ConfigError) and its model (built)."""
+    raises ConfigError) and its model (built). Joint j's drive has serial number j + 1 whatever its node-ID (the
+    identity its EDS states; unique on the device's bus, so that LSS tells the drives apart)."""
     s, model = device.settings, device.model
     joints = device.joints()
     return [
@@ -354,6 +374,7 @@ def axis_hardware(device: Cia402Device) -> list[AxisHardware]:
             following_error_window=float(joints.following_error_window[j]),
             profile_velocity=float(joints.velocity[j]),
             profile_acceleration=float(joints.acceleration[j]),
+            serial=j + 1,
         )
         for j in range(model.nq)
     ]

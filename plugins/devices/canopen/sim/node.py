@@ -11,7 +11,7 @@ simulator behind the node, :mod:`.drives`).
   communication area (0x1000-0x1FFF) to its power-on values, *reset node*
   every object and the drive itself; STOPPED answers no SDO and sends no EMCY
   or PDO; PDOs only in OPERATIONAL.
-* SDO: expedited and segmented (canopen's server), silent in STOPPED.
+* SDO: expedited, segmented and block transfer (:mod:`.sdo`), silent in STOPPED.
 * EMCY only in PRE-OPERATIONAL and OPERATIONAL.
 * PDO: four RPDOs and four TPDOs, compiled from their communication and
   mapping parameters on entering OPERATIONAL (:class:`Pdo`); a TPDO of the
@@ -31,10 +31,11 @@ import numpy as np
 from canopen import objectdictionary as od_types
 from canopen.emcy import EmcyProducer
 from canopen.nmt import NmtSlave
-from canopen.sdo import SdoAbortedError, SdoServer
+from canopen.sdo import SdoAbortedError
 
 from .. import cia402
 from ..cia402 import NMT_INITIALISING, NMT_OPERATIONAL, NMT_PRE_OPERATIONAL, NMT_STOPPED
+from .sdo import DriveSdoServer
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,9 @@ class Drive(Protocol):
     cpu: np.ndarray
     mode: np.ndarray
     errors: list[dict[int, int]]
+    #: each axis' non-volatile memory (:class:`.storage.Memory`)
+    memories: list
+    clock: object
 
     def statusword(self, i: int) -> int: ...
 
@@ -58,6 +62,8 @@ class Drive(Protocol):
     def on_reset(self, i: int, old: int, application: bool) -> None: ...
 
     def reload(self, i: int) -> None: ...
+
+    def renumber(self, i: int, application: bool) -> bool: ...
 
 
 class _DriveNmt(NmtSlave):
@@ -71,7 +77,7 @@ class _DriveNmt(NmtSlave):
         if len(data) != 2:
             return  # not an NMT command (CiA 301: two bytes)
         command, target = data[0], data[1]
-        if target not in (0, self.id) or not self.node.alive:
+        if target not in (0, self.id) or not self.node.on_bus:
             return
         if command == 0x01:
             self.enter(NMT_OPERATIONAL)
@@ -92,6 +98,8 @@ class _DriveNmt(NmtSlave):
 
     def boot(self, application: bool) -> None:
         """Reset (application: the whole node; else communication), boot-up message, PRE-OPERATIONAL."""
+        if self.node.simulator.renumber(self.node.axis, application):
+            return  # LSS gave the drive another node-ID: a node of that ID replaced this one, and booted
         old = self._state
         self.node.on_reset(old, application)
         self.stop_heartbeat()
@@ -105,15 +113,6 @@ class _DriveNmt(NmtSlave):
         self.on_command(0, bytes([code, self.id]), 0.0)
 
 
-class _GatedSdoServer(SdoServer):
-    """An SDO server that is silent in STOPPED (and INITIALISING): CiA 301's NMT state rules."""
-
-    def on_request(self, can_id, data, timestamp):
-        if self._node.nmt._state in (NMT_STOPPED, NMT_INITIALISING) or not self._node.alive:
-            return
-        super().on_request(can_id, data, timestamp)
-
-
 class _GatedEmcy(EmcyProducer):
     """EMCY only in PRE-OPERATIONAL and OPERATIONAL (CiA 301)."""
 
@@ -122,7 +121,7 @@ class _GatedEmcy(EmcyProducer):
         self.node = node
 
     def send(self, code: int, register: int = 0, data: bytes = b"") -> None:
-        if self.node.alive and self.node.nmt._state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL):
+        if self.node.talking and self.node.nmt._state in (NMT_PRE_OPERATIONAL, NMT_OPERATIONAL):
             super().send(code, register, data)
 
 
@@ -169,17 +168,41 @@ class DriveNode(canopen.LocalNode):
         self.simulator = simulator
         self.axis = axis
         self.alive = True
+        #: bit timing switched to another bit rate than the bus's (LSS): hears and says nothing
+        self.off_bus = False
+        #: LSS activate bit timing: says nothing until this time (the simulator's clock)
+        self.muted_until = -np.inf
         # replace canopen's NMT slave (no boot-up after a reset, stuck in INITIALISING), its SDO server
         # (answers in STOPPED) and EMCY producer (sends in STOPPED) with CiA 301's behaviour
         self._write_callbacks.remove(self.nmt.on_write)
         self.nmt = _DriveNmt(node_id, self)
         self.add_write_callback(self.nmt.on_write)
-        self.sdo = _GatedSdoServer(0x600 + node_id, 0x580 + node_id, self)
+        self.sdo = DriveSdoServer(0x600 + node_id, 0x580 + node_id, self)
         self.emcy = _GatedEmcy(0x80 + node_id, self)
         self.rpdos: list[Pdo] = []
         self.tpdos: list[Pdo] = []
 
+    @property
+    def on_bus(self) -> bool:
+        """The node hears the bus (alive, at the bus's bit rate)."""
+        return self.alive and not self.off_bus
+
+    @property
+    def talking(self) -> bool:
+        """The node may send (on the bus, not inside an LSS switch delay)."""
+        return self.alive and not self.off_bus and self.simulator.clock.now() >= self.muted_until
+
     # ------------------------------------------------------------------ values
+    def _find_object(self, index, subindex):
+        """canopen's look-up, strict about sub-indices: a variable has sub-index 0 only, an ARRAY those its EDS
+        lists (canopen's would take any sub-index of a variable, and imply an array's)."""
+        obj = super()._find_object(index, subindex)
+        parent = self.object_dictionary[index]
+        known = (0,) if isinstance(parent, od_types.ODVariable) else parent.subindices
+        if subindex not in known:
+            raise SdoAbortedError(0x06090011)
+        return obj
+
     def value(self, index: int, subindex: int = 0):
         """The object's current value (stored, else its default), decoded."""
         obj = self._find_object(index, subindex)
@@ -201,6 +224,8 @@ class DriveNode(canopen.LocalNode):
         for index in list(self.data_store):
             if application or 0x1000 <= index <= 0x1FFF:
                 del self.data_store[index]
+        # what was stored (0x1010) is what the reset brings back
+        self.simulator.memories[self.axis].apply(self, 0x1000, 0xFFFF if application else 0x1FFF)
         self.rpdos, self.tpdos = [], []
         self.simulator.reload(self.axis)  # the restored values take effect
 

@@ -4,13 +4,18 @@ Reads of the objects that are the drive's state (statusword, position and
 velocity actual values, the mode in force 0x6061, the error objects
 0x1001, 0x1003, 0x603F) are computed from it, the motor integrated up to the
 moment of reading. Writes (by SDO or RPDO: the same path) are checked with
-the standard abort codes (0x06090030 value range, 0x06040041/42 PDO mapping,
-0x08000022 device state, ...) and take effect when written, also while
-enabled: the controlword drives the state machine, the targets the operating
-mode, every parameter its SI value (:meth:`ObjectDictionary._parameter`).
-PDO parameters change with CiA 301's procedure only: in PRE-OPERATIONAL,
-the COB-ID invalidated, the number of entries 0 while mapping. Writing 0 to
-0x1003 sub-index 0 clears the error history.
+the standard abort codes (0x06090031/32 above or below the limits the EDS
+states, 0x06090030 value range, 0x06040041/42 PDO mapping, 0x06010000 a
+mapping changed outside CiA 301's procedure, 0x08000022 device state, ...)
+and take effect when written, also while enabled: the controlword drives the
+state machine, the targets the operating mode, every parameter its SI value
+(:meth:`ObjectDictionary._parameter`). PDO parameters change with
+CiA 301's procedure only: in PRE-OPERATIONAL, the COB-ID invalidated, the
+number of entries 0 while mapping; an object maps in the direction its access
+type says (``ro``/``rwr`` to a TPDO, ``rww``/``wo`` to an RPDO, ``rw`` both);
+TPDOs are not served by RTR (bit 30 of their COB-ID stays set). Writing 0 to
+0x1003 sub-index 0 clears the error history; 0x1010/0x1011 store and restore
+(:mod:`.storage`).
 """
 
 from __future__ import annotations
@@ -53,14 +58,15 @@ class ObjectDictionary:
             return next(iter(reversed(self.errors[i])), 0)
         if index == 0x1001:
             return self._error_register(i)
+        if index in (0x1010, 0x1011) and subindex:
+            return 1  # CiA 301: the drive saves (restores) on command only
         if index == 0x1003:
             history = self.error_history[i]
             if subindex == 0:
                 return len(history)
             if subindex > len(history):
                 raise SdoAbortedError(0x08000024)  # no data available
-            code = history[subindex - 1]
-            return code | (cia402.ERROR_REGISTER.get(code, cia402.ERR_GENERIC) << 16)
+            return history[subindex - 1]  # the error code; no additional information (as the EMCY's bytes 3-7)
         return None
 
     # ------------------------------------------------------------------ writes
@@ -68,6 +74,13 @@ class ObjectDictionary:
         """Check a write (SDO or RPDO) and make it take effect; raise SdoAbortedError to refuse it."""
         value = od.decode_raw(data)
         node = self.nodes[self.ids[i]]
+        if od.min is not None and value < od.min:
+            raise SdoAbortedError(cia402.ABORT_VALUE_TOO_LOW)
+        if od.max is not None and value > od.max:
+            raise SdoAbortedError(cia402.ABORT_VALUE_TOO_HIGH)
+        if index in (0x1010, 0x1011):
+            self.memories[i].command(node, index, subindex, int(value))
+            return
         if 0x1400 <= index <= 0x1BFF:
             self._check_pdo_write(node, index, subindex, value)
             return
@@ -137,16 +150,20 @@ class ObjectDictionary:
             if subindex == 1:
                 if value & (1 << 29) or (not value & cia402.PDO_INVALID and not 1 <= value & 0x7FF <= 0x7FF):
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # no extended ids; an id to be valid
+                if not receive and not value & cia402.PDO_NO_RTR:
+                    raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # no TPDO on request (RTR)
+                if any(lo <= value & 0x7FF <= hi for lo, hi in cia402.RESTRICTED_IDS):
+                    raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # a restricted CAN-ID (CiA 301 §7.3.5)
                 if valid and not value & cia402.PDO_INVALID and value & 0x7FF != cob & 0x7FF:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)  # the COB-ID of a valid PDO is fixed
             elif subindex == 2 and not (value <= 240 or value in (254, 255)):
                 raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
             return
         if valid:
-            raise SdoAbortedError(cia402.ABORT_DEVICE_STATE)  # invalidate the PDO first
+            raise SdoAbortedError(cia402.ABORT_UNSUPPORTED_ACCESS)  # invalidate the PDO first
         if subindex == 0:
             if value > 8:
-                raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
+                raise SdoAbortedError(cia402.ABORT_PDO_TOO_LONG)  # more objects than a PDO carries
             bits = 0
             for sub in range(1, value + 1):
                 entry = int(node.value(index, sub))
@@ -156,7 +173,7 @@ class ObjectDictionary:
                 raise SdoAbortedError(cia402.ABORT_PDO_TOO_LONG)
             return
         if int(node.value(index, 0)) != 0:
-            raise SdoAbortedError(cia402.ABORT_DEVICE_STATE)  # set the number of entries to 0 first
+            raise SdoAbortedError(cia402.ABORT_UNSUPPORTED_ACCESS)  # set the number of entries to 0 first
         if value:
             self._check_mapping_entry(node, value, receive)
 
@@ -167,7 +184,8 @@ class ObjectDictionary:
             obj = node._find_object(index, subindex)
         except SdoAbortedError:
             raise SdoAbortedError(cia402.ABORT_CANNOT_MAP) from None
-        usable = obj.writable if receive else obj.readable
+        # the direction the access type says (CiA 306): process outputs to RPDOs, process inputs to TPDOs
+        usable = obj.access_type in (("rw", "rww", "wo") if receive else ("rw", "rwr", "ro", "const"))
         if not obj.pdo_mappable or not usable or bits != len(obj) or bits % 8:
             raise SdoAbortedError(cia402.ABORT_CANNOT_MAP)
 

@@ -19,6 +19,13 @@ or on a virtual SocketCAN interface (``ip link add dev vcan0 type vcan``) with
 defaults (encoder resolution, current and speed limits) unless told
 otherwise; ``--initial`` is where the axes stand at power-up (SI units per
 joint). It prints ``ready`` once the nodes are up and runs until interrupted.
+
+``--state-dir DIR`` is the drives' non-volatile memory: what a master stores
+(CiA 301 0x1010, LSS *store configuration*) is written there, one file per
+drive, and found again when the drives are started with the same folder (a
+power cycle); without it a restart forgets. ``--unconfigured`` starts the
+drives without node-IDs (unless LSS stored one in the state dir): they wait
+for a master to give them one by LSS (CiA 305, :mod:`.lss`).
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ import json
 import signal
 import sys
 import threading
+from pathlib import Path
 
 from surgiplan.errors import SurgiplanError
 
@@ -69,7 +77,9 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
     model = MotorModel.of(device.settings.simulation)
     bus, _ = open_bus(BusSettings.model_validate(settings["bus"]))
     clock = RealTimeClock()
-    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None, device=args.device)
+    state = Path(args.state_dir) if args.state_dir else None
+    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None, device=args.device,
+                          memory=state, unconfigured=args.unconfigured)  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -88,6 +98,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sync-timeout", type=float, help="s without SYNC before an enabled drive quick-stops")
     parser.add_argument(
         "--realtime-priority", type=int, help="run the drives' threads under SCHED_FIFO at this priority (1-99)"
+    )
+    parser.add_argument("--state-dir", help="the drives' non-volatile memory (0x1010 stores, LSS configuration)")
+    parser.add_argument(
+        "--unconfigured", action="store_true", help="start without node-IDs (unless LSS stored one): set them by LSS"
     )
     args = parser.parse_args(argv)
     try:

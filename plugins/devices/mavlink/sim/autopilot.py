@@ -19,9 +19,10 @@ state, airframe and telemetry), kept apart because it is the part that
   across the path; NAV_TAKEOFF, NAV_LAND, NAV_LOITER_TIME and
   NAV_LOITER_UNLIM; NAV_RETURN_TO_LAUNCH switches to return mode, as PX4's
   navigator does; global frames, absolute (AMSL) or relative to home;
-* return mode: climb to RTL_RETURN_ALT above home if lower, fly home at
-  MPC_XY_CRUISE, land (PX4 also descends to RTL_DESCEND_ALT first and
-  shortens the climb near home, RTL_CONE_ANG: not simulated);
+* return mode: to home or the nearest rally point (RTL_TYPE), climbing to
+  RTL_RETURN_ALT above it if lower, at MPC_XY_CRUISE, then land (PX4 also
+  descends to RTL_DESCEND_ALT first and shortens the climb near home,
+  RTL_CONE_ANG: not simulated);
 * automatic disarming after landing (COM_DISARM_LAND) and before take-off
   (COM_DISARM_PRFLT, on the wall clock: it waits for people); home set where
   the vehicle arms; the injected heartbeat loss; the loss of offboard
@@ -96,6 +97,7 @@ class Autopilot:
         self._after_step()
         self._periodic()
         self._faults()
+        self._geofence_step()
 
     def _reference(self, dt: float):
         p = self.model.p
@@ -144,6 +146,9 @@ class Autopilot:
             return False
         if mode == "mission" and not self.mission:
             self._say("Mission denied: no mission", mavlink.MAV_SEVERITY_CRITICAL)
+            return False
+        if mode == "mission" and (problem := self._mission_start_problem()) is not None:
+            self._say(problem, mavlink.MAV_SEVERITY_CRITICAL)
             return False
         self.mode = mode
         self.events.append((self.t, f"mode {mode}"))
@@ -226,6 +231,10 @@ class Autopilot:
         self.uploads.append((mission_type, list(items)))
         if mission_type != mavlink.MAV_MISSION_TYPE_MISSION:
             self.events.append((self.t, f"{len(items)} items stored (mission type {mission_type})"))
+            if mission_type == mavlink.MAV_MISSION_TYPE_FENCE:
+                self._fence_accepted(items)
+            elif mission_type == mavlink.MAV_MISSION_TYPE_RALLY:
+                self._rally_accepted(items)
             return
         self.mission = items
         self.current = 0
@@ -345,11 +354,14 @@ class Autopilot:
         self._follow([self.model.p.copy(), target], 0.0, vertical=self.settings.airframe.takeoff_speed)
 
     def _begin_return(self) -> None:
-        """Return mode: climb to RTL_RETURN_ALT above home if lower, fly home, then land."""
+        """Return mode: to home or a rally point (RTL_TYPE, :mod:`.geofence`), climbing to RTL_RETURN_ALT above
+        it first if lower; then land."""
         start = self.model.stopping_point()
-        altitude = min(start[2], float(self.home[2]) - self.settings.rtl_return_altitude)
+        destination, what = self._return_destination()
+        self.events.append((self.t, f"return to {what}"))
+        altitude = min(start[2], float(destination[2]) - self.settings.rtl_return_altitude)
         points = [self.model.p.copy(), start, np.array([start[0], start[1], altitude])]
-        points.append(np.array([self.home[0], self.home[1], altitude]))
+        points.append(np.array([destination[0], destination[1], altitude]))
         self.cruise_speed = self.settings.airframe.cruise_speed
         self._follow(points, 0.0)
 

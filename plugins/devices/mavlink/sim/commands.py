@@ -141,8 +141,12 @@ class Commands:
         if self.mode == "mission" and not self.mission:
             self._say("Arming denied: no valid mission", C.MAV_SEVERITY_CRITICAL)
             return REJECTED
+        if self.mode == "mission" and (problem := self._mission_start_problem()) is not None:
+            self._say(problem, C.MAV_SEVERITY_CRITICAL)
+            return REJECTED
         self.armed = True
         self.armed_at = self.t
+        self._next_fence_check = 0
         self._armed_wall = time.monotonic()
         self.hold_point = self.model.p.copy()
         self.home = self.model.p.copy()  # PX4 (COM_HOME_EN): home is where the vehicle arms
@@ -215,6 +219,9 @@ class Commands:
     def _cmd_mission_start(self, params) -> int:
         if not self.mission:
             self._say("Mission start denied! No valid mission", C.MAV_SEVERITY_CRITICAL)
+            return DENIED
+        if (problem := self._mission_start_problem()) is not None:
+            self._say(problem, C.MAV_SEVERITY_CRITICAL)
             return DENIED
         first = params[0]
         if not (math.isfinite(first) and -1 <= first < len(self.mission)):

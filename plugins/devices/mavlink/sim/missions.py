@@ -29,8 +29,9 @@ protocol). What this module adds is PX4's judgement of each item:
   yaw wrapped to [0, 360) deg; take-off: yaw; ...); latitude and longitude
   as uploaded (1e-7 deg in MISSION_ITEM_INT, a float32 in MISSION_ITEM).
 
-Fence and rally lists are stored and sent back; the simulator does not
-enforce a geofence nor return to rally points (PX4 does).
+Fence and rally lists are stored and sent back as PX4 keeps them; what the
+vehicle does with them (the feasibility check of missions, the breach check
+and GF_ACTION, returns to rally points) is :mod:`.geofence`'s.
 """
 
 from __future__ import annotations

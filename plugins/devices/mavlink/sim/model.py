@@ -20,10 +20,23 @@ airborne time (it starts from its stationary distribution): a flight meets
 the same gusts for the same seed however long the vehicle stood on its pad
 first, which is wall-clock time for a simulation that runs faster than real
 time while a ground station connects and uploads. Flights are reproducible.
+
+Braking distance (:func:`braking_distance`): told to hold where it is, a
+vehicle moving at ``v`` overshoots that point before the controller brings it
+back; the overshoot is what the predictive geofence (:mod:`.geofence`) looks
+ahead by. With the default gains (position 1/s, velocity 2/s) the loop is
+x'' = -2 x' - 2 x, whose response to a start at speed v is v e^-t sin t: it
+travels 0.32 v (m, v in m/s) before turning back (0.30 v with the velocity
+integral, as integrated at 10 ms), as long as the braking (2 v at first)
+stays within the thrust authority (MPC_ACC_HOR_MAX, 4 m/s^2: up to 2 m/s);
+faster, the clipped acceleration makes it longer (v^2 / 8 m at 5 m/s). The
+function integrates the loop as the simulation does (same step, gains,
+limits, no wind), so it is exact for this model.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -44,6 +57,46 @@ def _clip_horizontal(x: float, y: float, limit: float) -> tuple[float, float]:
     if norm > limit:
         return x * limit / norm, y * limit / norm
     return x, y
+
+
+@functools.lru_cache(maxsize=4096)
+def _overshoot(
+    speed: float, kp: float, kv: float, ki: float, speed_limit: float, authority: float, dt: float, bias: float
+) -> float:
+    p, v, integral = 0.0, speed, bias
+    for _ in range(100_000):
+        wanted = min(max(-kp * p, -speed_limit), speed_limit)
+        error = wanted - v
+        a = kv * error + integral
+        saturated = abs(a) >= authority * 0.999
+        a = min(max(a, -authority), authority)
+        if not saturated:
+            integral += ki * dt * error
+        v = min(max(v + a * dt, -speed_limit), speed_limit)
+        if v <= 0.0:
+            return p
+        p += v * dt
+    return p
+
+
+def braking_distance(
+    airframe: Airframe, speed: float, dt: float = 0.01, vertical: bool = False, integral: float = 0.0
+) -> float:
+    """How far (m) the vehicle goes on from ``speed`` (m/s) along its motion when it is told to hold where it
+    is (the position controller's overshoot; no wind). ``vertical``: with the vertical gains and climb limit;
+    ``integral``: the velocity loop's integral along the motion (m/s^2; what it has learnt pushes on)."""
+    speed = abs(float(speed))
+    if speed < 1e-6:
+        return 0.0
+    bias = max(math.ceil(float(integral) * 100) / 100, 0.0)
+    a = airframe
+    gains = (
+        (a.position_gain_z, a.velocity_gain_z, a.velocity_integral_z, a.max_climb)
+        if vertical
+        else (a.position_gain, a.velocity_gain, a.velocity_integral, a.max_speed)
+    )
+    # rounded up to the cm/s: cached, and never shorter than at the speed itself
+    return _overshoot(math.ceil(speed * 100) / 100, *gains, a.max_acceleration, dt, bias)
 
 
 class Gusts:
@@ -143,14 +196,18 @@ class PointMassMultirotor:
                 # (an upward gust must not lift an idling vehicle off its pad)
                 self.v = np.zeros(3)
                 return
-        # the airframe's top speeds: its motors can do no more, whatever the controller asks
-        vx, vy = _clip_horizontal(vx + ax * dt, vy + ay * dt, a.max_speed)
-        vz = min(max(vz + az * dt, -a.max_climb), a.max_descent)
+        # the airframe's top speeds: its motors can do no more, whatever the controller asks (motors off, it
+        # falls: only the drag limits it)
+        vx, vy, vz = vx + ax * dt, vy + ay * dt, vz + az * dt
+        if armed:
+            vx, vy = _clip_horizontal(vx, vy, a.max_speed)
+            vz = min(max(vz, -a.max_climb), a.max_descent)
         px, py, pz = px + vx * dt, py + vy * dt, pz + vz * dt
         if pz >= self.ground:
             pz = self.ground
             vz = min(vz, 0.0)
-            if self.airborne and math.sqrt(vx * vx + vy * vy + vz * vz) < 0.2:
+            # a touchdown below 0.2 m/s, or any ground contact with the motors off (it falls: it stops there)
+            if self.airborne and (math.sqrt(vx * vx + vy * vy + vz * vz) < 0.2 or not armed):
                 self.airborne = False
                 vx = vy = vz = 0.0
                 self.integral = np.zeros(3)

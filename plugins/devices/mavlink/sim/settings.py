@@ -30,7 +30,7 @@ from surgiplan.plugins.devices.mavlink.link import enum_value, mavlink, signing_
 class StopAnswering(StrictModel):
     """Fall silent (send nothing, ignore everything) when ``step`` begins, after ``after`` of its messages."""
 
-    step: Literal["connect", "mission_upload", "arming", "mode_change", "mission_start"]
+    step: Literal["connect", "fence_upload", "rally_upload", "mission_upload", "arming", "mode_change", "mission_start"]
     after: int = Field(default=0, ge=0)
 
 
@@ -130,9 +130,19 @@ class SimSettings(StrictModel):
     #: auto-disarm after landing (s; PX4 COM_DISARM_LAND) and without take-off (wall s; COM_DISARM_PRFLT)
     disarm_after_landing: PositiveFloat = 1.0
     disarm_before_takeoff: PositiveFloat = 10.0
-    #: fence and rally-point lists the vehicle can store (as PX4, which stores them; see the README)
+    #: fence and rally-point items the vehicle can store (PX4 on NuttX: 64 fence points, 8 safe points)
     fence_capacity: int = Field(default=64, ge=0)
     rally_capacity: int = Field(default=8, ge=0)
+    #: what a geofence breach does (PX4 GF_ACTION: 0 none, 1 warning, 2 hold, 3 return, 4 terminate, 5 land)
+    geofence_action: int = Field(default=2, ge=0, le=5)
+    #: act on the breach predicted a braking distance ahead (PX4 GF_PREDICT; PX4's default 0)
+    geofence_predict: int = Field(default=0, ge=0, le=1)
+    #: fence-wide limits from home (m; PX4 GF_MAX_HOR_DIST, GF_MAX_VER_DIST; 0: none)
+    geofence_max_horizontal: NonNegativeFloat = 0.0
+    geofence_max_vertical: NonNegativeFloat = 0.0
+    #: where a return goes (PX4 RTL_TYPE: 0 the nearest of home and the rally points, 1 the nearest rally
+    #: point, home only without one)
+    rtl_type: int = Field(default=0, ge=0, le=1)
     #: MAVLink 2 signing key (64 hex digits or a passphrase); unsigned frames are then rejected
     signing_key: str | None = None
     seed: int = 0

@@ -49,8 +49,8 @@ CAPABILITIES = (
     | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE  # INT32 parameters in the float's bytes
     | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED  # offboard setpoints
     | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE  # fence lists: upload, download, clear (stored, see README)
-    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY  # rally-point lists, likewise
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE  # fence lists: stored, sent back, enforced
+    | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY  # rally points: stored, sent back, returned to
 )
 #: flight_sw_version: the PX4 release whose conventions the simulator follows (1.15.0, type "dev")
 FLIGHT_SW_VERSION = (1 << 24) | (15 << 16) | (0 << 8) | mavlink.FIRMWARE_VERSION_TYPE_DEV
@@ -157,9 +157,11 @@ class Telemetry:
         health = SENSORS
         if not self.settings.refuse_arming:
             health |= mavlink.MAV_SYS_STATUS_PREARM_CHECK  # PX4: set while arming is possible
+        fence_present, fence_enabled, fence_health = self._geofence_sensor_bits()
+        present = SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK | fence_present
         volts, amps, remaining = self._battery()
         return mavlink.MAVLink_sys_status_message(
-            SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK, SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK, health,
+            present, SENSORS | mavlink.MAV_SYS_STATUS_PREARM_CHECK | fence_enabled, health | fence_health,
             250, round(volts * 1000), round(amps * 100), remaining, 0, 0, 0, 0, 0, 0,
         )  # fmt: skip
 

@@ -19,6 +19,9 @@ QGroundControl and the ``mavlink_vehicle`` device can rehearse against it:
 * the parameter protocol over a subset of PX4's parameters that drive the
   simulation (:mod:`.params`);
 * PING and TIMESYNC answered;
+* the geofence and rally points, enforced on the vehicle (:mod:`.geofence`):
+  missions that leave the fence refused, breaches acted on (GF_ACTION),
+  returns to the nearest rally point;
 * mission execution, take-off, return, reposition, land, loiter and
   offboard control by SET_POSITION_TARGET_LOCAL_NED (:mod:`.autopilot`), with
   a point-mass multirotor (:mod:`.model`) under velocity and acceleration
@@ -59,6 +62,7 @@ from surgiplan.plugins.devices.mavlink.mission_vehicle import MissionReceiver, M
 
 from .autopilot import Autopilot
 from .commands import Commands
+from .geofence import Geofence
 from .missions import px4_check, px4_stored
 from .model import PointMassMultirotor
 from .offboard import OffboardSetpoints
@@ -71,7 +75,7 @@ from .telemetry import Telemetry
 WAITING_REPORT = 0.1
 
 
-class SimulatedVehicle(Autopilot, Commands, Telemetry):
+class SimulatedVehicle(Autopilot, Commands, Geofence, Telemetry):
     """The simulated vehicle on ``connection`` (a listening UDP port by default)."""
 
     def __init__(self, settings: SimSettings | None = None, connection: str = "udpin:127.0.0.1:0") -> None:
@@ -99,6 +103,7 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
             timeout=s.mission_timeout,
             retries=s.mission_retries,
             validate=self._validate_item,
+            check=self._check_list,
             on_accept=self._mission_accepted,
             faults=faults,
             types=(MISSION, FENCE, RALLY),
@@ -139,6 +144,7 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
         self.telemetry_lost = False
         self._next = {"current": 0.0}
         self._init_telemetry()
+        self._init_geofence()
         self._reported = -math.inf  # vehicle time of the last LOCAL_POSITION_NED
         self._reported_wall = -math.inf
         #: (t, x, y, z, vx, vy, vz) true states at the position rate, for tests and figures
@@ -364,11 +370,15 @@ class SimulatedVehicle(Autopilot, Commands, Telemetry):
         if target not in (None, 0, self.settings.system_id):
             return
         if kind in ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM"):
-            if self._silence("mission_upload"):
+            list_type = int(getattr(message, "mission_type", MISSION))
+            if self._silence({FENCE: "fence_upload", RALLY: "rally_upload"}.get(list_type, "mission_upload")):
                 return
             if self.sender.busy and kind == "MISSION_COUNT":
-                self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, 0)])
-                return  # PX4: busy with a download
+                if self.sender.partner == source and self.sender.next_seq >= self.sender.total:
+                    self.sender.partner = None  # every item went out: the download's final ACK was lost
+                else:
+                    self._send([mavlink.MAVLink_mission_ack_message(*source, mavlink.MAV_MISSION_ERROR, list_type)])
+                    return  # PX4: busy with a download
             self._send(self.receiver.on_message(message, source, now))
         elif kind in ("MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
             self._send(self.sender.on_message(message, source, now))
