@@ -44,7 +44,7 @@ import scipy.sparse as sp  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fem_vs_fenicsx import build_case  # noqa: E402
-from common import save, table  # noqa: E402
+from common import package_version, save, table  # noqa: E402
 from surgiplan.plugins.fem import linear  # noqa: E402
 from surgiplan.plugins.fem.assembly import TangentPattern  # noqa: E402
 
@@ -172,7 +172,16 @@ def main() -> None:
         "wheel, is built for numpy 1 and fails to import with numpy 2), petsc4py (source only: builds PETSc, "
         "downloading MUMPS at build time), pymumps and scikit-sparse (no wheels for this platform)"
     )
-    print(f"written: {save('fem_solvers', rows, note)}")
+    peers = {
+        name: {"version": package_version(name), "configuration": what}
+        for name, what in (
+            ("scipy", "SuperLU, pre-ordered as stvk orders it"),
+            ("pypardiso", "PARDISO (oneMKL) as stvk calls it: analysis once, refactorisations"),
+            ("qdldl", "numerical refactorisation on the analysis"),
+            ("cholespy", "Cholesky, no refactorisation"),
+        )
+    }
+    print(f"written: {save('fem_solvers', rows, note, peers=peers)}")
 
 
 if __name__ == "__main__":

@@ -53,7 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import save, table
+from common import package_version, save, table
 from mavlink_links import bench_fence, bench_links
 from mavlink_table import markdown
 from surgiplan import load_pipeline, run_pipeline
@@ -466,7 +466,8 @@ def main() -> None:
         order = {name: i for i, name in enumerate(SECTIONS)}
         rows = sorted(kept + rows, key=lambda r: order.get(r["benchmark"], len(order)))
 
-    print(f"\nwritten {save('mavlink', rows, notes)}")
+    peers = {"pymavlink": {"version": package_version("pymavlink"), "role": "the MAVLink 2 codec both sides use"}}
+    print(f"\nwritten {save('mavlink', rows, notes, peers=peers)}")
     from surgiplan.storage import write_text_atomic
 
     write_text_atomic(RESULTS / "mavlink.md", markdown(rows))

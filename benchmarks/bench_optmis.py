@@ -54,7 +54,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import RESULTS, median_time, save, table
+from common import RESULTS, median_time, package_version, save, table
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from surgiplan import LocalExecutor, PlanningProblem, load_scene
@@ -494,7 +494,14 @@ def main() -> None:
         f"{load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f} on {os.cpu_count()} cores (timings on a shared machine); "
         f"{'quick run' if args.quick else 'full run'}"
     )
-    path = save("optmis", out + [{"measure": "trade-off", **r} for r in sweep], notes)
+    peers = {
+        "OMPL": {
+            "version": package_version("ompl"),
+            "configuration": "RRT-Connect (5 s, seeded, simplified) for arbitrary points; RRT* with generous time "
+            "as a path-length reference, through surgiplan's OMPL bridge",
+        }
+    }
+    path = save("optmis", out + [{"measure": "trade-off", **r} for r in sweep], notes, peers=peers)
     print(
         f"\nwritten: {path}, {RESULTS / 'optmis_table1.csv'}, {RESULTS / 'optmis_table1.png'}, "
         f"{RESULTS / 'optmis_replanning.png'}"

@@ -36,7 +36,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, wait_for  # noqa: E402
-from common import save, table  # noqa: E402
+from common import package_version, save, table  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
 ENV = {**os.environ, "SURGIPLAN_PLUGIN_PACKAGES": "surgiplan,surgiplan-hello"}
@@ -317,7 +317,24 @@ def main() -> None:
         ],
         notes=f"load average (1, 5, 15 min) before {load_before}, after {load_after}; medians of {REPEAT} page loads "
         "(after one warm-up) and 3 live runs; headless chromium on SwiftShader (no GPU)",
+        peers={
+            "Chromium": {"version": chromium_version(), "configuration": "headless, SwiftShader (no GPU)"},
+            "Playwright (client)": {"version": package_version("playwright")},
+        },
     )
+
+
+def chromium_version() -> str | None:
+    """The browser's own version string (``chromium --version``), or None."""
+    import subprocess
+
+    from browser_support import chromium_path
+
+    try:
+        done = subprocess.run([chromium_path(), "--version"], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError, RuntimeError):
+        return None
+    return done.stdout.strip() or None
 
 
 if __name__ == "__main__":

@@ -52,7 +52,7 @@ import yaml
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per worker process
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import RESULTS, save, table
+from common import save, table
 from surgiplan import load_pipeline
 from surgiplan.executors import LocalExecutor
 from surgiplan.planning import PlanningProblem
@@ -263,13 +263,14 @@ def compare(ref: str, scenarios: list[int], rounds: int, samples: int) -> None:
         f"process with an empty task store; {os.cpu_count()} cores shared with other work: load averages per run "
         "in the rows"
     )
-    from surgiplan.storage import write_json_atomic
-
-    write_json_atomic(
-        RESULTS / "retraction_speed.json",
-        {"benchmark": "retraction_speed", "notes": notes, "summary": summary, "rows": rows},
-    )
-    print(f"wrote {RESULTS / 'retraction_speed.json'}")
+    peers = {
+        "surgiplan (baseline)": {
+            "version": commit.stdout.strip(),
+            "configuration": f"git archive {ref}, run the same way in a fresh process, alternating with this tree",
+        }
+    }
+    path = save("retraction_speed", rows, notes, peers=peers, extra={"summary": summary})
+    print(f"wrote {path}")
 
 
 def main() -> None:

@@ -1,42 +1,53 @@
-"""safe_prm against OMPL's PRM in its strongest Python configuration, on the block world (entry -> target).
+"""safe_prm against every configuration of OMPL's PRM we could give it, on the block world (entry -> target).
 
 For 500, 2,000 and 5,000 milestones and 5 seeds each, in one run on one
 machine, the peer side by side:
 
 * **safe_prm**: R and R_safe built together, every edge certified (exact or
   covering balls); the query (linking, A* in R, PathRepair through R_safe);
-  smoothing (the corridor QP) timed apart.
-* **OMPL PRM, vectorised checker + discrete motions** (the peer's strongest
-  general configuration): OMPL 2.0's PRM grown with ``growRoadmap`` and a
-  termination condition on the milestone count (not a time budget) to the
-  same number of milestones; the state validity checker is one vectorised
-  numpy query of the scene's boxes per state (about 4 us a call, the
-  fastest general scene query we could write in Python); motions by OMPL's
-  own ``DiscreteMotionValidator`` at its default resolution (1 % of the
-  space's extent: 1.85 mm between checked states in the block world, every
-  point of a motion within 0.92 mm of one). It checks states, so a motion
-  may clip an obstacle between them (counted below).
-* **OMPL PRM, certified motions**: the same, with surgiplan's certified
-  motion check (``space.motion_is_clear``, exact for R3) as OMPL's motion
-  validator: no edge cuts a corner, like safe_prm's.
-* **OMPL PRM, scalar checker** (for the record): a pure-Python per-state
-  test hand-written for this scene's axis-aligned boxes (0.3 us a call),
-  with the discrete motions. It is not a general scene query (no rotated
-  boxes, spheres, cylinders or meshes), but a user with only boxes could
-  write it, and with it OMPL's C++ core builds about as fast as safe_prm.
+  smoothing (the corridor QP) timed apart. The query is timed as the plan
+  stage reports it (``query_s``: linking, search and repair).
+* **OMPL 2.0's PRM**, grown with ``growRoadmap`` and a termination condition
+  on the milestone count (not a time budget) to the same number of
+  milestones, in every configuration below; the **strongest** at a size is
+  the one that builds fastest there, and safe_prm's build is compared with
+  it. OMPL's own C++ state validity checkers cannot be written from Python;
+  these are the fastest Python ones we could write:
+
+  - ``scalar``: a pure-Python per-state test of the scene's axis-aligned
+    boxes (the "boolean box checker"), OMPL's ``DiscreteMotionValidator`` at
+    its default resolution (1 % of the space's extent: 1.85 mm between
+    checked states in the block world, every point of a motion within 0.92 mm
+    of one). It checks states, so a motion may clip an obstacle between them
+    (counted below);
+  - ``grid``: the same test behind a 1 mm voxel table made before the build
+    (not timed): a cell certainly clear or certainly blocked answers at once,
+    only the cells an obstacle's surface crosses run the box test; exact, the
+    fastest checker here; discrete motions as ``scalar``;
+  - ``grid-certified``: ``grid`` with the boxes grown by half the motion
+    resolution, so that the discrete motions certify what safe_prm's edges
+    do (every point of a motion within half a resolution of a checked state
+    that keeps that much more);
+  - ``vectorised``: one numpy query of all boxes per state (a general scene
+    query's cost), discrete motions;
+  - ``certified``: surgiplan's exact motion check as OMPL's motion
+    validator (no corner cutting, like safe_prm's edges).
 
 OMPL's query (``solve`` on the grown roadmap: it adds the start and goal as
 milestones and searches) and its simplification (``PathSimplifier.
-simplifyMax`` on a copy of the raw path) are timed like safe_prm's query and
-smoothing: medians of repeated runs on the same roadmap. Path lengths and
-clearances are re-measured with coal. OMPL with a 4 or 8 mm margin (states
-and motions must keep it) fails here: the target lies behind a 6 mm gap.
+simplifyMax`` on a copy of the raw path) are timed for the strongest
+configuration, like safe_prm's query and smoothing: medians of repeated runs
+on the same roadmap. Path lengths and clearances are re-measured with coal.
+OMPL with a 4 or 8 mm margin (states and motions must keep it) fails here:
+the target lies behind a 6 mm gap (run with the strongest configuration).
 OMPL's PRM connects each milestone to its 10 nearest (its default), safe_prm
 to at most 15 within a radius (K-S); the roadmaps differ, the milestone
 count is the same.
 
-The load average at the start is recorded: the machine is shared. The
-ratios come from one run, side by side.
+Last, the same 5,000-milestone plans run as pipelines (``surgiplan run``, one
+plan stage per level): the build and query times the plan stage reports,
+beside this benchmark's. Results carry their provenance (commit, load before
+and after, OMPL's version and each configuration; ``benchmarks/common.py``).
 
     python benchmarks/bench_safe_prm.py [--quick]   (--quick: 2 seeds, 500 and 2,000; writes nothing)
 """
@@ -44,9 +55,11 @@ ratios come from one run, side by side.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -55,17 +68,27 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from common import save, table
+from common import package_version, save, table
 from helpers import coal_scene_segment_distance
 from surgiplan import PlanningProblem, load_scene
-from surgiplan.plugins.planners.safe_prm import query as prm_query
 from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
 from surgiplan.spaces import R3Space
 
 ROOT = Path(__file__).resolve().parent.parent
 MARGINS = {"expert": 0.0, "intermediate": 0.004, "beginner": 0.008}
 QUERY_REPEATS = 21
-OMPL_CONFIGS = ("vectorised", "certified", "scalar")
+OMPL_CONFIGS = ("scalar", "grid", "grid-certified", "vectorised", "certified")
+#: the voxel table's cell (m) for the ``grid`` checkers
+GRID_CELL = 0.001
+DESCRIPTION = {
+    "scalar": "pure-Python per-state test of the axis-aligned boxes; DiscreteMotionValidator, default resolution",
+    "grid": "the scalar test behind a 1 mm voxel table (certainly clear / blocked cells answer at once, exact); "
+    "DiscreteMotionValidator, default resolution",
+    "grid-certified": "the grid checker with the boxes grown by half the motion resolution: the discrete motions "
+    "certify the clearance",
+    "vectorised": "one numpy query of all boxes per state; DiscreteMotionValidator, default resolution",
+    "certified": "the vectorised checker; surgiplan's exact motion check as the motion validator",
+}
 
 
 def measure_path(scene, path):
@@ -98,23 +121,28 @@ def run_safe_prm(scene, space, milestones, seed, level):
     t0 = time.perf_counter()
     artifact = planner.build(PlanningProblem(scene, space))
     build = time.perf_counter() - t0
-    raw = prm_query.query(artifact.roadmap, start, goal)  # the roadmap answer, before smoothing
-    query_ms = median_ms(lambda: prm_query.query(artifact.roadmap, start, goal))
-    smooth = []
-    for _ in range(5):
+    raw = planner.query(artifact, start, goal)  # the first query, as a pipeline's plan stage makes it
+    first_query = raw.metrics["query_s"]
+    queries, smooth = [], []
+    for _ in range(QUERY_REPEATS):
         result = planner.query(artifact, start, goal)
+        queries.append(result.metrics["query_s"])  # linking, search, repair: what the plan stage reports
         smooth.append(result.metrics.get("smooth_s", float("nan")))
     length, clearance, _ = measure_path(scene, result.path if result.solved else None)
-    _, _, raw_clips = measure_path(scene, raw.path if raw.found else None)
+    from surgiplan.plugins.planners.safe_prm import query as prm_query
+
+    roadmap_path = prm_query.query(artifact.roadmap, start, goal)  # the roadmap answer, before smoothing
+    _, _, raw_clips = measure_path(scene, roadmap_path.path if roadmap_path.found else None)
     return {
         "build_s": build,
-        "query_ms": query_ms,
+        "query_ms": 1e3 * statistics.median(queries),
+        "first_query_ms": 1e3 * first_query,
         "simplify_ms": 1e3 * statistics.median(smooth),
         "length_m": length,
         "min_clearance_m": clearance,
         "raw_clips": raw_clips,
         "solved": result.solved,
-        "settled": raw.settled,
+        "settled": roadmap_path.settled,
     }
 
 
@@ -152,7 +180,7 @@ def vectorised_checker(scene, space, margin):
 
 
 def scalar_checker(scene, space, margin):
-    """Pure Python, box by box: the fastest per-state test for this scene's axis-aligned boxes."""
+    """Pure Python, box by box: the fastest exact per-state test for this scene's axis-aligned boxes."""
     lo, hi = box_arrays(scene)
     boxes = [(*a, *b) for a, b in zip(lo.tolist(), hi.tolist(), strict=True)]
     need = space.tip_radius + margin
@@ -167,6 +195,36 @@ def scalar_checker(scene, space, margin):
             if dx * dx + dy * dy + dz * dz <= need2:
                 return False
         return True
+
+    return valid
+
+
+def grid_checker(scene, space, margin, cell=GRID_CELL):
+    """:func:`scalar_checker` behind a voxel table: a cell whose centre's clearance, less half its diagonal, is
+    beyond the margin is certainly valid, one whose clearance plus half its diagonal is within it certainly not;
+    only the cells in between (an obstacle's surface crosses them) run the box test. Exact; made before the
+    build (not timed)."""
+    exact = scalar_checker(scene, space, margin)
+    need = space.tip_radius + margin
+    origin = scene.bounds_min
+    shape = np.ceil((scene.bounds_max - origin) / cell).astype(int) + 1
+    index = np.stack(np.meshgrid(*[np.arange(k) for k in shape], indexing="ij"), -1).reshape(-1, 3)
+    distance = scene.signed_distance(origin + (index + 0.5) * cell)[0]
+    half = 0.5 * np.sqrt(3.0) * cell
+    code = np.full(len(index), 2, dtype=np.uint8)
+    code[distance - half > need] = 1
+    code[distance + half <= need] = 0
+    cells = code.tobytes()
+    inverse = 1.0 / cell
+    ox, oy, oz = (float(v) for v in origin)
+    ny, nz = int(shape[1]), int(shape[2])
+
+    def valid(state):
+        x, y, z = state[0], state[1], state[2]
+        c = cells[(int((x - ox) * inverse) * ny + int((y - oy) * inverse)) * nz + int((z - oz) * inverse)]
+        if c == 2:
+            return exact(state)
+        return c == 1
 
     return valid
 
@@ -187,8 +245,17 @@ class OmplPRM:
             bounds.setHigh(i, float(scene.bounds_max[i]))
         state_space.setBounds(bounds)
         si = ob.SpaceInformation(state_space)
-        checker = scalar_checker if config == "scalar" else vectorised_checker
-        si.setStateValidityChecker(checker(scene, space, margin))
+        # the default resolution: DiscreteMotionValidator at 1 % of the extent (set up once to read it)
+        resolution = state_space.getLongestValidSegmentFraction() * state_space.getMaximumExtent()
+        if config == "scalar":
+            checker = scalar_checker(scene, space, margin)
+        elif config == "grid":
+            checker = grid_checker(scene, space, margin)
+        elif config == "grid-certified":
+            checker = grid_checker(scene, space, margin + 0.5 * resolution)
+        else:
+            checker = vectorised_checker(scene, space, margin)
+        si.setStateValidityChecker(checker)
         if config == "certified":
 
             class CertifiedMotion(ob.MotionValidator):
@@ -198,7 +265,7 @@ class OmplPRM:
                     return bool(space.motion_is_clear(a, b, margin)[0])
 
             si.setMotionValidator(CertifiedMotion(si))
-        si.setup()  # the default resolution: DiscreteMotionValidator at 1 % of the extent
+        si.setup()
         self.state_space, self.si = state_space, si
         self.resolution_m = state_space.getLongestValidSegmentLength()
         self.planner = og.PRM(si)
@@ -237,17 +304,20 @@ class OmplPRM:
         return np.array([[path.getState(i)[k] for k in range(3)] for i in range(path.getStateCount())]), elapsed
 
 
-def run_ompl(scene, space, milestones, margin, config):
+def run_ompl(scene, space, milestones, margin, config, answer=True):
+    """One OMPL roadmap grown to ``milestones``: its build time, and with ``answer`` its query, simplification
+    and path (margin 0: the query; a margin: only whether it solves)."""
     start, goal = scene.points["entry"], scene.points["target"]
     prm = OmplPRM(scene, space, config, margin)
     t0 = time.perf_counter()
     prm.grow(milestones)
     build = time.perf_counter() - t0
-    edges = prm.planner.edgeCount()
-    out = {"build_s": build, "edges": edges, "resolution_mm": 1e3 * prm.resolution_m}
+    out = {"build_s": build, "edges": prm.planner.edgeCount(), "resolution_mm": 1e3 * prm.resolution_m}
+    if not answer:
+        return out
     raw = prm.query(start, goal, 1.0 if margin else 5.0)
     out["solved"] = raw is not None
-    if raw is None:
+    if raw is None or margin:
         return out
     query_ms = median_ms(lambda: prm.query(start, goal, 5.0))
     simplify = []
@@ -264,6 +334,32 @@ def run_ompl(scene, space, milestones, margin, config):
         raw_clips=raw_clips,
     )
     return out
+
+
+# ----------------------------------------------------------------------------- the pipeline
+
+
+def pipeline_times(milestones: int, seed: int) -> dict:
+    """The plan stage's own build_s and query_s for the three levels: ``surgiplan run`` on a pipeline of three
+    plan stages in a scratch directory (no stored roadmap: each stage builds)."""
+    from surgiplan.cli import main as cli
+
+    stages = "\n".join(
+        f"  - {{stage: plan, name: {level}, plugin: safe_prm, start: entry, goal: target,\n"
+        f"     settings: {{proficiency: {level}, milestones: {milestones}, k: 15, seed: {seed}}}}}"
+        for level in MARGINS
+    )
+    with tempfile.TemporaryDirectory() as scratch:
+        config = Path(scratch) / "pipeline.yaml"
+        config.write_text(
+            f"name: bench-safe-prm\nlength_unit: mm\nscene: {ROOT / 'configs/scenes/block_world.yaml'}\n"
+            f"pipeline:\n{stages}\noutput: {{dir: {scratch}/out, figures: false, gltf: false}}\n"
+        )
+        code = cli(["run", str(config), "--quiet"])
+        if code != 0:
+            raise SystemExit(f"the pipeline failed (exit {code})")
+        stages_out = json.loads((Path(scratch) / "out" / "result.json").read_text())["stages"]
+    return {s["name"]: {k: s["metrics"][k] for k in ("build_s", "query_s", "search_settled")} for s in stages_out}
 
 
 # ----------------------------------------------------------------------------- summary
@@ -293,19 +389,29 @@ def main() -> None:
     ou.setLogLevel(ou.LOG_WARN)
     ou.RNG.setSeed(1)  # once per process; later builds continue the stream, so every run differs
     rows = []
+    strongest_by_size = {}
     for milestones in sizes:
         ours = {level: [] for level in MARGINS}
-        theirs = {(config, level): [] for config in OMPL_CONFIGS for level in MARGINS}
+        theirs = {config: [] for config in OMPL_CONFIGS}
         for seed in seeds:
-            for level, margin in MARGINS.items():
+            for level in MARGINS:
                 ours[level].append(run_safe_prm(scene, space, milestones, seed, level))
-                for config in OMPL_CONFIGS:
-                    theirs[config, level].append(run_ompl(scene, space, milestones, margin, config))
+            for config in OMPL_CONFIGS:
+                theirs[config].append(run_ompl(scene, space, milestones, 0.0, config, answer=False))
             print(f"  {milestones} milestones, seed {seed} done", file=sys.stderr, flush=True)
+        builds = {config: med(theirs[config], "build_s") for config in OMPL_CONFIGS}
+        strongest = min(builds, key=builds.get)
+        strongest_by_size[milestones] = strongest
+        # the strongest configuration answers the query (margin 0) and tries the margins
+        answered = {level: [] for level in MARGINS}
+        for _ in seeds:
+            for level, margin in MARGINS.items():
+                answered[level].append(run_ompl(scene, space, milestones, margin, strongest))
         n_seeds = len(seeds)
         # R + R_safe: the intermediate and beginner builds (the expert's R_safe is R)
         ours_build = med(ours["intermediate"] + ours["beginner"], "build_s")
         ours_query = med(ours["intermediate"] + ours["beginner"], "query_ms")
+        expert = answered["expert"]
         row = {
             "planner": "safe_prm (R + R_safe, certified)",
             "milestones": milestones,
@@ -314,40 +420,43 @@ def main() -> None:
             "query_ms": fmt(med(ours["expert"], "query_ms")),
             "query_repair_ms_4mm": fmt(med(ours["intermediate"], "query_ms")),
             "query_repair_ms_8mm": fmt(med(ours["beginner"], "query_ms")),
+            "first_query_ms": fmt(med(ours["intermediate"] + ours["beginner"], "first_query_ms")),
             "simplify_ms": fmt(med(ours["expert"], "simplify_ms")),
             "length_mm": fmt(med(ours["expert"], "length_m"), 1e3, 4),
             "min_clear_mm": fmt(med(ours["expert"], "min_clearance_m"), 1e3),
             "raw_paths_clipping": f"{sum(bool(r['raw_clips']) for r in ours['expert'])}/{n_seeds}",
             "success_0_4_8mm": "/".join(f"{sum(r['solved'] for r in ours[lv])}" for lv in MARGINS) + f" of {n_seeds}",
             "settled_median": fmt(med(ours["beginner"], "settled"), 1, 4),
+            "strongest_ompl": strongest,
+            "build_ratio_vs_strongest": f"{builds[strongest] / ours_build:.1f}x",
         }
-        rows.append(row)
-        for config in OMPL_CONFIGS:
-            expert = theirs[config, "expert"]
-            build = med(expert, "build_s")
-            rows.append(
-                {
-                    "planner": f"OMPL PRM ({config})",
-                    "milestones": milestones,
-                    "seeds": n_seeds,
-                    "build_s": fmt(build),
-                    "build_ratio": f"{build / ours_build:.1f}x" if build and ours_build else "—",
-                    "query_ms": fmt(med(expert, "query_ms")),
-                    "query_ratio": (f"{med(expert, 'query_ms') / ours_query:.1f}x" if med(expert, "query_ms") else "—"),
-                    "simplify_ms": fmt(med(expert, "simplify_ms")),
-                    "length_mm": fmt(med(expert, "length_m"), 1e3, 4),
-                    "min_clear_mm": fmt(med(expert, "min_clearance_m"), 1e3),
-                    "raw_paths_clipping": f"{sum(bool(r.get('raw_clips')) for r in expert)}/{n_seeds}",
-                    "success_0_4_8mm": "/".join(f"{sum(r['solved'] for r in theirs[config, lv])}" for lv in MARGINS)
-                    + f" of {n_seeds}",
-                    "edges_median": fmt(med(expert, "edges"), 1, 5),
-                }
-            )
-        # safe_prm's length against OMPL's simplified path (vectorised configuration)
-        ref = med(theirs["vectorised", "expert"], "length_m")
+        ref = med(expert, "length_m")
         if ref and med(ours["expert"], "length_m"):
             row["length_vs_ompl"] = f"{100 * (med(ours['expert'], 'length_m') / ref - 1):+.1f}%"
-        row["edges_median"] = "—"
+        rows.append(row)
+        for config in OMPL_CONFIGS:
+            build = builds[config]
+            entry = {
+                "planner": f"OMPL PRM ({config})",
+                "milestones": milestones,
+                "seeds": n_seeds,
+                "build_s": fmt(build),
+                "build_ratio": f"{build / ours_build:.1f}x",
+                "strongest": config == strongest,
+                "edges_median": fmt(med(theirs[config], "edges"), 1, 5),
+            }
+            if config == strongest:
+                entry.update(
+                    query_ms=fmt(med(expert, "query_ms")),
+                    query_ratio=f"{med(expert, 'query_ms') / ours_query:.1f}x" if med(expert, "query_ms") else "—",
+                    simplify_ms=fmt(med(expert, "simplify_ms")),
+                    length_mm=fmt(med(expert, "length_m"), 1e3, 4),
+                    min_clear_mm=fmt(med(expert, "min_clearance_m"), 1e3),
+                    raw_paths_clipping=f"{sum(bool(r.get('raw_clips')) for r in expert)}/{n_seeds}",
+                    success_0_4_8mm="/".join(f"{sum(r['solved'] for r in answered[lv])}" for lv in MARGINS)
+                    + f" of {n_seeds}",
+                )
+            rows.append(entry)
     columns = [
         "planner",
         "milestones",
@@ -366,24 +475,53 @@ def main() -> None:
         "success_0_4_8mm",
     ]
     print(table(rows, columns))
-    resolution = 1e3 * OmplPRM(scene, space, "vectorised", 0.0).resolution_m
+    largest = sizes[-1]
+    pipeline = pipeline_times(largest, 1)
+    ours_seed1 = {
+        level: run_safe_prm(scene, space, largest, 1, level) for level in MARGINS
+    }  # the same plans, as this benchmark times them
+    for level, stage in pipeline.items():
+        rows.append(
+            {
+                "planner": "safe_prm, plan stage (surgiplan run)",
+                "milestones": largest,
+                "level": level,
+                "seed": 1,
+                "pipeline_build_s": round(stage["build_s"], 5),
+                "pipeline_query_ms": round(1e3 * stage["query_s"], 4),
+                "benchmark_build_s": round(ours_seed1[level]["build_s"], 5),
+                "benchmark_first_query_ms": round(ours_seed1[level]["first_query_ms"], 4),
+                "benchmark_query_ms": round(ours_seed1[level]["query_ms"], 4),
+                "settled": stage["search_settled"],
+            }
+        )
+        print(rows[-1])
+    resolution = 1e3 * OmplPRM(scene, space, "scalar", 0.0).resolution_m
     notes = (
         f"block world, entry -> target; medians over seeds (build) and over {QUERY_REPEATS} repeats per seed "
         "(query, simplification), then over seeds. build_ratio = OMPL's build of its one roadmap / safe_prm's "
-        "build of R + R_safe (median of the 4 and 8 mm builds); query_ratio = OMPL's query (solve on the grown "
-        "roadmap) / safe_prm's query with repair (4 and 8 mm). OMPL 2.0 PRM grown by growRoadmap with a "
-        "termination condition on the milestone count; 'vectorised': one numpy query of the scene's boxes per "
-        f"state, OMPL's DiscreteMotionValidator at its default resolution ({resolution:.3g} mm between states); "
-        "'certified': the same states, surgiplan's exact motion check as OMPL's motion validator; 'scalar': a "
-        "pure-Python per-state test specialised to axis-aligned boxes, discrete motions. Length and clearance of "
-        "the margin-0 path after each planner's own simplification (safe_prm: corridor QP; OMPL: simplifyMax), "
-        f"re-measured with coal. Load average at start {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f} on "
-        f"{os.cpu_count()} cores (shared machine); run took {time.perf_counter() - started:.0f} s"
+        "build of R + R_safe (median of the 4 and 8 mm builds); the strongest OMPL configuration at a size is the "
+        "fastest to build there (it alone answers the query and tries the margins); query_ratio = its query (solve "
+        "on the grown roadmap) / safe_prm's query with repair (4 and 8 mm), safe_prm's query as the plan stage "
+        f"reports it (query_s: linking, search, repair). OMPL's DiscreteMotionValidator at {resolution:.3g} mm "
+        "between states (its default). Length and clearance of the margin-0 path after each planner's own "
+        "simplification (safe_prm: corridor QP; OMPL: simplifyMax), re-measured with coal. Load average at start "
+        f"{load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f} on {os.cpu_count()} cores (shared machine); run took "
+        f"{time.perf_counter() - started:.0f} s"
     )
     if args.quick:
         print(f"\n(quick run: nothing written) {notes}")
         return
-    print(f"\nwritten: {save('safe_prm_vs_ompl', rows, notes)}")
+    peers = {
+        "OMPL": {
+            "version": package_version("ompl"),
+            "planner": "geometric PRM (10 nearest neighbours), growRoadmap to the milestone count",
+            "configurations": DESCRIPTION,
+            "motion_resolution_mm": round(resolution, 4),
+            "strongest": {str(m): c for m, c in strongest_by_size.items()},
+        }
+    }
+    print(f"\nwritten: {save('safe_prm_vs_ompl', rows, notes, peers=peers)}")
 
 
 if __name__ == "__main__":

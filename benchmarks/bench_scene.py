@@ -19,7 +19,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from common import median_time, save, table
+from common import median_time, package_version, save, table
 from helpers import coal_scene_point_distance, coal_scene_segment_distance
 from surgiplan import load_scene
 from surgiplan.geometry.mesh import mesh_from_arrays
@@ -123,7 +123,9 @@ def main() -> None:
 
     columns = ["scene", "query", "surgiplan_us_per_query", "coal_loop_us_per_query", "speedup", "max_abs_diff_m"]
     print(table(rows, columns))
-    print(f"\nwritten: {save('scene', rows, 'median of 5 (coal: 3) runs; coal called once per query from Python')}")
+    peers = {"coal": {"version": package_version("coal"), "configuration": "called once per query from Python"}}
+    notes = "median of 5 (coal: 3) runs; coal called once per query from Python"
+    print(f"\nwritten: {save('scene', rows, notes, peers=peers)}")
 
 
 if __name__ == "__main__":

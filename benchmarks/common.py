@@ -23,6 +23,10 @@ START_LOAD = os.getloadavg()
 START_TIME = time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
+#: what the dirty flag ignores: files that a benchmark's own results change
+CLEAN_PATHS = (":(exclude)benchmarks/results", ":(exclude)*.md")
+
+
 def git_state() -> dict[str, Any]:
     """The commit the benchmark ran on and whether the tracked tree differed from it."""
 
@@ -31,17 +35,23 @@ def git_state() -> dict[str, Any]:
 
     try:
         commit = git("rev-parse", "HEAD")
-        dirty = bool(git("status", "--porcelain", "--untracked-files=no"))
+        # results files and prose do not change what is measured: a benchmark run after another one's results
+        # (or the README's blocks) changed is still on a clean tree
+        dirty = bool(git("status", "--porcelain", "--untracked-files=no", "--", ".", *CLEAN_PATHS))
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
     return {"commit": commit or None, "dirty": dirty if commit else None}
+
+
+#: the commit and dirty flag when the benchmark started (what it measures; a commit made while it runs is not)
+START_GIT = git_state()
 
 
 def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """What produced a result: commit, dirty flag, machine, load before and after, the peers' versions and
     settings (``{"OMPL": {"version": "1.7.0", "configuration": "..."}}``)."""
     return {
-        **git_state(),
+        **START_GIT,
         "machine": platform.platform(),
         "cpus": os.cpu_count(),
         "python": platform.python_version(),
@@ -51,6 +61,16 @@ def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
         "load_after": [round(x, 2) for x in os.getloadavg()],
         "peers": dict(peers or {}),
     }
+
+
+def package_version(name: str) -> str | None:
+    """An installed distribution's version (a peer's, for :func:`provenance`), or None."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return None
 
 
 def median_time(fn: Callable[[], object], repeat: int = 5, warmup: int = 1) -> tuple[float, list[float]]:
@@ -65,8 +85,14 @@ def median_time(fn: Callable[[], object], repeat: int = 5, warmup: int = 1) -> t
     return statistics.median(times), times
 
 
-def save(name: str, rows: list[dict], notes: str = "", peers: Mapping[str, Any] | None = None) -> Path:
-    """Write ``results/<name>.json`` atomically, with its :func:`provenance`."""
+def save(
+    name: str,
+    rows: list[dict],
+    notes: str = "",
+    peers: Mapping[str, Any] | None = None,
+    extra: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write ``results/<name>.json`` atomically, with its :func:`provenance` (and ``extra`` top-level keys)."""
     from surgiplan.storage import write_json_atomic
 
     path = RESULTS / f"{name}.json"
@@ -79,6 +105,7 @@ def save(name: str, rows: list[dict], notes: str = "", peers: Mapping[str, Any] 
             "python": info["python"],
             "provenance": info,
             "notes": notes,
+            **dict(extra or {}),
             "rows": rows,
         },
     )

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from common import table
 from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
-from devices_table import PRIORITY, SEPARATE, SEPARATE_RT, THREAD
+from devices_table import DRIVES_PRIORITY, PRIORITY, SEPARATE, SEPARATE_RT, THREAD
 from surgiplan import load_scene
 from surgiplan.devices import Trajectory
 from surgiplan.errors import SurgiplanError
@@ -31,6 +31,16 @@ from surgiplan.plugins.devices.canopen.bus import frame_bits, worst_case_bits
 from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def steal_ticks() -> int:
+    """The machine's stolen time so far (clock ticks, /proc/stat): time the hypervisor ran other guests while
+    this one had work; a real-time loop cannot be on time through it."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+        return int(fields[8])
+    except (OSError, IndexError, ValueError):
+        return 0
 
 
 def percentile(values, q: float) -> float:
@@ -55,7 +65,11 @@ def drives_process(initial, priority: int | None = None):
         yield {"interface": "loopback", "channel": str(port), "options": {"hub": "join"}}, process.pid
     finally:
         process.terminate()
-        process.wait(timeout=10)
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:  # a starved or stuck simulator: the benchmark goes on without it
+            process.kill()
+            process.wait(timeout=10)
 
 
 def process_cpu(pid) -> float:
@@ -72,6 +86,9 @@ def loop_settings(rate: float) -> dict:
         "fulcrum": FULCRUM,
         "control_rate": rate,
         "heartbeat_period": 0.5,
+        # configuration and fault resets by SDO happen outside the loop; a loaded machine may delay the drives'
+        # process past the default 0.2 s
+        "sdo_timeout": 1.0,
         "pdo_timeout_cycles": max(10, int(rate) // 20),
         "outputs": False,
     }
@@ -83,7 +100,9 @@ def gimbal(mode: str, rate: float, start):
     settings = loop_settings(rate)
     if mode in (SEPARATE, SEPARATE_RT):
         priority = PRIORITY if mode == SEPARATE_RT else None
-        context = drives_process(start, priority)
+        # the drives (other hardware, in a real cell) below the master: their process cannot hold a core the
+        # master's loop needs
+        context = drives_process(start, DRIVES_PRIORITY if priority is not None else None)
         settings["realtime_priority"] = priority
     else:
         context = contextlib.nullcontext((None, None))
@@ -96,46 +115,95 @@ def gimbal(mode: str, rate: float, start):
             yield device, pid
 
 
-def control_loop(scene, rates, runs: int, mode: str) -> list[dict]:
+def long_path(path: np.ndarray, seconds: float, one_way: float) -> np.ndarray:
+    """The gap path there and back (and there...) until it takes at least ``seconds`` (one way: ``one_way``)."""
+    legs = max(1, int(np.ceil(seconds / one_way)))
+    pieces = [path]
+    for leg in range(1, legs):
+        pieces.append((path[::-1] if leg % 2 else path)[1:])
+    return np.concatenate(pieces)
+
+
+def one_way_duration(scene) -> float:
+    """How long the gimbal takes for the gap path once (the simulated clock: no waiting)."""
     space = gimbal_space(scene)
     path = gimbal_path(space, GAP_TIPS)
+    with active(CastGimbalDevice, {"fulcrum": FULCRUM, "outputs": False}, scene, ROOT / "out") as device:
+        return float(device.execute(Trajectory(path, space, "bench")).metrics["duration_s"])
+
+
+def release(stack: contextlib.ExitStack) -> None:
+    """Close a device and its drives; one that fails to stop cleanly (a starved drives process) is left behind."""
+    try:
+        stack.close()
+    except (SurgiplanError, RuntimeError) as exc:
+        print(f"  (closing the device: {exc})", flush=True)
+
+
+def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> list[dict]:
+    """``runs`` runs of at least ``seconds`` each (the gap path there and back) per rate."""
+    space = gimbal_space(scene)
+    path = long_path(gimbal_path(space, GAP_TIPS), seconds, one_way_duration(scene))
     rows = []
     for rate in rates:
         periods, work, missed, missing, completed, cycles, load, worst = [], [], 0, 0, 0, 0, [], []
+        lateness, missed_per_run, durations = [], [], []
+        stolen = steal_ticks()
         loop_cpu = drives_cpu = execute_cpu = 0.0
         syncs = 0
         lapses = []
         error = ""
-        try:
-            with gimbal(mode, rate, path[0]) as (device, pid):
-                for k in range(runs):
-                    before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
-                    before_execute = time.process_time()
-                    before_lapses = len(device.controller.missed_log)
-                    report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
-                    execute_cpu += time.process_time() - before_execute
-                    drives_cpu += process_cpu(pid) - before_cpu
-                    syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
-                    if report.metrics.get("refused"):
-                        error = report.message
-                        break
-                    log = device.last_log
-                    loop_cpu += log.cpu_s
-                    periods += np.diff(log.wakeups).tolist()
-                    work += log.work.tolist()
-                    missed += report.metrics.get("missed_cycles", 0)
-                    missing += report.metrics.get("samples_missing", 0)
-                    cycles += report.metrics["cycles"]
-                    completed += report.status == "completed"
-                    load.append(report.metrics["bus_load_percent"])
-                    worst.append(report.metrics["bus_load_worst_case_percent"])
-                    new = device.controller.missed_log[before_lapses:]
-                    lapses += [round(late * 1e3, 1) for due, late, _ in new if log.start <= due <= log.end]
-                    if report.status != "completed":
-                        print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
-                        device.reset_faults()
-        except SurgiplanError as exc:  # on a loaded machine the drives may not even start in time
-            error = str(exc)
+        failures: list[str] = []
+        clean = 0
+        stack = contextlib.ExitStack()
+        device = pid = None
+        for k in range(runs):
+            try:
+                if device is None:  # the first run, or the last one left the drives where a reset could not help
+                    device, pid = stack.enter_context(gimbal(mode, rate, path[0]))
+                before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
+                before_execute = time.process_time()
+                before_lapses = len(device.controller.missed_log)
+                report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                execute_cpu += time.process_time() - before_execute
+                drives_cpu += process_cpu(pid) - before_cpu
+                syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
+                if report.metrics.get("refused"):  # e.g. a fault while holding before it: a run that did not run
+                    error = report.message
+                    print(f"  {mode} {rate} Hz run {k}: refused: {report.message}", flush=True)
+                    failures.append(f"run {k + 1}: refused: {report.message}")
+                    device.reset_faults()
+                    continue
+                log = device.last_log
+                loop_cpu += log.cpu_s
+                periods += np.diff(log.wakeups).tolist()
+                work += log.work.tolist()
+                lateness += log.lateness.tolist()
+                durations.append(log.end - log.start)
+                missed_per_run.append(report.metrics.get("missed_cycles", 0))
+                missed += report.metrics.get("missed_cycles", 0)
+                missing += report.metrics.get("samples_missing", 0)
+                cycles += report.metrics["cycles"]
+                completed += report.status == "completed"
+                clean += report.status == "completed" and not report.metrics.get("missed_cycles", 0)
+                load.append(report.metrics["bus_load_percent"])
+                worst.append(report.metrics["bus_load_worst_case_percent"])
+                new = device.controller.missed_log[before_lapses:]
+                lapses += [round(late * 1e3, 1) for due, late, _ in new if log.start <= due <= log.end]
+                if report.status != "completed":
+                    print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
+                    failures.append(f"run {k + 1}: {report.message}")
+                    device.reset_faults()
+            except (SurgiplanError, RuntimeError) as exc:
+                # on a loaded machine the drives may not start, or not answer a fault reset, in time: the run
+                # counts as not completed, and the next one starts with a new device and drives
+                print(f"  {mode} {rate} Hz run {k}: {exc}", flush=True)
+                failures.append(f"run {k + 1}: {exc}")
+                error = str(exc)
+                release(stack)
+                stack = contextlib.ExitStack()
+                device = pid = None
+        release(stack)
         period = 1.0 / rate
         row = {
             "drives": mode,
@@ -148,7 +216,16 @@ def control_loop(scene, rates, runs: int, mode: str) -> list[dict]:
             "work_p50_ms": round(percentile(work, 50) * 1e3, 3),
             "work_p99_ms": round(percentile(work, 99) * 1e3, 3),
             "missed_cycles": missed,
+            "missed_per_run": missed_per_run,
+            # completed with no missed cycle (a run that stopped on a fault is not one)
+            "runs_without_missed": f"{clean}/{runs}",
+            "run_seconds_median": round(statistics.median(durations), 2) if durations else None,
+            # the loop's jitter: how late each cycle started after its scheduled time
+            "jitter_p50_ms": round(percentile(lateness, 50) * 1e3, 4),
+            "jitter_p99_ms": round(percentile(lateness, 99) * 1e3, 4),
+            "jitter_max_ms": round(max(lateness) * 1e3, 3) if lateness else None,
             "missed_lapses_late_ms": lapses[:20],
+            "steal_ticks": steal_ticks() - stolen,
             "cycles_missing_a_tpdo": missing,
             "bus_load_percent": round(statistics.median(load), 2) if load else None,
             "bus_load_worst_case_percent": round(statistics.median(worst), 2) if worst else None,
@@ -159,10 +236,11 @@ def control_loop(scene, rates, runs: int, mode: str) -> list[dict]:
             "master_cpu_per_cycle_with_preparation_ms": round(execute_cpu / cycles * 1e3, 3) if cycles else None,
             "drives_cpu_per_sync_ms": round(drives_cpu / syncs * 1e3, 3) if syncs and mode != THREAD else None,
             "error": error,
+            "failures": failures[:10],
         }
         row["held"] = bool(completed == runs and missed == 0 and periods and row["period_p99_ms"] <= 1.1 * period * 1e3)
         rows.append(row)
-        columns = ["rate_hz", "runs_completed", "period_p50_ms", "period_p99_ms", "missed_cycles", "held"]
+        columns = ["rate_hz", "runs_completed", "runs_without_missed", "jitter_p99_ms", "jitter_max_ms", "held"]
         columns += ["master_cpu_per_cycle_ms", "drives_cpu_per_sync_ms", "bus_load_percent"]
         print(table([row], columns), flush=True)
     return rows
@@ -182,6 +260,7 @@ def scheduling_floor(seconds: float) -> list[dict]:
             continue
         RealTimeClock.precise()
         wakes, lapses = [], []
+        stolen = steal_ticks()
         try:
             start = time.perf_counter()
             deadline = start
@@ -207,6 +286,7 @@ def scheduling_floor(seconds: float) -> list[dict]:
                 "period_max_ms": round(float(periods.max()), 2),
                 "lapses_over_1_ms": len(lapses),
                 "lapses_ms": sorted(lapses, reverse=True)[:12],
+                "steal_ticks": steal_ticks() - stolen,
             }
         )
         print(rows[-1], flush=True)
@@ -243,6 +323,7 @@ def garbage_collection(scene, runs: int) -> list[dict]:
 
         gc.callbacks.append(timing)
         missed = cycles = 0
+        error = ""
         try:
             with gimbal(SEPARATE, 250, path[0]) as (device, _):
                 controller = device.controller
@@ -267,6 +348,9 @@ def garbage_collection(scene, runs: int) -> list[dict]:
                     cycles += report.metrics.get("cycles", 0)
                     if report.status != "completed":
                         device.reset_faults()
+        except (SurgiplanError, RuntimeError) as exc:  # a loaded machine: the drives stopped or did not start
+            error = str(exc)
+            print(f"  {config}: {error}", flush=True)
         finally:
             gc.callbacks.remove(timing)
         rows.append(
@@ -276,6 +360,7 @@ def garbage_collection(scene, runs: int) -> list[dict]:
                 "cycles": cycles,
                 "missed_cycles": missed,
                 "full_collection_pause_ms_median": round(statistics.median(pauses) * 1e3, 1) if pauses else None,
+                "error": error,
             }
         )
         print(rows[-1], flush=True)

@@ -15,12 +15,13 @@ runs). After rerunning a benchmark::
 
 Only the numbers are data: the words around them are fixed here, and the judgements the text makes
 (a target met or missed, which cases win) are computed from the data too, so a slower result
-changes the sentence, not only the figure.
+changes the sentence, not only the figure. Every block opens with the commit its results came from
+(and the load average before and after), from the results file's provenance.
 
 Each README section's blocks are rendered by a module of :mod:`readme_blocks` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``guide``, ``assessment``, ``devices``, ``canopen``), with the formatting they
-share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the README and rewrites or checks
-them.
+``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``devices``, ``canopen``), with the
+formatting they share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the README and
+rewrites or checks them.
 """
 
 from __future__ import annotations
@@ -36,12 +37,13 @@ from readme_blocks.assessment import render_assessment, render_cues
 from readme_blocks.canopen import render_canopen_conformance
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
-from readme_blocks.formatting import BENCH, ReadmeError
+from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
 from readme_blocks.guide import render_guide
 from readme_blocks.optmis import render_optmis
 from readme_blocks.report import render_report
 from readme_blocks.retraction import render_retraction, render_retraction_speed
 from readme_blocks.safe_prm import render_safe_prm
+from readme_blocks.tissue import render_tissue
 
 ROOT = BENCH.parent
 RESULTS = BENCH / "results"
@@ -68,6 +70,7 @@ BLOCKS: dict[str, Block] = {
     "fem_locking": Block(render_fem_locking, ("fem",)),
     "fem_solvers": Block(render_fem_solvers, ("fem_solvers",)),
     "fem_vs_fenicsx": Block(render_fem_vs_fenicsx, ("fem_vs_fenicsx",)),
+    "tissue": Block(render_tissue, ("tissue",)),
     "devices": Block(render_devices, ("devices",)),
     "canopen_conformance": Block(render_canopen_conformance, ("canopen_conformance",)),
     "mavlink_hall": Block(render_mavlink_hall, ("mavlink",)),
@@ -117,7 +120,8 @@ def regenerate(text: str, results: Path = RESULTS, where: str = "README.md") -> 
         raise ReadmeError(f"{where}: no generated block for {', '.join(missing)}")
     out, pos, changed = [], 0, []
     for name, (start, end) in sorted(found.items(), key=lambda item: item[1][0]):
-        new = "\n" + BLOCKS[name].render(results).strip("\n") + "\n"
+        block = BLOCKS[name]
+        new = "\n" + provenance_note(results, block.sources) + "\n\n" + block.render(results).strip("\n") + "\n"
         if text[start:end] != new:
             changed.append(name)
         out += [text[pos:start], new]

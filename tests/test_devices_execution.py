@@ -315,7 +315,8 @@ def test_gimbal_in_the_loop_pipeline_plans_with_safe_prm_and_reports_what_the_ha
     # the executed path stays within tracking and corner rounding of the planned one
     assert np.linalg.norm(tips[-1] - np.array(plan["tip_path"])[-1]) < 5e-5
     # what a user looks at: the figure and the log
-    assert set(stage["files"]) == {"gimbal.png", "gimbal-execution.csv"}
+    # (and the bus traffic the config records: record: {can: blf})
+    assert set(stage["files"]) == {"gimbal.png", "gimbal-execution.csv", "gimbal.can.blf"}
     log = np.genfromtxt(out / "gimbal-execution.csv", delimiter=",", names=True)
     np.testing.assert_allclose(np.column_stack([log["tip_x_m"], log["tip_y_m"], log["tip_z_m"]]), tips, atol=1e-8)
 

@@ -84,16 +84,17 @@ def test_a_state_that_passes_through_itself_is_invalid():
 
 
 def test_the_neighbour_prefilter_finds_exactly_what_the_direct_method_finds():
-    """Vertex-sharing pairs decided by a plane-side test first (fast path) against every box-overlap
-    candidate classified and tested directly: the same crossing pairs, on plates rolled through themselves
-    and on randomly perturbed (folded, crossing) flaps."""
-    from surgiplan.plugins.fem.intersection import _self_intersections_reference
+    """Vertex-sharing pairs decided by a plane-side test first (fast path, compiled and in numpy) against every
+    box-overlap candidate classified and tested directly: the same crossing pairs, on plates rolled through
+    themselves and on randomly perturbed (folded, crossing) flaps."""
+    from surgiplan.plugins.fem.intersection import _self_intersections_reference, self_intersections_numpy
 
     def same(x, triangles):
-        fast = self_intersections(x, triangles)
+        fast = self_intersections(x, triangles)  # compiled
         direct = _self_intersections_reference(x, triangles)
         direct = direct[np.lexsort((direct[:, 1], direct[:, 0]))] if len(direct) else direct.reshape(0, 2)
         assert np.array_equal(fast, direct)
+        assert np.array_equal(fast, self_intersections_numpy(x, triangles))  # the same method in numpy
         return len(fast)
 
     mesh = box_mesh(PLATE, (24, 4, 2))

@@ -122,3 +122,21 @@ def percent_span(fractions: list[float]) -> str:
     """0.61, 0.76 -> '61-76 %'; one value or equal values -> '61 %'."""
     low, high = round(100 * min(fractions)), round(100 * max(fractions))
     return f"{low} %" if low == high else f"{low}-{high} %"
+
+
+def provenance_note(results: Path, sources: tuple[str, ...]) -> str:
+    """The line that opens a block: the commit each of its results files came from (``benchmarks/common.py``
+    records it, and whether the tree had uncommitted changes), and the load average around the measurement."""
+    parts = []
+    for name in sources:
+        info = load(results, name).get("provenance") or {}
+        commit = info.get("commit")
+        if commit:
+            dirty = " plus uncommitted changes" if info.get("dirty") else ""
+            load_avg = ""
+            if info.get("load_before") and info.get("load_after"):
+                load_avg = f", load {info['load_before'][0]:g} → {info['load_after'][0]:g}"
+            parts.append(f"`{name}.json`: commit `{commit[:10]}`{dirty}{load_avg}")
+        else:
+            parts.append(f"`{name}.json`: commit not recorded")
+    return "*Measured at " + "; ".join(parts) + ".*"

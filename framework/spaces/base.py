@@ -70,6 +70,11 @@ class Space(ABC):
     def interpolate(self, q1, q2, t) -> np.ndarray:
         """Configurations a fraction ``t`` of the way from q1 to q2 (the local planner)."""
 
+    #: True when :meth:`distance` is the plain Euclidean norm of ``q2 - q1`` (unit :attr:`coordinate_weights`) and
+    #: :meth:`motion_speed_bound` equals it: a planner that measured that distance (a compiled neighbour search)
+    #: may use it as a motion's cost and speed bound, without asking the space again
+    euclidean_motions: ClassVar[bool] = False
+
     @property
     def coordinate_weights(self) -> np.ndarray | None:
         """Per-coordinate scales when :meth:`distance` is a weighted Euclidean metric, else None.

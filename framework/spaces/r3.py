@@ -28,6 +28,7 @@ class R3Space(Space):
 
     kind: ClassVar[str] = "r3"
     Settings: ClassVar[type[BaseModel]] = R3Settings
+    euclidean_motions: ClassVar[bool] = True
 
     def __init__(self, scene, tip_radius: float = 0.0) -> None:
         super().__init__(scene)

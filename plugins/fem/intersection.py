@@ -107,15 +107,15 @@ class _Adjacency:
         ta, tb = triangles[pairs[:, 0]], triangles[pairs[:, 1]]
         same = ta[:, :, None] == tb[:, None, :]
         one = same.sum(axis=(1, 2)) == 1
-        self.pairs = pairs[one]
+        self.pairs = np.ascontiguousarray(pairs[one])
         same = same[one]
         ia = np.argmax(same.any(axis=2), axis=1)  # the shared vertex's slot in a
         ib = np.argmax(same.any(axis=1), axis=1)  # and in b
         rows = np.arange(len(self.pairs))
         ta, tb = ta[one], tb[one]
         #: (k, 2) the vertices of a opposite the shared one, and of b
-        self.opposite_a = np.column_stack([ta[rows, (ia + 1) % 3], ta[rows, (ia + 2) % 3]])
-        self.opposite_b = np.column_stack([tb[rows, (ib + 1) % 3], tb[rows, (ib + 2) % 3]])
+        self.opposite_a = np.ascontiguousarray(np.column_stack([ta[rows, (ia + 1) % 3], ta[rows, (ia + 2) % 3]]))
+        self.opposite_b = np.ascontiguousarray(np.column_stack([tb[rows, (ib + 1) % 3], tb[rows, (ib + 2) % 3]]))
         self.count = t
 
 
@@ -146,8 +146,27 @@ def self_intersections(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     Pairs sharing one vertex (the fixed neighbours, most of the candidates) are tested directly: they cross
     only where the edge of one opposite the shared vertex straddles the other's plane, so a plane-side test
     decides almost all of them, and the few that straddle get the full test. The broad phase then only
-    looks for pairs that share no vertex.
+    looks for pairs that share no vertex. One compiled call (:mod:`.intersection_kernels`);
+    :func:`self_intersections_numpy` is the same method vectorised.
     """
+    from .intersection_kernels import crossing_pairs
+
+    x = np.ascontiguousarray(x, dtype=float).reshape(-1, 3)
+    triangles = np.ascontiguousarray(triangles, dtype=np.int64)
+    if len(triangles) == 0:
+        return np.empty((0, 2), dtype=np.int64)
+    corners = x[triangles]
+    # determinants below this (m^3) are rounding noise: coplanar neighbours must not count as crossing
+    edge = float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max())
+    adjacency = _adjacency(triangles)
+    pad = 1e-12 * float(np.ptp(x, axis=0).max())
+    return crossing_pairs(
+        x, triangles, adjacency.pairs, adjacency.opposite_a, adjacency.opposite_b, adjacency.keys, 1e-10 * edge**3, pad
+    )
+
+
+def self_intersections_numpy(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """:func:`self_intersections` vectorised in numpy (the tests' second implementation)."""
     x = np.asarray(x, dtype=float).reshape(-1, 3)
     triangles = np.asarray(triangles, dtype=np.int64)
     corners = x[triangles]  # (t, 3, 3)

@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 import threading
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Annotated, Any, Literal
 
 import can
@@ -210,6 +210,63 @@ class FrameDropper:
         return False
 
 
+class FrameLog(Sequence):
+    """The frames on the bus, (time s, arbitration id, data bytes), in chunks of a fixed size.
+
+    A plain list of every frame of a long session (a 1 kHz loop logs some ten thousand frames a second) grows
+    by reallocating: each time it copies the whole log, megabytes, with the GIL held, which stops a real-time
+    loop for milliseconds. Here a full chunk is left as it is and a new one begun. A sequence: ``len``,
+    indexing, slices (lists) and iteration as a list.
+    """
+
+    CHUNK = 8192
+
+    def __init__(self) -> None:
+        self._chunks: list[list[tuple[float, int, bytes]]] = [[]]
+        self._full = 0  # frames in the full chunks
+
+    def __len__(self) -> int:
+        return self._full + len(self._chunks[-1])
+
+    def append(self, frame: tuple[float, int, bytes]) -> None:
+        last = self._chunks[-1]
+        last.append(frame)
+        if len(last) == self.CHUNK:
+            self._full += self.CHUNK
+            self._chunks.append([])
+
+    def extend(self, frames) -> None:
+        for frame in frames:
+            self.append(frame)
+
+    def clear(self) -> None:
+        self._chunks = [[]]
+        self._full = 0
+
+    def __iter__(self):
+        for chunk in self._chunks:
+            yield from chunk
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            start, stop, step = index.indices(len(self))
+            if step != 1:
+                return [self[i] for i in range(start, stop, step)]
+            out: list[tuple[float, int, bytes]] = []
+            while start < stop:
+                chunk, at = divmod(start, self.CHUNK)
+                piece = self._chunks[chunk][at : at + stop - start]
+                out += piece
+                start += len(piece)
+            return out
+        n = len(self)
+        if index < 0:
+            index += n
+        if not 0 <= index < n:
+            raise IndexError("frame index out of range")
+        return self._chunks[index // self.CHUNK][index % self.CHUNK]
+
+
 class MonitoredBus(can.BusABC):
     """The master's view of the bus: logs every frame on it and applies the receive-side faults.
 
@@ -231,7 +288,7 @@ class MonitoredBus(can.BusABC):
         #: echoes of its own frames (interfaces such as udp_multicast loop them back), not new traffic
         self.own_ids: set[int] = set()
         #: (time s, arbitration id, data bytes)
-        self.frames: list[tuple[float, int, bytes]] = []
+        self.frames = FrameLog()
         super().__init__(channel=getattr(inner, "channel_info", "can"))
         self.channel_info = f"monitored {inner.channel_info}"
 

@@ -33,6 +33,7 @@ targets going, supervised, so that the drives' watchdogs stay quiet.
 from __future__ import annotations
 
 import gc
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -45,6 +46,9 @@ from . import cia402
 from .bus import BusError
 from .clock import Clock, restore_priority, set_realtime_priority
 from .master import DriveMaster, emcy_description
+
+#: the GIL's switch interval (s) while a real-time loop runs (Python's default: 5 ms)
+SWITCH_INTERVAL = 0.0002
 
 
 @dataclass
@@ -82,6 +86,8 @@ class ExecutionLog:
     work: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: actual cycle start times (s)
     wakeups: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: how late each cycle started after its scheduled time (s): the loop's jitter (real time only)
+    lateness: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: process CPU time (s, every thread) the loop used
     cpu_s: float = 0.0
 
@@ -110,6 +116,10 @@ class Controller:
         self.hold = np.zeros(self.n, dtype=np.int64)  # counts
         self._emcy_seen = 0
         self._missing = np.zeros(self.n, dtype=np.int64)
+        # the supervision's scratch arrays, made once
+        self._age = np.zeros(self.n)
+        self._flags = np.zeros(self.n, dtype=bool)
+        self._words = np.zeros(self.n, dtype=np.int64)
         self._hold_thread: threading.Thread | None = None
         self._hold_stop = threading.Event()
         #: faults seen while holding (real time), reported by the next execution
@@ -139,62 +149,74 @@ class Controller:
             self.master.exchange(controlwords, targets)
         except (can.CanError, OSError) as exc:
             return str(exc)
-        self.controlword = np.asarray(controlwords, dtype=np.int64).copy()
+        np.copyto(self.controlword, controlwords)
         return None
 
     # ------------------------------------------------------------------ supervision
     def _supervise(self, now: float, feedback, origin: float, check_states: bool) -> list[dict[str, Any]]:
+        """The faults this cycle reveals (none, usually: then nothing but the checks is done, into arrays made
+        once)."""
         found = []
-        for t, node, code, _register in self.master.emcy_since(self._emcy_seen):
-            self._emcy_seen += 1
-            if code & 0xFF00 == 0:
-                continue  # error reset
-            found.append(
-                {
-                    "kind": "emcy",
-                    "node": node,
-                    "t_s": t - origin,
-                    "code": f"0x{code:04X}",
-                    "detail": emcy_description(code),
-                }
-            )
-        age = now - self.master.last_heartbeat
-        for i in np.flatnonzero(age > self.supervision.heartbeat_timeout):
-            found.append(
-                {
-                    "kind": "heartbeat_timeout",
-                    "node": self.axes[i].node_id,
-                    "t_s": now - origin,
-                    "last_heartbeat_s": float(self.master.last_heartbeat[i] - origin),
-                    "detail": f"no heartbeat for {age[i] * 1000:.0f} ms "
-                    f"(timeout {self.supervision.heartbeat_timeout * 1000:.0f} ms)",
-                }
-            )
-        for i in np.flatnonzero(self.master.heartbeat_state != cia402.NMT_OPERATIONAL):
-            found.append(
-                {
-                    "kind": "nmt_state",
-                    "node": self.axes[i].node_id,
-                    "t_s": now - origin,
-                    "detail": f"heartbeat reports NMT state {int(self.master.heartbeat_state[i])}, not operational",
-                }
-            )
-        self._missing = np.where(feedback.fresh, 0, self._missing + 1)
-        for i in np.flatnonzero(self._missing >= self.supervision.pdo_timeout_cycles):
-            found.append(
-                {
-                    "kind": "pdo_timeout",
-                    "node": self.axes[i].node_id,
-                    "t_s": now - origin,
-                    "detail": f"no TPDO for {int(self._missing[i])} cycles",
-                }
-            )
+        master = self.master
+        if len(master.emcy) > self._emcy_seen:
+            for t, node, code, _register in master.emcy_since(self._emcy_seen):
+                self._emcy_seen += 1
+                if code & 0xFF00 == 0:
+                    continue  # error reset
+                found.append(
+                    {
+                        "kind": "emcy",
+                        "node": node,
+                        "t_s": t - origin,
+                        "code": f"0x{code:04X}",
+                        "detail": emcy_description(code),
+                    }
+                )
+        age = np.subtract(now, master.last_heartbeat, out=self._age)
+        if age.max() > self.supervision.heartbeat_timeout:
+            for i in np.flatnonzero(age > self.supervision.heartbeat_timeout):
+                found.append(
+                    {
+                        "kind": "heartbeat_timeout",
+                        "node": self.axes[i].node_id,
+                        "t_s": now - origin,
+                        "last_heartbeat_s": float(master.last_heartbeat[i] - origin),
+                        "detail": f"no heartbeat for {age[i] * 1000:.0f} ms "
+                        f"(timeout {self.supervision.heartbeat_timeout * 1000:.0f} ms)",
+                    }
+                )
+        if np.not_equal(master.heartbeat_state, cia402.NMT_OPERATIONAL, out=self._flags).any():
+            for i in np.flatnonzero(self._flags):
+                found.append(
+                    {
+                        "kind": "nmt_state",
+                        "node": self.axes[i].node_id,
+                        "t_s": now - origin,
+                        "detail": f"heartbeat reports NMT state {int(master.heartbeat_state[i])}, not operational",
+                    }
+                )
+        self._missing += 1
+        self._missing[feedback.fresh] = 0
+        if self._missing.max() >= self.supervision.pdo_timeout_cycles:
+            for i in np.flatnonzero(self._missing >= self.supervision.pdo_timeout_cycles):
+                found.append(
+                    {
+                        "kind": "pdo_timeout",
+                        "node": self.axes[i].node_id,
+                        "t_s": now - origin,
+                        "detail": f"no TPDO for {int(self._missing[i])} cycles",
+                    }
+                )
         if check_states:
             mask, value = cia402.OPERATION_ENABLED_MASK
-            for i in np.flatnonzero(feedback.fresh & ((feedback.statusword & mask) != value)):
-                state = cia402.state_of(int(feedback.statusword[i]))
-                node = self.axes[i].node_id
-                found.append({"kind": "drive_state", "node": node, "t_s": now - origin, "detail": state})
+            np.bitwise_and(feedback.statusword, mask, out=self._words)
+            np.not_equal(self._words, value, out=self._flags)
+            self._flags &= feedback.fresh
+            if self._flags.any():
+                for i in np.flatnonzero(self._flags):
+                    state = cia402.state_of(int(feedback.statusword[i]))
+                    node = self.axes[i].node_id
+                    found.append({"kind": "drive_state", "node": node, "t_s": now - origin, "detail": state})
         return found
 
     # ------------------------------------------------------------------ enabling
@@ -297,22 +319,29 @@ class Controller:
         ``on_start(t0)`` is called with the clock time of the first cycle (arms injected faults).
         In real time Python's cyclic garbage collector is off during the loop (``collect_garbage``
         False): a full collection of a large heap stops every thread for tens of milliseconds, which
-        is a run of missed cycles (see benchmarks/bench_devices.py); the loop's own garbage is freed by
-        reference counting, the rest is collected after it. The process CPU time the loop used (all
+        is a run of missed cycles (see benchmarks/bench_devices.py); a cycle allocates no container
+        (its feedback, position and log rows go into arrays made before the first cycle, its frames are
+        rewritten in place), and what else it frees goes by reference counting. The GIL's switch
+        interval is :data:`SWITCH_INTERVAL` meanwhile. The process CPU time the loop used (all
         threads) is in ``ExecutionLog.cpu_s``.
         """
         self.stop_holding()
         collecting = gc.isenabled()
         previous = None
+        switch = sys.getswitchinterval()
         if self.clock.realtime:
             self.clock.precise()
             previous = set_realtime_priority(self.priority)
             if not collect_garbage:
                 gc.disable()
+            # a thread that runs Python keeps the GIL up to the switch interval (5 ms) while the loop, awake,
+            # waits for it: at most SWITCH_INTERVAL instead
+            sys.setswitchinterval(SWITCH_INTERVAL)
         cpu = time.process_time()
         try:
             log = self._run(trajectory, on_start)
         finally:
+            sys.setswitchinterval(switch)
             if collecting:
                 gc.enable()
             restore_priority(previous)
@@ -329,8 +358,13 @@ class Controller:
         m = len(trajectory)
         sup = self.supervision
         tolerance = sup.settle_tolerance if sup.settle_tolerance is not None else 3.0 / self.cpu
-        times, measured, reference, tracking = [], [], [], []
-        work, wakeups = [], []
+        nq = trajectory.shape[1]
+        # every row the loop records, in arrays made now (grown, rarely, if a stop or settling runs long)
+        log = _Rows(m + int((sup.settle_time + sup.stop_timeout) / self.period) + 16, nq)
+        feedback = self.master.empty_feedback()
+        position = np.zeros(self.n)
+        enable_words = np.full(self.n, cia402.CW_ENABLE_OPERATION, dtype=np.int64)
+        stop_words = np.full(self.n, cia402.CW_QUICK_STOP, dtype=np.int64)
         faults = list(self.pending_faults)
         self.pending_faults = []
         phase = "stopping" if faults else "run"
@@ -355,25 +389,26 @@ class Controller:
                 if on_start is not None:
                     on_start(t0)
                 self._missing[:] = 0
-            wakeups.append(started)
-            feedback = self.master.feedback()
-            position = feedback.position / self.cpu
+            log.cycle(k, started, started - now)
+            self.master.feedback(into=feedback)
+            np.divide(feedback.position, self.cpu, out=position)
             if k >= 1:
                 # every cycle is recorded (a missing TPDO repeats the axis' last position); the
                 # tracking error is taken over the cycles where every axis reported, before any fault
-                times.append(now - self.period - origin)
-                measured.append(position.copy())
+                complete = bool(feedback.current.all())
                 # the sample the drives' command equals at that SYNC; none once quick-stopping
                 stopping_then = phase == "stopping" and stop_start is not None and now - self.period > stop_start
-                reference.append(
-                    np.full(trajectory.shape[1], np.nan) if stopping_then else trajectory[int(np.clip(k - 2, 0, m - 1))]
+                log.record(
+                    now - self.period - origin,
+                    position,
+                    None if stopping_then else trajectory[min(max(k - 2, 0), m - 1)],
+                    complete and phase in ("run", "settle"),
                 )
-                complete = bool(np.all(feedback.current))
-                tracking.append(complete and phase in ("run", "settle"))
                 missing_cycles += not complete
             new = self._supervise(now, feedback, origin, check_states=phase in ("run", "settle") and k >= 2)
-            seen = {(f["kind"], f["node"]) for f in faults if "node" in f}
-            new = [f for f in new if (f["kind"], f.get("node")) not in seen]
+            if new:
+                seen = {(f["kind"], f["node"]) for f in faults if "node" in f}
+                new = [f for f in new if (f["kind"], f.get("node")) not in seen]
             if new and phase in ("run", "settle"):
                 phase, stop_start = "stopping", now
                 first = new[0]
@@ -392,14 +427,14 @@ class Controller:
                 stop_start = now
 
             if phase == "run":
-                words = [cia402.CW_ENABLE_OPERATION] * self.n
+                words = enable_words
                 send = targets[min(k + 1, m - 1)]
                 if k - 2 >= m - 1:
                     phase, settle_start = "settle", now
             if phase == "settle":
-                words = [cia402.CW_ENABLE_OPERATION] * self.n
+                words = enable_words
                 send = targets[-1]
-                if np.all(feedback.current) and np.all(np.abs(position - trajectory[-1]) <= tolerance):
+                if feedback.current.all() and np.all(np.abs(position - trajectory[-1]) <= tolerance):
                     break
                 if now - settle_start > sup.settle_time:
                     status = "stopped"
@@ -413,7 +448,7 @@ class Controller:
                     break
             if phase == "stopping":
                 status = "stopped"
-                words = [cia402.CW_QUICK_STOP] * self.n
+                words = stop_words
                 send = feedback.position
                 # axes whose TPDOs stopped (a dead node) cannot report: judge the others
                 known = self._missing < sup.pdo_timeout_cycles
@@ -427,13 +462,13 @@ class Controller:
                     still += 1
                 else:
                     still = 0
-                last_position = position
+                last_position = position.copy()
                 if (all_stopped_at is not None and still >= 3) or now - stop_start > sup.stop_timeout:
                     if faults:
                         faults[0]["standstill_s"] = now - origin
                     break
             error = self._send(words, send)
-            work.append(self.clock.now() - started)
+            log.work[k] = self.clock.now() - started
             if error is not None:
                 bus_error = error
                 faults.append(
@@ -446,7 +481,7 @@ class Controller:
                 )
                 status, reason = "stopped", f"CAN bus error: {error}"
                 break
-            self.hold = np.asarray(send, dtype=np.int64).copy()
+            np.copyto(self.hold, send)
             k += 1
         if bus_error is not None:
             # nothing can be sent or trusted; let the drives' own watchdogs act before reporting
@@ -454,19 +489,62 @@ class Controller:
         end = self.clock.now()
         if status == "completed":
             self.start_holding()
-        nq = trajectory.shape[1]
+        rows, cycles = log.rows, min(k + 1, len(log.wakeups))
         return ExecutionLog(
-            np.asarray(times),
-            np.asarray(measured).reshape(-1, nq),
-            np.asarray(reference).reshape(-1, nq),
+            log.t[:rows].copy(),
+            log.measured[:rows].copy(),
+            log.reference[:rows].copy(),
             status,
             reason,
             k + 1,
             faults,
             t0,
             end,
-            np.asarray(tracking, dtype=bool),
+            log.tracking[:rows].copy(),
             missing_cycles,
-            np.asarray(work),
-            np.asarray(wakeups),
+            log.work[:cycles].copy(),
+            log.wakeups[:cycles].copy(),
+            log.lateness[:cycles].copy(),
         )
+
+
+class _Rows:
+    """The control loop's record in arrays made before its first cycle: per cycle its start and lateness (and
+    the work, written by the loop), per measurement (cycle 1 on) its time, positions, reference and whether
+    every axis answered while tracking. Grows (doubling) only if a run outlasts the room it was given."""
+
+    def __init__(self, size: int, nq: int) -> None:
+        self.rows = 0
+        self.wakeups = np.zeros(size)
+        self.lateness = np.zeros(size)
+        self.work = np.zeros(size)
+        self.t = np.zeros(size)
+        self.measured = np.zeros((size, nq))
+        self.reference = np.zeros((size, nq))
+        self.tracking = np.zeros(size, dtype=bool)
+
+    def _grow(self) -> None:
+        for name in ("wakeups", "lateness", "work", "t", "measured", "reference", "tracking"):
+            old = getattr(self, name)
+            new = np.zeros((2 * len(old), *old.shape[1:]), dtype=old.dtype)
+            new[: len(old)] = old
+            setattr(self, name, new)
+
+    def cycle(self, k: int, started: float, late: float) -> None:
+        if k >= len(self.wakeups):
+            self._grow()
+        self.wakeups[k] = started
+        self.lateness[k] = late
+
+    def record(self, t: float, position: np.ndarray, reference: np.ndarray | None, tracking: bool) -> None:
+        r = self.rows
+        if r >= len(self.t):
+            self._grow()
+        self.t[r] = t
+        self.measured[r] = position
+        if reference is None:
+            self.reference[r] = np.nan
+        else:
+            self.reference[r] = reference
+        self.tracking[r] = tracking
+        self.rows = r + 1

@@ -52,7 +52,7 @@ from . import cia402
 from .bus import ArmedFaults, BusError, FrameDropper, MonitoredBus, open_bus
 from .certify import Certificate
 from .clock import Clock, RealTimeClock, SimulatedClock, restore_priority, set_realtime_priority
-from .control import Controller, ExecutionLog, Supervision
+from .control import SWITCH_INTERVAL, Controller, ExecutionLog, Supervision
 from .joints import Joints, axis_configs, check_bus_load, joint_limits, resolve_joints
 from .master import DriveMaster
 from .network import SimulationLink
@@ -386,6 +386,24 @@ class Cia402Device(Device):
 
     # ------------------------------------------------------------------ execution
     def run(self, trajectory: Trajectory) -> ExecutionReport:
+        """The trajectory executed (see :meth:`_run`). In real time with a ``realtime_priority``, the calling
+        thread computes the joint path, its timing and its certification under SCHED_FIFO too, with a short GIL
+        switch interval: the hold thread keeps SYNC going meanwhile and needs the GIL every cycle, and an
+        ordinary thread that holds it when the machine preempts it would stall the drives' SYNC (their
+        watchdog then stops them)."""
+        controller = self.controller
+        if controller is None or not controller.clock.realtime or controller.priority is None:
+            return self._run(trajectory)
+        switch = sys.getswitchinterval()
+        previous = set_realtime_priority(controller.priority)
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        try:
+            return self._run(trajectory)
+        finally:
+            sys.setswitchinterval(switch)
+            restore_priority(previous)
+
+    def _run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings
         self._source = trajectory.source
         self._threshold = trajectory.clearance_threshold

@@ -157,6 +157,7 @@ class DriveMaster:
         #: per axis: RPDO1's COB-ID and the prepared frame (SYNC first)
         self._sync = can.Message(arbitration_id=0x080, data=b"", is_extended_id=False)
         self._rpdo_ids: list[int] = []
+        self._cycle_messages: list[can.Message] = []
         self._heartbeat = None
         self.started = False
         #: what start() configured on each node: (node id, object, value) in the order written
@@ -396,37 +397,55 @@ class DriveMaster:
             self.emcy.append((self.clock.now(), self.axes[i].node_id, entry.code, entry.register))
 
     # ------------------------------------------------------------------ cyclic exchange
-    def feedback(self) -> Feedback:
+    def feedback(self, into: Feedback | None = None) -> Feedback:
+        """The latest TPDOs (see :class:`Feedback`); into ``into``'s arrays when given (the control loop's own,
+        reused every cycle: nothing allocated), else new ones."""
         with self._lock:
-            out = Feedback(
-                self._statusword.copy(),
-                self._position.copy(),
-                self._fresh.copy(),
-                self._answered == self.syncs_sent,
-            )
+            if into is None:
+                into = Feedback(
+                    self._statusword.copy(),
+                    self._position.copy(),
+                    self._fresh.copy(),
+                    self._answered == self.syncs_sent,
+                )
+            else:
+                np.copyto(into.statusword, self._statusword)
+                np.copyto(into.position, self._position)
+                np.copyto(into.fresh, self._fresh)
+                np.equal(self._answered, self.syncs_sent, out=into.current)
             self._fresh[:] = False
-        return out
+        return into
+
+    def empty_feedback(self) -> Feedback:
+        """A :class:`Feedback` to fill with :meth:`feedback` ``(into=...)``."""
+        n = len(self.axes)
+        return Feedback(
+            np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        )
 
     def exchange(self, controlwords, targets) -> None:
         """SYNC, then each axis' RPDO (controlword, target counts). Raises ``can.CanError`` on a bus error."""
         with self._lock:
             # counted before sending: in real time the answers may arrive before transmit returns
             self.syncs_sent += 1
-        pack = _RPDO1.pack
-        frames = [pack(int(cw), int(tp)) for cw, tp in zip(controlwords, targets, strict=True)]
         send_batch = getattr(self.bus, "send_batch", None)
         if send_batch is not None and not isinstance(self.network, PumpedNetwork):
-            # one write for the cycle's frames where the interface can (loopback): SYNC first, in order
-            messages = [self._sync]
-            messages += [
-                can.Message(arbitration_id=cob, data=data, is_extended_id=False)
-                for cob, data in zip(self._rpdo_ids, frames, strict=True)
-            ]
-            send_batch(messages)
+            # one write for the cycle's frames where the interface can (loopback): SYNC first, in order; the
+            # messages are made once and their data rewritten in place every cycle
+            if len(self._cycle_messages) != 1 + len(self._rpdo_ids):
+                self._cycle_messages = [self._sync] + [
+                    can.Message(arbitration_id=cob, data=bytearray(_RPDO1.size), is_extended_id=False)
+                    for cob in self._rpdo_ids
+                ]
+            pack_into = _RPDO1.pack_into
+            for i in range(len(self._rpdo_ids)):
+                pack_into(self._cycle_messages[i + 1].data, 0, int(controlwords[i]), int(targets[i]))
+            send_batch(self._cycle_messages)
             return
+        pack = _RPDO1.pack
         self.network.send_message(0x080, b"")
-        for cob, data in zip(self._rpdo_ids, frames, strict=True):
-            self.network.send_message(cob, data)
+        for cob, cw, tp in zip(self._rpdo_ids, controlwords, targets, strict=True):
+            self.network.send_message(cob, pack(int(cw), int(tp)))
 
     def sync(self) -> None:
         """SYNC alone: every drive answers with its TPDOs (positions, statuswords); nothing is commanded (the

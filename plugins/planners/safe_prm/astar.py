@@ -1,147 +1,302 @@
 """A* over a roadmap in compressed sparse rows, compiled with numba: the search of every safe-PRM query.
 
-The roadmap's milestones are nodes 0..n-1 and the graph is a CSR matrix
-over them (both directions of every edge). A query adds two virtual nodes
-without touching the matrix: the *start* (its links are the source's
-out-edges) and the *goal* (a milestone linked to it ends a path there at
-the link's cost), plus an optional direct start-goal motion.
+The roadmap's milestones are nodes 0..n-1 and the graph is CSR over them
+(both directions of every edge). A query adds two virtual nodes without
+touching the graph: the *start* n (its links are the source's out-edges)
+and the *goal* n+1 (a milestone linked to it ends a path there at the
+link's cost), plus an optional direct start-goal motion.
 
 The heuristic is the space's distance to the target, ``|w * (x - x_t)|``
 (the edge costs are that same weighted Euclidean distance), scaled down by
 one part in 10^12 so that round-off can never make it exceed a true
-remaining cost: it is admissible and consistent, so A* returns a shortest
-path (Hart, Nilsson & Raphael 1968) while settling only the nodes whose
-cost plus heuristic is below the answer, not the whole roadmap as a
-Dijkstra search from the source does. ``tests/test_safe_prm.py`` checks the
-paths and costs against scipy's Dijkstra.
+remaining cost: it is admissible, so the search returns a shortest path
+(Hart, Nilsson & Raphael 1968) while expanding only the nodes whose cost
+plus heuristic is below the answer, not the whole roadmap as a Dijkstra
+search from the source does. ``tests/test_safe_prm.py`` checks the paths and
+costs against scipy's Dijkstra.
 
-Why numba: a query is a handful of searches on a graph of up to ~100,000
-directed edges; in pure Python each search costs milliseconds, and scipy's
-Dijkstra settles every node within reach and needs the start's links as a
-new CSR row per query. Compiled, a search that settles a few thousand
-nodes takes tens of microseconds. ``cache=True`` keeps the compiled code
-beside this file (or in numba's user cache when that is read-only), so
-only the first run on a machine pays the compilation (about a second).
+The open set is a bucket queue, not a heap: entries go to buckets of width
+``delta`` by their key (cost plus heuristic) and come out bucket by bucket,
+in any order within one, so no comparison-driven sift decides each step (a
+heap's pops, each a dozen unpredictable branches, were most of a search's
+time). Within a bucket a node can come out before a cheaper way to it is
+known; it is then expanded again when that way is found (label-correcting),
+and the search ends only once the lowest bucket left cannot hold anything
+cheaper than the best path to the target found, so the answer is still the
+shortest path. With ``delta`` a small fraction of an edge, re-expansions are
+rare. Keys far beyond the window of buckets wait in an overflow list and are
+re-bucketed when the window moves on.
+
+A search allocates nothing: its arrays live in a :class:`Workspace` made
+once per roadmap, valid for one search by a generation stamp (a node whose
+stamp is not the current search's is unvisited, so nothing is reset). Why
+numba: a query is a handful of searches over up to ~100,000 directed edges;
+in pure Python each costs milliseconds. Compiled when the module is
+imported (cached on disk by numba), so no build or query pays it.
 """
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 from numba import njit
-from surgiplan.paths.heap import distance, pop, push
 
 #: the heuristic's safety factor against round-off (see the module docstring)
 _SHRINK = 1.0 - 1e-12
+#: buckets in the window (a power of two)
+BUCKETS = 1 << 12
+#: a bucket's width, as a fraction of the roadmap's mean edge cost
+BUCKET_FRACTION = 1.0 / 32.0
+# the record of a node: its stamp, cost so far and heuristic, side by side (one cache line per visit)
+_STAMP, _COST, _HEURISTIC = 0, 1, 2
+
+
+class Workspace:
+    """The arrays of the searches on one roadmap of ``n`` milestones (and a lock: one query at a time)."""
+
+    def __init__(self, n: int, entries: int) -> None:
+        size = n + 2
+        self.node = np.zeros((size, 3))  # stamp, cost, heuristic
+        self.parent = np.empty(size, dtype=np.int64)
+        self.end = np.zeros((size, 2))  # stamp, cost of the link to the virtual goal
+        self.head = np.empty(BUCKETS, dtype=np.int64)
+        self.entry_node = np.empty(entries, dtype=np.int64)
+        self.entry_key = np.empty(entries)
+        self.entry_next = np.empty(entries, dtype=np.int64)
+        self.generation = np.zeros(1)
+        self.path = np.empty(size, dtype=np.int64)
+        self.lock = threading.Lock()
+
+    def grow(self) -> None:
+        """Twice the entries (a search that ran out of them is run again)."""
+        entries = 2 * len(self.entry_node)
+        self.entry_node = np.empty(entries, dtype=np.int64)
+        self.entry_key = np.empty(entries)
+        self.entry_next = np.empty(entries, dtype=np.int64)
+
+    def arrays(self) -> tuple:
+        return (
+            self.node,
+            self.parent,
+            self.end,
+            self.head,
+            self.entry_node,
+            self.entry_key,
+            self.entry_next,
+            self.generation,
+            self.path,
+        )
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _heuristic(scaled, v, goal_at):
+    total = 0.0
+    for d in range(scaled.shape[1]):
+        diff = scaled[v, d] - goal_at[d]
+        total += diff * diff
+    return np.sqrt(total) * _SHRINK
 
 
 @njit(cache=True, nogil=True)
-def astar(
+def search(
     indptr,
     indices,
     data,
     scaled,
+    delta,
     source,
     source_targets,
     source_costs,
+    source_use,
     source_point,
     target,
     target_links,
     target_costs,
+    target_use,
     target_point,
     direct_cost,
+    node,
+    parent,
+    end,
+    head,
+    entry_node,
+    entry_key,
+    entry_next,
+    generation,
+    path,
 ):
-    """Shortest path from ``source`` to ``target`` over the CSR graph; returns (nodes, cost, settled).
+    """Shortest path from ``source`` to ``target``; writes its nodes to ``path`` and returns (count, cost,
+    expanded), count 0 when the target cannot be reached and -1 when the workspace ran out of entries.
 
-    ``source``/``target``: a milestone index, or -1 for a virtual start
-    (out-edges ``source_targets`` at ``source_costs``, position
-    ``source_point``) or a virtual goal (reached from ``target_links`` at
-    ``target_costs``, position ``target_point``). ``direct_cost``: a motion
-    from the virtual start straight to the virtual goal (``inf``: none).
-    ``scaled``: milestone coordinates times the space's weights. The path
-    lists node indices, -1 for the virtual start (first) and -2 for the
-    virtual goal (last); it is empty when the target cannot be reached.
+    Nodes: milestones 0..n-1; ``source`` n is the virtual start (out-edges ``source_targets[source_use]`` at
+    ``source_costs``, position ``source_point``), ``target`` n+1 the virtual goal (reached from
+    ``target_links[target_use]`` at ``target_costs``, position ``target_point``); ``direct_cost`` a motion from
+    the virtual start straight to the virtual goal (``inf``: none). ``scaled``: milestone coordinates times the
+    space's weights; ``delta`` the buckets' width. The remaining arguments are a :class:`Workspace`'s arrays.
     """
     n = scaled.shape[0]
-    start_node = n  # the virtual start, in the per-query arrays
+    start_node = n
     goal_node = n + 1
-    best = np.full(n + 2, np.inf)
-    parent = np.full(n + 2, -1, dtype=np.int64)
-    closed = np.zeros(n + 2, dtype=np.bool_)
-    end_cost = np.full(n, np.inf)
-    if target < 0:
-        goal_at = target_point
+    capacity = entry_node.shape[0]
+    generation[0] += 1.0
+    gen = generation[0]
+    goal_at = target_point if target == goal_node else scaled[target]
+    if target == goal_node:
         for k in range(target_links.shape[0]):
-            t = target_links[k]
-            if target_costs[k] < end_cost[t]:
-                end_cost[t] = target_costs[k]
-    else:
-        goal_at = scaled[target]
-    capacity = indices.shape[0] + source_targets.shape[0] + target_links.shape[0] + 4
-    keys = np.empty(capacity)
-    items = np.empty(capacity, dtype=np.int64)
-    size = 0
-
-    if source < 0:
-        best[start_node] = 0.0
+            if target_use[k]:
+                t = target_links[k]
+                if end[t, 0] != gen or target_costs[k] < end[t, 1]:
+                    end[t, 0] = gen
+                    end[t, 1] = target_costs[k]
+    for b in range(head.shape[0]):
+        head[b] = -1
+    window_size = head.shape[0]
+    used = 0
+    # the first entries: the source itself, or the start's links (and the direct motion to the goal)
+    goal_cost = np.inf
+    node[start_node, _STAMP] = gen
+    node[start_node, _COST] = 0.0
+    parent[start_node] = -1
+    node[goal_node, _STAMP] = gen
+    node[goal_node, _COST] = np.inf
+    if source == start_node:
         for k in range(source_targets.shape[0]):
-            t = source_targets[k]
-            g = source_costs[k]
-            if g < best[t]:
-                best[t] = g
-                parent[t] = start_node
-        for k in range(source_targets.shape[0]):
-            t = source_targets[k]
-            if parent[t] == start_node and not closed[t]:
-                size = push(keys, items, size, best[t] + distance(scaled, t, goal_at) * _SHRINK, t)
-        if target < 0 and direct_cost < best[goal_node]:
-            best[goal_node] = direct_cost
-            parent[goal_node] = start_node
-            size = push(keys, items, size, direct_cost, goal_node)
-    else:
-        best[source] = 0.0
-        size = push(keys, items, size, 0.0, source)
-
-    settled = 0
-    found = -1
-    while size > 0:
-        v, size = pop(keys, items, size)
-        if closed[v]:
-            continue
-        closed[v] = True
-        settled += 1
-        if v == goal_node or v == target:
-            found = v
-            break
-        g = best[v]
-        if target < 0 and end_cost[v] < np.inf:
-            c = g + end_cost[v]
-            if c < best[goal_node]:
-                best[goal_node] = c
-                parent[goal_node] = v
-                size = push(keys, items, size, c, goal_node)
-        for e in range(indptr[v], indptr[v + 1]):
-            w = indices[e]
-            if closed[w]:
+            if not source_use[k]:
                 continue
-            c = g + data[e]
-            if c < best[w]:
-                best[w] = c
-                parent[w] = v
-                size = push(keys, items, size, c + distance(scaled, w, goal_at) * _SHRINK, w)
+            t = source_targets[k]
+            if node[t, _STAMP] != gen:
+                node[t, _STAMP] = gen
+                node[t, _HEURISTIC] = _heuristic(scaled, t, goal_at)
+            elif source_costs[k] >= node[t, _COST]:
+                continue
+            node[t, _COST] = source_costs[k]
+            parent[t] = start_node
+            if t == target:
+                goal_cost = min(goal_cost, source_costs[k])
+        if target == goal_node and direct_cost < goal_cost:
+            goal_cost = direct_cost
+            node[goal_node, _COST] = direct_cost
+            parent[goal_node] = start_node
+        for k in range(source_targets.shape[0]):
+            t = source_targets[k]
+            if source_use[k] and parent[t] == start_node and node[t, _COST] == source_costs[k]:
+                if used == capacity:
+                    return -1, np.inf, 0
+                entry_node[used] = t
+                entry_key[used] = node[t, _COST] + node[t, _HEURISTIC]
+                used += 1
+    else:
+        node[source, _STAMP] = gen
+        node[source, _COST] = 0.0
+        node[source, _HEURISTIC] = _heuristic(scaled, source, goal_at)
+        parent[source] = -1
+        entry_node[0] = source
+        entry_key[0] = node[source, _HEURISTIC]
+        used = 1
+        if source == target:
+            goal_cost = 0.0
+    base = np.inf
+    for e in range(used):
+        base = min(base, entry_key[e])
+    overflow = -1
+    for e in range(used):
+        slot = int((entry_key[e] - base) / delta)
+        if slot < window_size:
+            entry_next[e] = head[slot]
+            head[slot] = e
+        else:
+            entry_next[e] = overflow
+            overflow = e
+    pending = used
+    current = 0  # the bucket being emptied (counted from base)
+    window = 0  # the bucket at the window's first slot
+    expanded = 0
+    while pending > 0:
+        if base + current * delta >= goal_cost:
+            break  # nothing left can be cheaper than the path found
+        if current - window >= window_size:
+            # the window moves on: overflow entries that now fall within it go to their buckets
+            window = current
+            e = overflow
+            overflow = -1
+            while e >= 0:
+                following = entry_next[e]
+                bucket = max(int((entry_key[e] - base) / delta), window)
+                if bucket - window < window_size:
+                    entry_next[e] = head[bucket - window]
+                    head[bucket - window] = e
+                else:
+                    entry_next[e] = overflow
+                    overflow = e
+                e = following
+        e = head[current - window]
+        if e < 0:
+            current += 1
+            continue
+        head[current - window] = entry_next[e]
+        pending -= 1
+        v = entry_node[e]
+        g = node[v, _COST]
+        if entry_key[e] != g + node[v, _HEURISTIC] or entry_key[e] >= goal_cost:
+            continue  # a later, cheaper entry of v exists (or cannot help)
+        if v == target:
+            continue
+        expanded += 1
+        if target == goal_node and end[v, 0] == gen:
+            c = g + end[v, 1]
+            if c < goal_cost:
+                goal_cost = c
+                node[goal_node, _COST] = c
+                parent[goal_node] = v
+        for k in range(indptr[v], indptr[v + 1]):
+            w = indices[k]
+            c = g + data[k]
+            if node[w, _STAMP] != gen:
+                node[w, _STAMP] = gen
+                node[w, _HEURISTIC] = _heuristic(scaled, w, goal_at)
+            elif c >= node[w, _COST]:
+                continue
+            node[w, _COST] = c
+            parent[w] = v
+            if w == target:
+                goal_cost = min(goal_cost, c)
+                continue
+            key = c + node[w, _HEURISTIC]
+            if key >= goal_cost:
+                continue
+            if used == capacity:
+                return -1, np.inf, expanded
+            bucket = max(int((key - base) / delta), current)
+            entry_node[used] = w
+            entry_key[used] = key
+            if bucket - window < window_size:
+                entry_next[used] = head[bucket - window]
+                head[bucket - window] = used
+            else:
+                entry_next[used] = overflow
+                overflow = used
+            used += 1
+            pending += 1
 
-    if found < 0:
-        return np.empty(0, dtype=np.int64), np.inf, settled
+    if goal_cost == np.inf:
+        return 0, np.inf, expanded
     count = 1
-    v = found
+    v = target
     while parent[v] >= 0:
         v = parent[v]
         count += 1
-    out = np.empty(count, dtype=np.int64)
-    v = found
+    v = target
     for k in range(count - 1, -1, -1):
-        out[k] = -1 if v == start_node else (-2 if v == goal_node else v)
+        path[k] = v
         v = parent[v]
-    return out, best[found], settled
+    return count, goal_cost, expanded
+
+
+def bucket_width(edge_cost: np.ndarray) -> float:
+    """The buckets' width for a roadmap: :data:`BUCKET_FRACTION` of its mean edge cost (positive)."""
+    mean = float(np.mean(edge_cost)) if len(edge_cost) else 1.0
+    return max(mean * BUCKET_FRACTION, 1e-12)
 
 
 def shortest_path(
@@ -153,23 +308,53 @@ def shortest_path(
     source_links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     target_links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     direct_cost: float = np.inf,
+    delta: float | None = None,
 ) -> tuple[np.ndarray, float, int]:
-    """:func:`astar` on a scipy CSR matrix; ``*_links`` = (milestones, costs, scaled position) of a virtual end."""
+    """:func:`search` on a scipy CSR matrix; ``*_links`` = (milestones, costs, scaled position) of a virtual end;
+    ``delta``: the buckets' width (default :func:`bucket_width` of the graph's costs).
+
+    Returns (nodes, cost, expanded): the nodes -1 for the virtual start and -2 for the virtual goal, empty when
+    the target cannot be reached.
+    """
+    n = scaled.shape[0]
+    workspace = Workspace(n, len(graph.indices) + n + 16)
     empty_i, empty_f, nowhere = np.empty(0, np.int64), np.empty(0), np.zeros(scaled.shape[1])
     st, sc, sp = source_links if source_links is not None else (empty_i, empty_f, nowhere)
     tt, tc, tp = target_links if target_links is not None else (empty_i, empty_f, nowhere)
-    return astar(
-        graph.indptr,
-        graph.indices,
-        graph.data,
-        scaled,
-        -1 if source_links is not None else int(source),
+    arguments = (
+        np.ascontiguousarray(graph.indptr, np.int32),
+        np.ascontiguousarray(graph.indices, np.int32),
+        np.ascontiguousarray(graph.data, np.float64),
+        np.ascontiguousarray(scaled, np.float64),
+        float(delta) if delta is not None else bucket_width(graph.data),
+        n if source_links is not None else int(source),
         np.ascontiguousarray(st, np.int64),
         np.ascontiguousarray(sc, np.float64),
+        np.ones(len(st), dtype=np.bool_),
         np.ascontiguousarray(sp, np.float64),
-        -1 if target_links is not None else int(target),
+        n + 1 if target_links is not None else int(target),
         np.ascontiguousarray(tt, np.int64),
         np.ascontiguousarray(tc, np.float64),
+        np.ones(len(tt), dtype=np.bool_),
         np.ascontiguousarray(tp, np.float64),
         float(direct_cost),
     )
+    while True:
+        count, cost, expanded = search(*arguments, *workspace.arrays())
+        if count >= 0:
+            break
+        workspace.grow()
+    nodes = workspace.path[:count].copy()
+    nodes[nodes == n] = -1
+    nodes[nodes == n + 1] = -2
+    return nodes, cost, expanded
+
+
+def _compile() -> None:
+    from scipy.sparse import csr_matrix
+
+    graph = csr_matrix((np.ones(2), np.array([1, 0], np.int32), np.array([0, 1, 2], np.int32)), shape=(2, 2))
+    shortest_path(graph, np.zeros((2, 3)), 0, 1)
+
+
+_compile()

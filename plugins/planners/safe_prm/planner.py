@@ -335,14 +335,21 @@ class SafePRM(Planner):
         failure = self.check_endpoints(space, start, goal, 0.0)
         if failure is not None:
             return failure
+        started = time.perf_counter()
         outcome = prm_query.query(roadmap, start, goal)
+        query_s = time.perf_counter() - started
         # Algorithm 3: sample more until a path exists (when allowed)
         limit = self.settings.max_milestones or roadmap.n
+        grow_s = 0.0
         while not outcome.found and roadmap.n * 2 <= limit and artifact.problem is not None:
+            started = time.perf_counter()
             roadmap = self._build(artifact.problem, roadmap.n * 2)
+            grow_s += time.perf_counter() - started
             artifact.roadmap = roadmap
             artifact.grown += 1
+            started = time.perf_counter()
             outcome = prm_query.query(roadmap, start, goal)
+            query_s = time.perf_counter() - started
         from_settings = d_thresh == self.settings.d_thresh
         metrics: dict[str, Any] = {
             "proficiency": self.settings.proficiency_label if from_settings else "the stage's clearance_threshold",
@@ -351,9 +358,12 @@ class SafePRM(Planner):
             "k": roadmap.k,
             "s_m": roadmap.s,
             **{f"{k}": v for k, v in outcome.timings.items()},
+            # the roadmap query (linking, search, repair), as bench_safe_prm.py times it; smoothing is smooth_s
+            "query_s": query_s,
         }
         if artifact.grown:
             metrics["roadmap_grown"] = artifact.grown
+            metrics["grow_s"] = grow_s
         if from_settings and isinstance(self.settings.proficiency, FromAttempts):
             p = self.settings.proficiency
             metrics["attempts"] = {

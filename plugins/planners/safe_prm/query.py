@@ -14,22 +14,37 @@ by a collision-free motion, searched in spheres of growing radius; the path
 runs start → projection → ... and the link is reported like a critical
 region (it cannot be avoided either).
 
-The search itself is :mod:`.search`, the repair :mod:`.repair`.
+The links are found here (K-S neighbours from the roadmap's grid, certified by
+covering balls or the space's exact check); the search and the repair are one
+compiled call (:mod:`.query_kernel`, on :mod:`.astar`).
 """
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from surgiplan.paths import certify_edges
 
-from .repair import repair
+from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
-from .search import LINK, RISK, SAFE, Links, Query, edge_kinds, search
 
 __all__ = ["LINK", "RISK", "SAFE", "QueryOutcome", "query"]
+
+#: edge kinds along a result path
+SAFE, RISK, LINK = "safe", "risk", "link"
+
+
+@dataclass
+class Links:
+    """A query point's certified links into the roadmaps: milestone indices, their costs, and whether each keeps
+    d_thresh (an R_safe edge)."""
+
+    targets: np.ndarray
+    cost: np.ndarray
+    safe: np.ndarray
 
 
 @dataclass
@@ -60,33 +75,72 @@ def _link_ends(
     Both ends at once: one neighbour query, one batch of free-motion checks and one of safe-motion checks.
     """
     space = roadmap.space
-    nodes = (roadmap.n, roadmap.n + 1)
-    per_end = [roadmap.neighbours(q) for q in ends]
-    owner = np.concatenate([np.full(len(t), i) for i, t in enumerate(per_end)]).astype(np.int64)
-    targets = np.concatenate(per_end).astype(np.int64)
-    scaled_ends = roadmap.scaled(ends)
+    index, _, counts = roadmap.neighbours_of(ends)
+    owner = np.repeat(np.arange(len(ends)), counts)
+    targets = index[index >= 0]
     if not targets.size:
-        return [
-            Links(node, np.zeros(0, np.int64), np.zeros(0), np.zeros(0, dtype=bool), scaled_ends[i])
-            for i, node in enumerate(nodes)
-        ]
+        return [Links(np.zeros(0, np.int64), np.zeros(0), np.zeros(0, dtype=bool)) for _ in ends]
     here = ends[owner]
     far = roadmap.milestones[targets]
     own = np.minimum(clearance, workspace)[owner]
     slack = np.minimum(roadmap.clearance[targets], roadmap.workspace[targets])
     free, _ = certify_edges(space, here, far, own, slack, 0.0)
-    safe = np.zeros(len(targets), dtype=bool)
-    sel = free & is_safe[owner] & roadmap.safe[targets]
-    if d_thresh <= 0:
-        safe = sel
-    elif np.any(sel):
-        safe[sel], _ = certify_edges(space, here[sel], far[sel], own[sel] - d_thresh, slack[sel] - d_thresh, d_thresh)
+    safe = free & is_safe[owner] & roadmap.safe[targets]
+    if d_thresh > 0 and np.any(safe):
+        safe[safe], _ = certify_edges(
+            space, here[safe], far[safe], own[safe] - d_thresh, slack[safe] - d_thresh, d_thresh
+        )
     cost = space.distance(here, far)
     out = []
-    for i, node in enumerate(nodes):
+    for i in range(len(ends)):
         mine = free & (owner == i)
-        out.append(Links(node, targets[mine], cost[mine], safe[mine], scaled_ends[i]))
+        out.append(Links(targets[mine], cost[mine], safe[mine]))
     return out
+
+
+def _link_euclidean(
+    ends: np.ndarray, roadmap: RoadmapPair, d_thresh: float, ends_slack: np.ndarray, ends_safe: np.ndarray
+) -> tuple[Links, Links, float, bool]:
+    """:func:`_link_ends` and :func:`_direct` in one compiled call, for a space with Euclidean motions; the space's
+    exact check decides only what the covering balls leave open."""
+    space = roadmap.space
+    grid = roadmap.grid
+    targets, owner, cost, free, keeps, direct, direct_free, direct_keeps = link_ends(
+        ends,
+        ends_slack,
+        ends_safe,
+        d_thresh,
+        grid.points,
+        grid.origin,
+        grid.dims,
+        grid.cell,
+        grid.first,
+        grid.order,
+        roadmap.k,
+        roadmap.s,
+        roadmap.slack,
+        roadmap.safe_flags,
+    )
+    free_ok = free == 1
+    open_free = free == 2
+    if open_free.any():
+        free_ok[open_free] = space.motion_is_clear(ends[owner[open_free]], roadmap.milestones[targets[open_free]], 0.0)
+    safe_ok = keeps == 1
+    open_safe = (keeps == 2) & free_ok
+    if open_safe.any():
+        safe_ok[open_safe] = space.motion_is_clear(
+            ends[owner[open_safe]], roadmap.milestones[targets[open_safe]], d_thresh
+        )
+    safe_ok &= free_ok
+    if direct_free == 2:
+        direct_free = int(space.motion_is_clear(ends[:1], ends[1:], 0.0)[0])
+    if direct_keeps == 2 and direct_free:
+        direct_keeps = int(space.motion_is_clear(ends[:1], ends[1:], d_thresh)[0])
+    links = []
+    for i in (0, 1):
+        mine = free_ok & (owner == i)
+        links.append(Links(targets[mine], cost[mine], safe_ok[mine]))
+    return links[0], links[1], (direct if direct_free else np.inf), bool(direct_free and direct_keeps)
 
 
 def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: float) -> tuple[int, float] | None:
@@ -114,6 +168,21 @@ def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: f
         radius *= 2.0
 
 
+def _direct(space, start, goal, slack, ends_safe, d_thresh, reach) -> tuple[float, bool]:
+    """The start-goal motion, if they are within reach of each other: (cost, keeps d_thresh); cost inf if none."""
+    if space.distance(start, goal) > reach:
+        return np.inf, False
+    if not certify_edges(space, start[None], goal[None], slack[:1], slack[1:], 0.0)[0][0]:
+        return np.inf, False
+    safe = bool(ends_safe.all()) and (
+        d_thresh <= 0
+        or bool(
+            certify_edges(space, start[None], goal[None], slack[:1] - d_thresh, slack[1:] - d_thresh, d_thresh)[0][0]
+        )
+    )
+    return float(space.distance(start, goal)), safe
+
+
 def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOutcome:
     """Algorithms 2-4: the shortest path from start to goal in R, repaired through R_safe where possible."""
     space = roadmap.space
@@ -121,96 +190,84 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     n = roadmap.n
     timings: dict[str, float] = {}
     started = time.perf_counter()
-    ends = np.stack([start, goal])
+    ends = np.array((start, goal), dtype=float)
     clearance = space.clearance(ends)
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
-
-    start_links, goal_links = _link_ends(ends, roadmap, d_thresh, clearance, workspace, ends_safe)
-    direct = None
-    if space.distance(start, goal) <= roadmap.s:
-        slack = np.minimum(clearance, workspace)
-        if certify_edges(space, start[None], goal[None], slack[:1], slack[1:], 0.0)[0][0]:
-            safe = bool(ends_safe.all()) and (
-                d_thresh <= 0
-                or certify_edges(space, start[None], goal[None], slack[:1] - d_thresh, slack[1:] - d_thresh, d_thresh)[
-                    0
-                ][0]
-            )
-            direct = (float(space.distance(start, goal)), safe)
-
-    components = roadmap.safe_components.copy()
-    free_components = roadmap.free_components.copy()
-    for uf in (components, free_components):
-        uf.add(2)
-    for links in (start_links, goal_links):
-        for t, ok in zip(links.targets, links.safe, strict=True):
-            free_components.union(links.node, int(t))
-            if ok:
-                components.union(links.node, int(t))
-    if direct is not None:
-        free_components.union(n, n + 1)
-        if direct[1]:
-            components.union(n, n + 1)
-    q = Query(roadmap, start_links, goal_links, direct, components, free_components)
-
+    if space.euclidean_motions:
+        start_links, goal_links, direct_cost, direct_safe = _link_euclidean(
+            ends, roadmap, d_thresh, np.minimum(clearance, workspace), ends_safe
+        )
+    else:
+        start_links, goal_links = _link_ends(ends, roadmap, d_thresh, clearance, workspace, ends_safe)
+        direct_cost, direct_safe = _direct(
+            space, start, goal, np.minimum(clearance, workspace), ends_safe, d_thresh, roadmap.s
+        )
     # a start or goal in the risk region: project it into the safe region and link it back
     source, target = n, n + 1
     head: list[np.ndarray] = []
     tail: list[np.ndarray] = []
-    if d_thresh > 0:
+    if d_thresh > 0 and not ends_safe.all():
         for i, point in ((0, start), (1, goal)):
             if ends_safe[i]:
                 continue
             projected = _project(roadmap, point, clearance[i], workspace[i])
             if projected is None:
                 continue  # nothing safe reachable: plan from the point itself
-            index, _ = projected
             if i == 0:
-                head, source = [start], index
+                head, source = [start], projected[0]
             else:
-                tail, target = [goal], index
+                tail, target = [goal], projected[0]
     timings["link_s"] = time.perf_counter() - started
 
     started = time.perf_counter()
-    if not free_components.same(source, target):
+    scaled = roadmap.scaled(ends)
+    with roadmap.search_workspace() as work:
+        while True:
+            status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
+                *roadmap.kernel_arrays,
+                start_links.targets,
+                start_links.cost,
+                start_links.safe,
+                scaled[0],
+                goal_links.targets,
+                goal_links.cost,
+                goal_links.safe,
+                scaled[1],
+                ends_safe,
+                direct_cost,
+                direct_safe,
+                source,
+                target,
+                *work.arrays(),
+            )
+            if status != 3:
+                break
+            work.grow()  # more entries than the workspace holds: twice as many, and again
+    timings["search_s"] = time.perf_counter() - started
+    if status == 1:
         return QueryOutcome(
             False,
             message="start and goal are in different components of the roadmap R "
             "(no collision-free path among the milestones)",
             timings=timings,
+            settled=int(settled),
         )
-    core = search(roadmap.free_csr, source, q, target, safe=False)
-    timings["search_s"] = time.perf_counter() - started
-    if core is None:
-        return QueryOutcome(False, message="no path in R", timings=timings)
+    if status == 2:
+        return QueryOutcome(False, message="no path in R", timings=timings, settled=int(settled))
 
-    started = time.perf_counter()
-    safe_node = np.concatenate([roadmap.safe, ends_safe])
-    kinds = edge_kinds(core, safe_node, q)
-    repaired = 0
-    avoided: list[list[int]] = []
-    if all(k == SAFE for k in kinds):
-        result = core  # Algorithm 3: a path already safe is returned as it is
-    else:
-        result, kinds, repaired = repair(core, safe_node, q, kinds, avoided)
-    timings["repair_s"] = time.perf_counter() - started
-
-    result = np.asarray(result)
-    on_path = roadmap.milestones[np.minimum(result, n - 1)]
-    on_path[result == n] = start
-    on_path[result == n + 1] = goal
-    path = np.concatenate(
-        [np.asarray(head).reshape(-1, space.dimension), on_path, np.asarray(tail).reshape(-1, space.dimension)]
-    )
-    kinds = ([LINK] if head else []) + kinds + ([LINK] if tail else [])
-
-    def configurations(nodes: list[int]) -> np.ndarray:
-        nodes = np.asarray(nodes)
+    def configurations(nodes: np.ndarray) -> np.ndarray:
         out = roadmap.milestones[np.minimum(nodes, n - 1)]
         out[nodes == n] = start
         out[nodes == n + 1] = goal
         return out
 
-    detours = [configurations(stretch) for stretch in avoided if stretch]
-    return QueryOutcome(True, path, kinds, repaired, timings=timings, settled=q.settled, detours=detours)
+    path = configurations(nodes)
+    if head or tail:
+        path = np.concatenate(
+            [np.asarray(head).reshape(-1, space.dimension), path, np.asarray(tail).reshape(-1, space.dimension)]
+        )
+    names = [SAFE if k == SAFE_EDGE else RISK for k in kinds.tolist()]
+    names = ([LINK] if head else []) + names + ([LINK] if tail else [])
+    detours = [configurations(avoided[a:b]) for a, b in itertools.pairwise(offsets.tolist()) if b > a]
+    return QueryOutcome(True, path, names, int(repaired), timings=timings, settled=int(settled), detours=detours)

@@ -15,79 +15,46 @@ go from each end before it could lose the margin, and if the two reaches add
 up to the edge's length (the body's speed bound along it) the edge is
 covered. The rest get the space's exact or certified motion check.
 
-The learning phase runs vectorised over all milestones at once (a batch
-PRM): the K-S neighbours of every milestone come from one KD-tree query, in
-the space's metric, so the graph equals the one Algorithm 1 builds when
-every milestone is offered to all its K-S neighbours regardless of insertion
-order.
+The learning phase runs over all milestones at once (a batch PRM): the K-S
+neighbours of every milestone come from one compiled query of a uniform grid
+(:mod:`.kernels`; the answers a KD-tree gives), in the space's metric, so the
+graph equals the one Algorithm 1 builds when every milestone is offered to
+all its K-S neighbours regardless of insertion order. The roadmaps' CSR rows
+and connected components are compiled too; the certification is the space's
+(its scene queries compiled for scenes of primitives,
+:mod:`surgiplan.geometry.compiled`).
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
+from .astar import Workspace, bucket_width
+from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
 
-class UnionFind:
-    """Disjoint sets over milestone indices (union by size, path halving).
 
-    Seeded from a batch labelling (``from_labels``) and kept up to date as
-    query milestones are linked in (``union``), which is how the query phase
-    of Algorithm 2 asks ``sameComponent`` without recomputing components.
-    """
+class Grid(NamedTuple):
+    """The milestones (scaled) sorted into uniform cells: what :mod:`.kernels` searches for K-S neighbours."""
 
-    def __init__(self, n: int) -> None:
-        self.parent = np.arange(n)
-        self.size = np.ones(n, dtype=np.int64)
+    cell: float
+    origin: np.ndarray
+    dims: np.ndarray
+    first: np.ndarray
+    order: np.ndarray
+    #: the points in ``order``
+    points: np.ndarray
 
     @classmethod
-    def from_labels(cls, labels: np.ndarray) -> UnionFind:
-        uf = cls(len(labels))
-        # the first member of each component becomes its representative
-        _, first = np.unique(labels, return_index=True)
-        representative = np.empty(labels.max() + 1 if len(labels) else 0, dtype=np.int64)
-        representative[labels[first]] = first
-        uf.parent = representative[labels]
-        uf.size = np.bincount(uf.parent, minlength=len(labels)).astype(np.int64)
-        return uf
-
-    def add(self, count: int = 1) -> np.ndarray:
-        """New singleton elements; returns their indices."""
-        start = len(self.parent)
-        new = np.arange(start, start + count)
-        self.parent = np.concatenate([self.parent, new])
-        self.size = np.concatenate([self.size, np.ones(count, dtype=np.int64)])
-        return new
-
-    def find(self, i: int) -> int:
-        parent = self.parent
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return int(i)
-
-    def union(self, i: int, j: int) -> None:
-        a, b = self.find(i), self.find(j)
-        if a == b:
-            return
-        if self.size[a] < self.size[b]:
-            a, b = b, a
-        self.parent[b] = a
-        self.size[a] += self.size[b]
-
-    def same(self, i: int, j: int) -> bool:
-        return self.find(i) == self.find(j)
-
-    def copy(self) -> UnionFind:
-        other = UnionFind(0)
-        other.parent = self.parent.copy()
-        other.size = self.size.copy()
-        return other
+    def of(cls, scaled: np.ndarray, s: float) -> Grid:
+        cell = grid_cell(scaled, s)
+        return cls(cell, *grid_build(scaled, cell))
 
 
 @dataclass
@@ -111,26 +78,43 @@ class RoadmapPair:
     s: float
     #: edges certified by covering balls alone, for the record
     covered_edges: int = 0
-    #: the KD-tree over the scaled milestones, when the caller has built it already
-    tree: cKDTree | None = field(default=None, repr=False, compare=False)
-    free_components: UnionFind = field(init=False, repr=False)
-    safe_components: UnionFind = field(init=False, repr=False)
+    #: the grid over the scaled milestones, when the caller has built it already
+    grid: Grid | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         #: milestones times the space's coordinate weights: the frame of the metric (and of the search heuristic)
         self.scaled_milestones = np.ascontiguousarray(self.scaled(self.milestones).reshape(self.n, -1), dtype=float)
-        if self.tree is None and self.n:
-            self.tree = cKDTree(self.scaled_milestones)
-        self._tree = self.tree if self.n else None
+        if self.grid is None:
+            self.grid = Grid.of(self.scaled_milestones, self.s)
+        self._tree: cKDTree | None = None
         #: how far each milestone's body may move before leaving the workspace (m)
         self.workspace = self.space.workspace_slack(self.milestones) if self.n else np.zeros(0)
-        self.free_csr = self._graph(np.ones(len(self.edges), dtype=bool))
-        self.safe_csr = self._graph(self.edge_safe)
-        self.free_components = UnionFind.from_labels(self._labels(self.free_csr))
-        self.safe_components = UnionFind.from_labels(self._labels(self.safe_csr))
-        safe_edges = self.edges[self.edge_safe]
-        # R_safe edges as sorted keys lo * (n + 2) + hi (room for the query's start and goal)
-        self._safe_keys = np.sort(safe_edges[:, 0] * (self.n + 2) + safe_edges[:, 1])
+        #: each milestone's clearance, at most its workspace slack (what a motion from it may use); safe as booleans
+        self.slack = np.ascontiguousarray(np.minimum(self.clearance, self.workspace), dtype=float)
+        self.safe_flags = np.ascontiguousarray(self.safe, dtype=np.bool_)
+        edges = np.ascontiguousarray(self.edges, dtype=np.int64).reshape(-1, 2)
+        cost = np.ascontiguousarray(self.edge_cost, dtype=float)
+        every = np.ones(len(edges), dtype=np.bool_)
+        edge_safe = np.ascontiguousarray(self.edge_safe, dtype=np.bool_)
+        #: both roadmaps as CSR rows (indptr, indices, data), both directions of every edge
+        self.free_rows = csr_rows(self.n, edges, cost, every, 1e-15)
+        self.safe_rows = csr_rows(self.n, edges, cost, edge_safe, 1e-15)
+        #: the connected component of every milestone in R and in R_safe, and how many there are
+        self.free_labels, self.free_count = component_labels(self.n, edges, every)
+        self.safe_labels, self.safe_count = component_labels(self.n, edges, edge_safe)
+        #: what :func:`.query_kernel.search_and_repair` takes of the roadmap, in its order
+        self.kernel_arrays = (
+            *self.free_rows,
+            *self.safe_rows,
+            self.scaled_milestones,
+            bucket_width(cost),
+            self.safe_flags,
+            self.free_labels,
+            int(self.free_count),
+            self.safe_labels,
+            int(self.safe_count),
+        )
+        self._workspace: Workspace | None = None
 
     # ------------------------------------------------------------------ structure
     @property
@@ -140,52 +124,41 @@ class RoadmapPair:
     def scaled(self, q: np.ndarray) -> np.ndarray:
         return np.atleast_2d(q) * self.space.coordinate_weights
 
-    def has_safe_edge(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Whether (lo[i], hi[i]) with lo < hi is an edge of R_safe (vectorised)."""
-        keys = np.asarray(lo) * (self.n + 2) + np.asarray(hi)
-        at = np.searchsorted(self._safe_keys, keys)
-        at = np.minimum(at, max(len(self._safe_keys) - 1, 0))
-        return self._safe_keys[at] == keys if len(self._safe_keys) else np.zeros(keys.shape, dtype=bool)
+    @contextlib.contextmanager
+    def search_workspace(self) -> Iterator[Workspace]:
+        """The searches' arrays (made on first use), held by one query at a time."""
+        if self._workspace is None:
+            self._workspace = Workspace(self.n, 2 * len(self.free_rows[1]) + self.n + 64)
+        with self._workspace.lock:
+            yield self._workspace
 
-    def _graph(self, mask: np.ndarray) -> csr_matrix:
-        """Both directions of the selected edges, so directed searches see an undirected roadmap.
-
-        Built directly in CSR form (rows by a stable sort, no duplicate summing: the edges are distinct).
-        """
-        i, j = self.edges[mask, 0], self.edges[mask, 1]
-        cost = np.maximum(self.edge_cost[mask], 1e-15)  # scipy's graph routines drop explicit zeros
-        rows = np.concatenate([i, j])
-        order = _stable_order(rows, self.n)
-        indptr = np.zeros(self.n + 1, dtype=np.int64)
-        np.cumsum(np.bincount(rows, minlength=self.n), out=indptr[1:])
-        cols = np.concatenate([j, i])[order]
-        index_type = np.int32 if self.n < 2**31 - 1 else np.int64
-        return csr_matrix(
-            (np.concatenate([cost, cost])[order], cols.astype(index_type), indptr.astype(index_type)),
-            shape=(self.n, self.n),
+    def neighbours_of(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The K-S neighbours (at most k within s) of each configuration q[i]: (indices, distances, counts), rows
+        nearest first, padded with -1 and inf."""
+        grid = self.grid
+        return k_s_neighbours(
+            np.ascontiguousarray(self.scaled(q), dtype=float),
+            grid.points,
+            grid.origin,
+            grid.dims,
+            grid.cell,
+            grid.first,
+            grid.order,
+            self.k,
+            self.s,
         )
 
-    @staticmethod
-    def _labels(graph: csr_matrix) -> np.ndarray:
-        if graph.shape[0] == 0:
-            return np.zeros(0, dtype=np.int64)
-        return connected_components(graph, directed=False)[1].astype(np.int64)
-
-    def neighbours(self, q: np.ndarray, exclude: int | None = None) -> np.ndarray:
+    def neighbours(self, q: np.ndarray) -> np.ndarray:
         """Indices of the K-S neighbours of configuration q (at most k within s), nearest first."""
-        if self._tree is None:
-            return np.zeros(0, dtype=np.int64)
-        k = min(self.k + (exclude is not None), self.n)
-        distance, index = self._tree.query(self.scaled(q)[0], k=k, distance_upper_bound=self.s)
-        index = np.atleast_1d(index)[np.isfinite(np.atleast_1d(distance))]
-        if exclude is not None:
-            index = index[index != exclude]
-        return index[: self.k]
+        index, _, counts = self.neighbours_of(np.asarray(q, dtype=float).reshape(1, -1))
+        return index[0, : counts[0]].copy()
 
     def within(self, q: np.ndarray, radius: float) -> np.ndarray:
         """Milestones within ``radius`` (space metric) of q, nearest first."""
-        if self._tree is None:
+        if not self.n:
             return np.zeros(0, dtype=np.int64)
+        if self._tree is None:  # only a projection asks: built on first use
+            self._tree = cKDTree(self.scaled_milestones)
         found = np.asarray(self._tree.query_ball_point(self.scaled(q)[0], radius), dtype=np.int64)
         if not found.size:
             return found
@@ -200,80 +173,71 @@ class RoadmapPair:
             "edges": len(self.edges),
             "safe_edges": int(np.count_nonzero(self.edge_safe)),
             "edges_certified_by_covering": int(self.covered_edges),
-            "free_components": len(np.unique(self._labels(self.free_csr))) if self.n else 0,
-            "safe_components": len(np.unique(self._labels(self.safe_csr)[self.safe])) if self.n else 0,
+            "free_components": int(self.free_count),
+            "safe_components": len(np.unique(self.safe_labels[self.safe])) if self.n else 0,
         }
 
 
 def certify_roadmap_edges(
     space: Space,
-    a: np.ndarray,
-    b: np.ndarray,
-    clear_a: np.ndarray,
-    clear_b: np.ndarray,
-    inside_a: np.ndarray,
-    inside_b: np.ndarray,
+    q: np.ndarray,
+    pairs: np.ndarray,
+    clearance: np.ndarray,
+    inside: np.ndarray,
+    safe: np.ndarray,
     d_thresh: float,
-    both_safe: np.ndarray,
+    reach: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Which motions a[i] → b[i] are edges of R (clear) and of R_safe (keep d_thresh); certified.
+    """Which motions q[i] → q[j], (i, j) in ``pairs``, are edges of R (clear) and of R_safe (keep d_thresh);
+    certified.
 
-    ``clear_*``: the milestones' clearances, ``inside_*`` their workspace
-    slack. In order of cost: two covering balls at the ends (their slacks
-    add up to the motion's speed bound, as :func:`surgiplan.paths.certify_edges`);
-    for the rest one clearance query at the midpoint, shared by both
-    roadmaps, which either fails the motion outright (the midpoint itself
-    is too close) or covers it with three balls; what is still undecided
-    gets the space's certified motion check. Returns the R decisions, the
-    R_safe decisions (only ``both_safe`` motions can be R_safe edges) and
-    how many R edges the balls alone certified.
+    ``clearance``, ``inside``: the milestones' clearances and workspace slack; ``safe``: which are in C_safe
+    (only motions between two can be R_safe edges); ``reach``: the motions' speed bounds when the caller has
+    them (a space with Euclidean motions: their lengths), else the space's. In order of cost: two covering
+    balls at the ends (their slacks add up to the motion's speed bound, as :func:`surgiplan.paths.certify_edges`;
+    compiled, :func:`.kernels.cover_pairs`); for the rest one clearance query at the midpoint, shared by both
+    roadmaps, which either fails the motion outright (the midpoint itself is too close) or covers it with three
+    balls; what is still undecided gets the space's certified motion check. Returns the R decisions, the R_safe
+    decisions and how many R edges the balls alone certified.
     """
-    reach = space.motion_speed_bound(a, b)
-    free_a, free_b = np.minimum(clear_a, inside_a), np.minimum(clear_b, inside_b)
-    free_ends = (free_a > 0) & (free_b > 0)
-    free_ok = free_ends & (free_a + free_b > reach)
-    covered = int(np.count_nonzero(free_ok))
-    free_open = free_ends & ~free_ok
-    if d_thresh > 0:
-        safe_a, safe_b = np.minimum(clear_a - d_thresh, inside_a), np.minimum(clear_b - d_thresh, inside_b)
-        safe_ends = both_safe & (safe_a >= 0) & (safe_b >= 0)
-        safe_ok = safe_ends & (safe_a + safe_b > reach)
-        safe_open = safe_ends & ~safe_ok
-    else:
-        safe_open = np.zeros(len(a), dtype=bool)
-    need = np.flatnonzero(free_open | safe_open)
+    if reach is None:
+        reach = space.motion_speed_bound(q[pairs[:, 0]], q[pairs[:, 1]])
+    free_state, safe_state, covered = cover_pairs(
+        pairs, np.ascontiguousarray(reach, dtype=float), clearance, inside, safe, float(d_thresh)
+    )
+    free_ok = free_state == 1
+    safe_ok = safe_state == 1
+    need = np.flatnonzero((free_state == 2) | (safe_state == 2))
     if need.size:
-        mid = space.interpolate(a[need], b[need], 0.5)
+        i, j = pairs[need, 0], pairs[need, 1]
+        a, b = q[i], q[j]
+        mid = space.interpolate(a, b, 0.5)
         clear_m = space.clearance(mid, cutoff=d_thresh + reach[need])
         inside_m = space.workspace_slack(mid)
-        first = space.motion_speed_bound(a[need], mid)
-        second = space.motion_speed_bound(mid, b[need])
+        first = space.motion_speed_bound(a, mid)
+        second = space.motion_speed_bound(mid, b)
+        free_a, free_b = np.minimum(clearance[i], inside[i]), np.minimum(clearance[j], inside[j])
         # R: margin 0, strict (touching is a collision)
-        sel = free_open[need]
-        at, m = need[sel], np.minimum(clear_m, inside_m)[sel]
-        three = (m > 0) & (free_a[at] + m > first[sel]) & (m + free_b[at] > second[sel])
-        free_ok[at[three]] = True
+        sel = free_state[need] == 2
+        m = np.minimum(clear_m, inside_m)[sel]
+        three = (m > 0) & (free_a[sel] + m > first[sel]) & (m + free_b[sel] > second[sel])
+        free_ok[need[sel][three]] = True
         covered += int(np.count_nonzero(three))
-        exact = at[(m > 0) & ~three]
+        exact = np.flatnonzero(sel)[(m > 0) & ~three]
         if exact.size:
-            free_ok[exact] = space.motion_is_clear(a[exact], b[exact], 0.0)
+            free_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], 0.0)
         if d_thresh > 0:
-            sel = safe_open[need] & free_ok[need]
-            at, m = need[sel], np.minimum(clear_m - d_thresh, inside_m)[sel]
-            three = (m >= 0) & (safe_a[at] + m > first[sel]) & (m + safe_b[at] > second[sel])
-            safe_ok[at[three]] = True
-            exact = at[(m >= 0) & ~three]
+            safe_a = np.minimum(clearance[i] - d_thresh, inside[i])
+            safe_b = np.minimum(clearance[j] - d_thresh, inside[j])
+            sel = (safe_state[need] == 2) & free_ok[need]
+            m = np.minimum(clear_m - d_thresh, inside_m)[sel]
+            three = (m >= 0) & (safe_a[sel] + m > first[sel]) & (m + safe_b[sel] > second[sel])
+            safe_ok[need[sel][three]] = True
+            exact = np.flatnonzero(sel)[(m >= 0) & ~three]
             if exact.size:
-                safe_ok[exact] = space.motion_is_clear(a[exact], b[exact], d_thresh)
+                safe_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], d_thresh)
     edge_safe = (safe_ok & free_ok) if d_thresh > 0 else free_ok.copy()
     return free_ok, edge_safe, covered
-
-
-def _stable_order(values: np.ndarray, bound: int) -> np.ndarray:
-    """np.argsort(values, kind="stable") for integers in [0, bound); a radix sort when they fit 16 bits."""
-    if bound <= 1 << 16:
-        return np.argsort(values.astype(np.uint16), kind="stable")
-    return np.argsort(values, kind="stable")
 
 
 def sample_milestones(
@@ -319,25 +283,19 @@ def build_roadmaps(
     inside = space.workspace_slack(q)
 
     with progress.task("connecting milestones (K-S)", total=1) as task:
-        tree = cKDTree(q * space.coordinate_weights)
-        kk = min(k + 1, len(q))
-        distance, index = tree.query(q * space.coordinate_weights, k=kk, distance_upper_bound=s)
-        rows = np.repeat(np.arange(len(q), dtype=np.int64), kk)
-        cols = index.ravel().astype(np.int64)
-        keep = np.isfinite(distance.ravel()) & (cols != rows)
-        # each undirected pair once, sorted (lo, hi): unique keys lo * n + hi (a 1-D sort, not a row sort)
-        lo, hi = np.minimum(rows[keep], cols[keep]), np.maximum(rows[keep], cols[keep])
-        keys = np.sort(lo * len(q) + hi)
-        keys = keys[np.concatenate([[True], np.diff(keys) != 0])] if len(keys) else keys
-        pairs = np.stack([keys // len(q), keys % len(q)], axis=1) if len(q) else np.zeros((0, 2), np.int64)
-        i, j = pairs[:, 0], pairs[:, 1]
-        both_safe = safe[i] & safe[j]
+        scaled = np.ascontiguousarray(q * space.coordinate_weights, dtype=float)
+        grid = Grid.of(scaled, s)
+        pairs, length = k_s_pairs(
+            grid.points, grid.origin, grid.dims, grid.cell, grid.first, grid.order, int(k), float(s)
+        )
+        # a space with Euclidean motions: the pairs' lengths (measured by the neighbour search, the same numbers
+        # space.distance gives) are the motions' speed bounds and the edges' costs
+        euclidean = space.euclidean_motions
         free_ok, edge_safe, covered_free = certify_roadmap_edges(
-            space, q[i], q[j], clearance[i], clearance[j], inside[i], inside[j], d_thresh, both_safe
+            space, q, pairs, clearance, inside, safe, d_thresh, length if euclidean else None
         )
         pairs, edge_safe = pairs[free_ok], edge_safe[free_ok]
-        a, b = q[pairs[:, 0]], q[pairs[:, 1]]
-        cost = space.distance(a, b)
+        cost = length[free_ok] if euclidean else space.distance(q[pairs[:, 0]], q[pairs[:, 1]])
         task.advance(1)
     return RoadmapPair(
         space,
@@ -351,5 +309,5 @@ def build_roadmaps(
         int(k),
         float(s),
         covered_edges=covered_free,
-        tree=tree,
+        grid=grid,
     )

@@ -18,7 +18,8 @@ This is safe_prm's compiled search adapted to chains (the planner packages
 share no code but the core's; see the import contracts). Why numba: in pure
 Python (heapq) a search and its bookkeeping cost about half a millisecond,
 the whole online budget; compiled, tens of microseconds. ``cache=True``
-stores the compiled code, so only a machine's first run compiles.
+stores the compiled code, so only a machine's first run compiles, and it is
+loaded (or compiled) when the module is imported: no query pays it.
 """
 
 from __future__ import annotations
@@ -121,3 +122,24 @@ def _source_of(indptr, entry):
         else:
             hi = mid
     return lo
+
+
+def _compile() -> None:
+    """Load (or compile) :func:`astar_junctions` for the types :class:`.graph.PathmapGraph` passes, when this
+    module is imported: a query never pays it."""
+    one_i, one_f = np.zeros(1, dtype=np.int64), np.zeros(1)
+    astar_junctions(
+        np.array([0, 0], dtype=np.int64),
+        np.empty(0, np.int64),
+        np.empty(0),
+        np.zeros((1, 3)),
+        one_i,
+        one_f,
+        one_i,
+        one_f,
+        np.zeros(3),
+        np.inf,
+    )
+
+
+_compile()

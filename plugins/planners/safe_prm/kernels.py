@@ -1,0 +1,471 @@
+"""The safe PRM's graph work compiled with numba: K-S neighbours on a uniform grid, the roadmaps' CSR rows and
+their connected components.
+
+* :func:`grid_build` sorts the milestones (in the space's metric: coordinates times its weights) into cells of a
+  uniform grid; :func:`k_s_neighbours` answers "at most k nearest within s" for any points from it, ring of
+  cells by ring of cells until no unvisited cell can hold a nearer point. The answers are a KD-tree's
+  (``scipy.spatial.cKDTree.query(..., k, distance_upper_bound=s)``, checked in ``tests/test_safe_prm.py``),
+  without building one per roadmap.
+* :func:`k_s_pairs`: the undirected K-S pairs of the milestones themselves, each once, sorted (lo, hi): the
+  candidate edges of Algorithm 1 when every milestone is offered to all its K-S neighbours.
+* :func:`csr_rows`: both directions of the selected edges as CSR rows, entries in the order a stable sort by
+  row gives (what ``scipy.sparse`` would build, without the sort); :func:`component_labels`: the connected
+  components by union-find.
+
+Compiled when the module is imported (cached on disk by numba), so a roadmap's build never pays it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_FLAGS = {"cache": True, "nogil": True}
+
+
+@njit(**_FLAGS)
+def grid_build(points, cell):
+    """Cells of side ``cell`` over the points' bounding box: (origin, cells per axis, first entry of each cell in
+    ``order``, the point indices sorted by cell, the points in that order)."""
+    n, d = points.shape
+    origin = np.empty(d)
+    dims = np.empty(d, dtype=np.int64)
+    for k in range(d):
+        low = np.inf
+        high = -np.inf
+        for i in range(n):
+            low = min(low, points[i, k])
+            high = max(high, points[i, k])
+        if n == 0:
+            low = high = 0.0
+        origin[k] = low
+        dims[k] = max(1, int((high - low) / cell) + 1)
+    total = 1
+    for k in range(d):
+        total *= dims[k]
+    counts = np.zeros(total + 1, dtype=np.int64)
+    which = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        index = 0
+        for k in range(d):
+            c = min(max(int((points[i, k] - origin[k]) / cell), 0), dims[k] - 1)
+            index = index * dims[k] + c
+        which[i] = index
+        counts[index + 1] += 1
+    for c in range(total):
+        counts[c + 1] += counts[c]
+    start = counts.copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):  # stable: within a cell, by point index
+        order[start[which[i]]] = i
+        start[which[i]] += 1
+    ordered = np.empty((n, d))
+    for e in range(n):
+        ordered[e] = points[order[e]]
+    return origin, dims, counts, order, ordered
+
+
+@njit(**_FLAGS)
+def _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
+    """The at most ``k`` nearest points to ``x`` strictly within ``s`` (point ``skip`` excluded), nearest first,
+    into the outputs; returns how many. ``points`` sorted by cell (``points[e]`` is point ``order[e]``)."""
+    d = points.shape[1]
+    centre = np.empty(d, dtype=np.int64)
+    for j in range(d):
+        centre[j] = min(max(int(np.floor((x[j] - origin[j]) / cell)), 0), dims[j] - 1)
+    s2 = s * s
+    worst = s2  # a candidate must be nearer than this: s, then the k-th nearest once there are k
+    count = 0
+    low = np.empty(d, dtype=np.int64)
+    high = np.empty(d, dtype=np.int64)
+    at = np.empty(d, dtype=np.int64)
+    ring = 0
+    three = d == 3
+    x0, x1, x2 = x[0], x[min(1, d - 1)], x[min(2, d - 1)]
+    while True:
+        covers_all = True
+        for j in range(d):
+            low[j] = centre[j] - ring
+            high[j] = centre[j] + ring
+            if low[j] > 0 or high[j] < dims[j] - 1:
+                covers_all = False
+        # the cells at Chebyshev distance ``ring`` from the centre cell, clipped to the grid
+        for j in range(d):
+            at[j] = max(low[j], 0)
+        while True:
+            on_ring = ring == 0
+            index = 0
+            for j in range(d):
+                if at[j] == low[j] or at[j] == high[j]:
+                    on_ring = True
+                index = index * dims[j] + at[j]
+            if on_ring:
+                for e in range(first[index], first[index + 1]):
+                    if three:
+                        a0, a1, a2 = points[e, 0] - x0, points[e, 1] - x1, points[e, 2] - x2
+                        total = a0 * a0 + a1 * a1 + a2 * a2
+                    else:
+                        total = 0.0
+                        for j in range(d):
+                            diff = points[e, j] - x[j]
+                            total += diff * diff
+                    if total >= worst:
+                        continue
+                    p = order[e]
+                    if p == skip:
+                        continue
+                    slot = count if count < k else k - 1
+                    while slot > 0 and out_distance[slot - 1] > total:
+                        out_distance[slot] = out_distance[slot - 1]
+                        out_index[slot] = out_index[slot - 1]
+                        slot -= 1
+                    out_distance[slot] = total
+                    out_index[slot] = p
+                    if count < k:
+                        count += 1
+                    if count == k:
+                        worst = out_distance[k - 1]
+            # the next cell of the block (odometer over the clipped ranges)
+            j = d - 1
+            while j >= 0:
+                at[j] += 1
+                if at[j] <= min(high[j], dims[j] - 1):
+                    break
+                at[j] = max(low[j], 0)
+                j -= 1
+            if j < 0:
+                break
+        if covers_all:
+            break
+        # every point outside the block scanned so far is at least this far from x
+        bound = np.inf
+        for j in range(d):
+            bound = min(bound, x[j] - (origin[j] + (centre[j] - ring) * cell))
+            bound = min(bound, origin[j] + (centre[j] + ring + 1) * cell - x[j])
+        if bound > 0 and bound * bound >= worst:
+            break
+        ring += 1
+    for slot in range(count):
+        out_distance[slot] = np.sqrt(out_distance[slot])
+    return count
+
+
+@njit(**_FLAGS)
+def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
+    """:func:`_nearest_in_grid` for three coordinates: the same cells in the same order, unrolled."""
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    cx = min(max(int(np.floor((x0 - ox) / cell)), 0), nx - 1)
+    cy = min(max(int(np.floor((x1 - oy) / cell)), 0), ny - 1)
+    cz = min(max(int(np.floor((x2 - oz) / cell)), 0), nz - 1)
+    worst = s * s
+    count = 0
+    ring = 0
+    while True:
+        for ix in range(max(cx - ring, 0), min(cx + ring, nx - 1) + 1):
+            edge_x = ix == cx - ring or ix == cx + ring
+            for iy in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
+                shell = edge_x or iy == cy - ring or iy == cy + ring
+                base = (ix * ny + iy) * nz
+                # on the ring's shell every z of the block; inside it only its two z faces
+                iz = max(cz - ring, 0) if shell else cz - ring
+                step = 1 if shell or ring == 0 else 2 * ring
+                while iz <= min(cz + ring, nz - 1):
+                    if iz >= 0:
+                        c = base + iz
+                        for e in range(first[c], first[c + 1]):
+                            a0, a1, a2 = points[e, 0] - x0, points[e, 1] - x1, points[e, 2] - x2
+                            total = a0 * a0 + a1 * a1 + a2 * a2
+                            if total >= worst:
+                                continue
+                            p = order[e]
+                            if p == skip:
+                                continue
+                            slot = count if count < k else k - 1
+                            while slot > 0 and out_distance[slot - 1] > total:
+                                out_distance[slot] = out_distance[slot - 1]
+                                out_index[slot] = out_index[slot - 1]
+                                slot -= 1
+                            out_distance[slot] = total
+                            out_index[slot] = p
+                            if count < k:
+                                count += 1
+                            if count == k:
+                                worst = out_distance[k - 1]
+                    iz += step
+        if cx - ring <= 0 and cy - ring <= 0 and cz - ring <= 0:
+            if cx + ring >= nx - 1 and cy + ring >= ny - 1 and cz + ring >= nz - 1:
+                break
+        bound = min(
+            x0 - (ox + (cx - ring) * cell),
+            ox + (cx + ring + 1) * cell - x0,
+            x1 - (oy + (cy - ring) * cell),
+            oy + (cy + ring + 1) * cell - x1,
+            x2 - (oz + (cz - ring) * cell),
+            oz + (cz + ring + 1) * cell - x2,
+        )
+        if bound > 0 and bound * bound >= worst:
+            break
+        ring += 1
+    for slot in range(count):
+        out_distance[slot] = np.sqrt(out_distance[slot])
+    return count
+
+
+@njit(**_FLAGS)
+def k_s_nearest(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
+    if points.shape[1] == 3:
+        return _nearest_in_grid3(
+            x[0], x[1], x[2], points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance
+        )
+    return _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance)
+
+
+@njit(**_FLAGS)
+def k_s_neighbours(queries, points, origin, dims, cell, first, order, k, s):
+    """For each query point, its at most ``k`` nearest points within ``s`` (``points``: sorted by cell, as
+    :func:`grid_build` returns them): (indices, distances, counts); rows nearest first, padded with -1 and inf."""
+    m = queries.shape[0]
+    index = np.full((m, max(k, 1)), -1, dtype=np.int64)
+    distance = np.full((m, max(k, 1)), np.inf)
+    counts = np.zeros(m, dtype=np.int64)
+    if k == 0 or points.shape[0] == 0:
+        return index, distance, counts
+    for i in range(m):
+        counts[i] = k_s_nearest(queries[i], points, origin, dims, cell, first, order, k, s, -1, index[i], distance[i])
+    return index, distance, counts
+
+
+@njit(**_FLAGS)
+def _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, distance, counts):
+    """The K-S neighbours of every point (three coordinates), cell by cell: the points of a cell's 3 x 3 x 3
+    block are gathered once into a contiguous buffer and scanned for each point of the cell; a point whose k-th
+    nearest might lie beyond the block (or within s beyond it) is answered by :func:`k_s_nearest` instead. The
+    same answers, in rows by point index."""
+    nx, ny, nz = dims[0], dims[1], dims[2]
+    s2 = s * s
+    buffer = np.empty((points.shape[0], 3))
+    ids = np.empty(points.shape[0], dtype=np.int64)
+    best = np.empty(k)
+    for cx in range(nx):
+        for cy in range(ny):
+            for cz in range(nz):
+                c = (cx * ny + cy) * nz + cz
+                if first[c] == first[c + 1]:
+                    continue
+                size = 0
+                for ix in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+                    for iy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                        base = (ix * ny + iy) * nz
+                        for e in range(first[base + max(cz - 1, 0)], first[base + min(cz + 1, nz - 1) + 1]):
+                            buffer[size, 0], buffer[size, 1], buffer[size, 2] = points[e, 0], points[e, 1], points[e, 2]
+                            ids[size] = order[e]
+                            size += 1
+                covers_all = cx <= 1 and cy <= 1 and cz <= 1 and cx >= nx - 2 and cy >= ny - 2 and cz >= nz - 2
+                for e in range(first[c], first[c + 1]):
+                    i = order[e]
+                    x0, x1, x2 = points[e, 0], points[e, 1], points[e, 2]
+                    out = index[i]
+                    worst = s2
+                    count = 0
+                    for b in range(size):
+                        a0, a1, a2 = buffer[b, 0] - x0, buffer[b, 1] - x1, buffer[b, 2] - x2
+                        total = a0 * a0 + a1 * a1 + a2 * a2
+                        if total >= worst or ids[b] == i:
+                            continue
+                        slot = count if count < k else k - 1
+                        while slot > 0 and best[slot - 1] > total:
+                            best[slot] = best[slot - 1]
+                            out[slot] = out[slot - 1]
+                            slot -= 1
+                        best[slot] = total
+                        out[slot] = ids[b]
+                        if count < k:
+                            count += 1
+                        if count == k:
+                            worst = best[k - 1]
+                    bound = min(
+                        x0 - (origin[0] + (cx - 1) * cell),
+                        origin[0] + (cx + 2) * cell - x0,
+                        x1 - (origin[1] + (cy - 1) * cell),
+                        origin[1] + (cy + 2) * cell - x1,
+                        x2 - (origin[2] + (cz - 1) * cell),
+                        origin[2] + (cz + 2) * cell - x2,
+                    )
+                    if covers_all or (bound > 0 and bound * bound >= worst):
+                        counts[i] = count
+                        for slot in range(count):
+                            distance[i, slot] = np.sqrt(best[slot])
+                    else:  # the block may miss a nearer point: the ring search from scratch
+                        counts[i] = k_s_nearest(
+                            points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance[i]
+                        )
+
+
+@njit(**_FLAGS)
+def k_s_pairs(points, origin, dims, cell, first, order, k, s):
+    """The undirected pairs (lo, hi) of milestones where one is among the other's K-S neighbours, each once,
+    sorted by lo then hi (``points``: sorted by cell, as :func:`grid_build` returns them), and their lengths
+    (Euclidean, in the points' coordinates)."""
+    n = points.shape[0]
+    kk = max(k, 1)
+    index = np.empty((n, kk), dtype=np.int64)
+    distance = np.empty((n, kk))
+    counts = np.zeros(n, dtype=np.int64)
+    if points.shape[1] == 3 and k > 0:
+        _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, distance, counts)
+    else:
+        for e in range(n):
+            i = order[e]
+            counts[i] = k_s_nearest(points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance[i])
+    # bucket every pair by its lower index, then sort and deduplicate each bucket
+    size = np.zeros(n + 1, dtype=np.int64)
+    for i in range(n):
+        for slot in range(counts[i]):
+            size[min(i, index[i, slot]) + 1] += 1
+    for i in range(n):
+        size[i + 1] += size[i]
+    fill = size[:n].copy()
+    partner = np.empty(size[n], dtype=np.int64)
+    length = np.empty(size[n])
+    for i in range(n):
+        for slot in range(counts[i]):
+            j = index[i, slot]
+            lo, hi = min(i, j), max(i, j)
+            partner[fill[lo]] = hi
+            length[fill[lo]] = distance[i, slot]
+            fill[lo] += 1
+    pairs = np.empty((size[n], 2), dtype=np.int64)
+    lengths = np.empty(size[n])
+    total = 0
+    for lo in range(n):
+        a, b = size[lo], size[lo + 1]
+        for e in range(a + 1, b):  # insertion sort: a bucket holds about 2k entries
+            v = partner[e]
+            w = length[e]
+            f = e - 1
+            while f >= a and partner[f] > v:
+                partner[f + 1] = partner[f]
+                length[f + 1] = length[f]
+                f -= 1
+            partner[f + 1] = v
+            length[f + 1] = w
+        for e in range(a, b):
+            if e == a or partner[e] != partner[e - 1]:
+                pairs[total, 0] = lo
+                pairs[total, 1] = partner[e]
+                lengths[total] = length[e]
+                total += 1
+    return pairs[:total].copy(), lengths[:total].copy()
+
+
+@njit(**_FLAGS)
+def cover_pairs(pairs, reach, clearance, inside, safe, d_thresh):
+    """The covering-ball decisions of :func:`.roadmap.certify_roadmap_edges` for every pair: for R and for
+    R_safe, 1 certified by the end balls, 0 impossible (an end cannot keep the margin), 2 undecided; and how many
+    R edges the balls certified."""
+    count = pairs.shape[0]
+    free_state = np.empty(count, dtype=np.int8)
+    safe_state = np.zeros(count, dtype=np.int8)
+    covered = 0
+    for e in range(count):
+        i, j = pairs[e, 0], pairs[e, 1]
+        free_a, free_b = min(clearance[i], inside[i]), min(clearance[j], inside[j])
+        if free_a > 0 and free_b > 0:
+            if free_a + free_b > reach[e]:
+                free_state[e] = 1
+                covered += 1
+            else:
+                free_state[e] = 2
+        else:
+            free_state[e] = 0
+        if d_thresh > 0 and safe[i] and safe[j]:
+            safe_a, safe_b = min(clearance[i] - d_thresh, inside[i]), min(clearance[j] - d_thresh, inside[j])
+            if safe_a >= 0 and safe_b >= 0:
+                safe_state[e] = 1 if safe_a + safe_b > reach[e] else 2
+    return free_state, safe_state, covered
+
+
+@njit(**_FLAGS)
+def csr_rows(n, edges, cost, mask, floor):
+    """Both directions of ``edges[mask]`` as CSR (indptr, indices, data): row i lists, in edge order, first the
+    edges (i, j), then the edges (j, i); costs at least ``floor`` (scipy's graph routines drop explicit zeros)."""
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    for e in range(edges.shape[0]):
+        if mask[e]:
+            indptr[edges[e, 0] + 1] += 1
+            indptr[edges[e, 1] + 1] += 1
+    for i in range(n):
+        indptr[i + 1] += indptr[i]
+    fill = indptr[:n].copy()
+    indices = np.empty(indptr[n], dtype=np.int32)
+    data = np.empty(indptr[n])
+    for side in range(2):
+        for e in range(edges.shape[0]):
+            if mask[e]:
+                row, col = edges[e, side], edges[e, 1 - side]
+                indices[fill[row]] = col
+                data[fill[row]] = max(cost[e], floor)
+                fill[row] += 1
+    return indptr.astype(np.int32), indices, data
+
+
+@njit(**_FLAGS)
+def _root(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(**_FLAGS)
+def component_labels(n, edges, mask):
+    """The connected component of every node over ``edges[mask]``: labels 0, 1, ... in order of first node."""
+    parent = np.arange(n)
+    for e in range(edges.shape[0]):
+        if mask[e]:
+            a, b = _root(parent, edges[e, 0]), _root(parent, edges[e, 1])
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    labels = np.empty(n, dtype=np.int64)
+    count = 0
+    for i in range(n):
+        r = _root(parent, i)
+        if r == i:
+            labels[i] = count
+            count += 1
+        else:
+            labels[i] = labels[r]
+    return labels, count
+
+
+def grid_cell(points: np.ndarray, s: float) -> float:
+    """The cell side for :func:`grid_build`: about eight points a cell (the 15 nearest of a point then lie in its
+    block of 27 cells, mostly), and at least s / 8 (bounded work a ring)."""
+    if len(points) == 0:
+        return max(s, 1e-9)
+    extent = np.ptp(points, axis=0)
+    extent = extent[extent > 0]
+    if not extent.size:
+        return max(s, 1e-9)
+    spacing = float(np.prod(extent) / len(points)) ** (1.0 / len(extent))
+    return max(2.0 * spacing, s / 8.0, 1e-12)
+
+
+def _compile() -> None:
+    """Load (or compile) every kernel for the types the roadmap passes."""
+    points = np.zeros((2, 3))
+    points[1] = 1.0
+    origin, dims, first, order, ordered = grid_build(points, 1.0)
+    k_s_neighbours(points, ordered, origin, dims, 1.0, first, order, 2, 2.0)
+    pairs, lengths = k_s_pairs(ordered, origin, dims, 1.0, first, order, 2, 2.0)
+    mask = np.ones(len(pairs), dtype=np.bool_)
+    cover_pairs(pairs, lengths, np.ones(2), np.ones(2), mask[:1].repeat(2), 0.5)
+    csr_rows(2, pairs, np.ones(len(pairs)), mask, 1e-15)
+    component_labels(2, pairs, mask)
+
+
+_compile()
