@@ -28,6 +28,36 @@ from common import RESULTS, save
 PIPELINE = Path(__file__).resolve().parent / "plannerarena" / "hand_eye.yaml"
 
 
+def write_arena(name: str, planners: dict[str, list[dict]], properties: dict | None = None) -> tuple[Path, Path]:
+    """Runs another benchmark measured, in OMPL's log and Planner Arena's database (``results/plannerarena/``).
+
+    ``planners`` maps a planner's name to its runs, each a record with ``build_s`` and optionally
+    ``query_ms``, ``solved``, ``length_m``, ``min_clearance_m``, ``edges`` (what bench_safe_prm measures).
+    """
+    from surgiplan.plannerarena import Experiment, PlannerRuns, write_database, write_log
+
+    def run(record: dict) -> dict:
+        query = record.get("query_ms")
+        out = {
+            "time REAL": record["build_s"] + (query or 0.0) / 1e3,
+            "build time REAL": record["build_s"],
+            "query time REAL": None if query is None else query / 1e3,
+            "solved BOOLEAN": record.get("solved"),
+            "solution length REAL": record.get("length_m"),
+            "solution clearance REAL": record.get("min_clearance_m"),
+            "graph motions INTEGER": record.get("edges"),
+        }
+        return {key: value for key, value in out.items() if value is not None}
+
+    runs = [PlannerRuns(planner, runs=[run(r) for r in records]) for planner, records in planners.items()]
+    experiment = Experiment(name, runs, dict(properties or {}), runs=max(len(p.runs) for p in runs))
+    out = RESULTS / "plannerarena"
+    log = write_log(out / f"{name}.log", experiment)
+    database = out / f"{name}.db"
+    database.unlink(missing_ok=True)  # OMPL's parser appends to an existing database
+    return log, write_database(database, [log])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=10)

@@ -390,6 +390,7 @@ def main() -> None:
     ou.RNG.setSeed(1)  # once per process; later builds continue the stream, so every run differs
     rows = []
     strongest_by_size = {}
+    arena = {}  # per size, every measured run, for Planner Arena
     for milestones in sizes:
         ours = {level: [] for level in MARGINS}
         theirs = {config: [] for config in OMPL_CONFIGS}
@@ -408,6 +409,9 @@ def main() -> None:
             for level, margin in MARGINS.items():
                 answered[level].append(run_ompl(scene, space, milestones, margin, strongest))
         n_seeds = len(seeds)
+        arena[milestones] = {f"safe_prm ({level})": ours[level] for level in MARGINS}
+        arena[milestones] |= {f"OMPL PRM ({c})": theirs[c] for c in OMPL_CONFIGS if c != strongest}
+        arena[milestones][f"OMPL PRM ({strongest})"] = answered["expert"]  # its own build, and the query
         # R + R_safe: the intermediate and beginner builds (the expert's R_safe is R)
         ours_build = med(ours["intermediate"] + ours["beginner"], "build_s")
         ours_query = med(ours["intermediate"] + ours["beginner"], "query_ms")
@@ -522,6 +526,11 @@ def main() -> None:
         }
     }
     print(f"\nwritten: {save('safe_prm_vs_ompl', rows, notes, peers=peers)}")
+    from bench_plannerarena import write_arena
+
+    for milestones, planners in arena.items():  # the same runs, for Planner Arena
+        log, database = write_arena(f"safe_prm-block-world-{milestones}", planners, {"milestones INTEGER": milestones})
+        print(f"written: {log}, {database}")
 
 
 if __name__ == "__main__":
