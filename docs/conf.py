@@ -13,12 +13,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent / "_ext"))
 
-import surgiplan  # noqa: E402
-from surgiplan_docs import known_gaps  # noqa: E402
+import surgiplan
+from surgiplan_docs import known_gaps
 
 project = "surgiplan"
 author = "the surgiplan developers"
-copyright = "the surgiplan developers, BSD-3-Clause"  # noqa: A001
+copyright = "the surgiplan developers, BSD-3-Clause"
 release = surgiplan.__version__
 version = ".".join(release.split(".")[:2])
 

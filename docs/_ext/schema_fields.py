@@ -193,12 +193,14 @@ def rows(model: type[BaseModel], prefix: str = "", seen: frozenset = frozenset()
         key = prefix + (field.alias or name)
         kind, unit = type_text(field.annotation, field.metadata)
         nested = [(s, m) for s, m in _models_in(field.annotation) if m not in seen]
-        if nested and all(not s for s, _ in nested) and len(nested) == 1 and kind.startswith("mapping"):
-            kind = "mapping" + (" | none" if "none" in kind else "")
         description = " ".join(p for p in (field.description or "", comments.get(name, "")) if p)
         out.append(Row(key, kind, _default_text(field, unit), unit, description))
         for suffix, sub in nested:
-            out.extend(rows(sub, f"{key}{suffix}.", seen | {model, sub}))
+            sub_rows = rows(sub, f"{key}{suffix}.", seen | {model, sub})
+            if len(nested) > 1:  # one of several forms: say which each key belongs to
+                form = f"(the {sub.__name__} form)"
+                sub_rows = [Row(r.key, r.type, r.default, r.unit, f"{form} {r.description}".strip()) for r in sub_rows]
+            out.extend(sub_rows)
     return out
 
 

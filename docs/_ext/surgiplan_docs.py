@@ -45,7 +45,7 @@ def _literal(text: str) -> str:
 
 def table(model, prefix: str = "") -> list[str]:
     """A ``list-table`` of every key of ``model`` (nested keys flattened)."""
-    lines = [".. list-table::", "   :header-rows: 1", "   :widths: 22 18 12 10 38", ""]
+    lines = [".. list-table::", "   :header-rows: 1", "   :width: 100%", "   :widths: 24 20 14 10 32", ""]
     lines += ["   * - key", "     - type", "     - default", "     - unit", "     - description"]
     for row in rows(model, prefix):
         lines += [f"   * - {_literal(row.key)}", f"     - {escape(row.type)}", f"     - {_literal(row.default)}"]
@@ -88,7 +88,8 @@ def schema_lines() -> list[str]:
             if plugin.cls is not None:
                 model = plugin.cls.Settings
                 summary = model_summary(model)
-                out += [f"``{model.__module__}.{model.__qualname__}``" + (f": {escape(summary)}" if summary else ""), ""]
+                name = f"``{model.__module__}.{model.__qualname__}``"
+                out += [name + (f": {escape(summary)}" if summary else ""), ""]
                 out += table(model) if model.model_fields else ["No settings.", ""]
     return out
 
@@ -112,10 +113,10 @@ class ExportsDirective(SphinxDirective):
         lines = [".. list-table::", "   :header-rows: 1", "   :widths: 30 70", "", "   * - name", "     - summary"]
         for name in sorted(surgiplan.__all__, key=str.lower):
             obj = getattr(surgiplan, name)
-            module = getattr(obj, "__module__", None) or "surgiplan"
-            if not hasattr(obj, "__qualname__"):  # a type alias: documented as module data
-                module = _alias_module(name)
-            target = f"{module}.{getattr(obj, '__qualname__', name)}"
+            if inspect.isclass(obj) or inspect.isfunction(obj):
+                target = f"{obj.__module__}.{obj.__qualname__}"
+            else:  # a type alias or an instance (hookimpl): documented as the data of the module that defines it
+                target = f"{_data_module(name, obj)}.{name}"
             role = "class" if inspect.isclass(obj) else "func" if callable(obj) and inspect.isfunction(obj) else "obj"
             doc = inspect.getdoc(obj) if inspect.isclass(obj) or inspect.isfunction(obj) else ""
             summary = (doc or "").split("\n\n")[0].replace("\n", " ")
@@ -125,11 +126,11 @@ class ExportsDirective(SphinxDirective):
         return container.children
 
 
-def _alias_module(name: str) -> str:
-    for module in ("surgiplan.units", "surgiplan.status"):
-        if name in vars(importlib.import_module(module)):
+def _data_module(name: str, obj) -> str:
+    for module in ("surgiplan.units", "surgiplan.hookspecs", "surgiplan.models", "surgiplan.status"):
+        if vars(importlib.import_module(module)).get(name) is obj:
             return module
-    return "surgiplan"
+    raise ValueError(f"surgiplan.{name}: no API page documents it; add its module to surgiplan-exports")
 
 
 def _skip_foreign(app, what, name, obj, skip, options):
