@@ -359,3 +359,15 @@ def test_offboard_flight_in_lockstep_survives_a_lossy_link():
     where it is again every 0.1 s of wall clock, so the flight goes on (it used to wait for ever)."""
     _, log, _ = _offboard_flight(stall=0.0, packet_loss=0.2)
     assert log.status == "completed"
+
+
+def test_a_simulated_vehicle_that_does_not_start_is_a_connect_error_with_what_it_said(monkeypatch):
+    """The process exits at once: the error says so with its last words on stderr, and nothing is left open."""
+    from surgiplan.plugins.devices.mavlink import local_simulator
+
+    # /bin/sh cannot run the simulator module: it exits, saying why on stderr
+    monkeypatch.setattr(local_simulator, "sys", SimpleNamespace(executable="/bin/sh"))
+    simulator = local_simulator.LocalSimulator(SimSettings(), "subprocess", timeout=10)
+    with pytest.raises(VehicleError, match=r"connect: the simulated vehicle did not start \((?!no output).+\)"):
+        simulator.start()
+    assert simulator.process is None and simulator._stderr is None

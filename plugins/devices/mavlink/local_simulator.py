@@ -63,9 +63,9 @@ class LocalSimulator:
         )
         line = self._first_line(self.timeout)
         if line is None or " on udpin:" not in line:
+            self._stderr.seek(0)  # what it said, read before stop() closes the file
+            detail = self._stderr.read().strip().splitlines()[-3:]
             self.stop()
-            self._stderr.seek(0)
-            detail = self._stderr.read().strip().splitlines()[-3:] if self._stderr else []
             raise VehicleError(
                 f"the simulated vehicle did not start ({' / '.join(detail) or 'no output'})", step="connect"
             )
