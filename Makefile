@@ -1,6 +1,7 @@
 # Two set-up commands on a fresh machine (Python 3.11):
 #   make run    install and run the main job
 #   make test   install with the test extras, lint, run the test suite (what CI runs)
+#   make docs   build the documentation site (warnings are errors) and serve it on http://127.0.0.1:8000
 
 PYTHON ?= python3
 VENV ?= .venv
@@ -11,7 +12,7 @@ MAIN_JOB ?= configs/block_world_proficiency.yaml
 # builds the wheel and checks that setuptools warns of nothing)
 PIP_QUIET := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet
 
-.PHONY: run test lint bench clean browser
+.PHONY: run test lint bench clean browser docs
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -22,7 +23,7 @@ $(VENV)/.run-deps: pyproject.toml | $(BIN)/python
 	touch $@
 
 $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(BIN)/python
-	$(PIP_QUIET) -e '.[dev,dask,ompl,browser,pardiso,interop,mcap]' -e examples/surgiplan-hello
+	$(PIP_QUIET) -e '.[dev,dask,ompl,browser,pardiso,interop,mcap,docs]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
 
 # The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client
@@ -45,6 +46,14 @@ lint: $(VENV)/.test-deps
 
 test: lint browser
 	$(BIN)/python -m pytest -q
+
+# the site: Sphinx with warnings as errors (-W: a broken link, an unresolved reference, an undocumented public
+# name), then served on 127.0.0.1 only (Ctrl-C stops); DOCS_PORT picks the port
+DOCS_PORT ?= 8000
+docs: $(VENV)/.test-deps
+	$(BIN)/sphinx-build -q -b html -W --keep-going docs build/docs
+	@echo "serving build/docs on http://127.0.0.1:$(DOCS_PORT)/ (Ctrl-C stops)"
+	$(BIN)/python -m http.server --bind 127.0.0.1 --directory build/docs $(DOCS_PORT)
 
 bench: $(VENV)/.test-deps
 	$(BIN)/python benchmarks/run_all.py

@@ -5,23 +5,23 @@ these values. Plugins return the first four kinds; the framework sets the
 last one when it must speak for a plugin. A stage kind registered by a third
 party (:mod:`surgiplan.kinds`) declares its own statuses the same way.
 
-=====================  ==============================================================  ==========
-enum                   values                                                          succeeded
-=====================  ==============================================================  ==========
-:class:`PlanStatus`    ``solved``; ``no_path``, ``invalid_start``, ``invalid_goal``,   ``solved``
-                       ``timeout``
-:class:`SimulateStatus` ``converged``, ``completed``; ``failed``                       the first two
-:class:`ExecuteStatus` ``completed``; ``stopped`` (a fault, a failsafe: the reason is   ``completed``
-                       in the message), ``refused`` (before any motion)
-:class:`GuideStatus`   ``completed`` (the goal reached); ``incomplete``, ``stopped``   ``completed``
-:class:`RunStatus`     ``invalid_result`` (the framework refused a plugin's answer:     never
-                       a colliding or malformed path, an unknown status),
-                       ``unsafe`` (a device's executed motion, re-measured, touched
-                       an obstacle or came inside the device's safety margin),
-                       ``error`` (the plugin raised), ``skipped`` (the stage it
-                       depends on gave it nothing to work on), ``not_run`` (an
-                       earlier stage ended the run), ``interrupted``
-=====================  ==============================================================  ==========
+======================= ================================================================  ==========
+enum                    values                                                            succeeded
+======================= ================================================================  ==========
+:class:`PlanStatus`     ``solved``; ``no_path``, ``invalid_start``, ``invalid_goal``,     ``solved``
+                        ``timeout``
+:class:`SimulateStatus` ``converged``, ``completed``; ``failed``                          the first two
+:class:`ExecuteStatus`  ``completed``; ``stopped`` (a fault, a failsafe: the reason is    ``completed``
+                        in the message), ``refused`` (before any motion)
+:class:`GuideStatus`    ``completed`` (the goal reached); ``incomplete``, ``stopped``     ``completed``
+:class:`RunStatus`      ``invalid_result`` (the framework refused a plugin's answer:      never
+                        a colliding or malformed path, an unknown status),
+                        ``unsafe`` (a device's executed motion, re-measured, touched
+                        an obstacle or came inside the device's safety margin),
+                        ``error`` (the plugin raised), ``skipped`` (the stage it
+                        depends on gave it nothing to work on), ``not_run`` (an
+                        earlier stage ended the run), ``interrupted``
+======================= ================================================================  ==========
 
 A device's :class:`~surgiplan.devices.ExecutionReport` must carry an
 :class:`ExecuteStatus` value; anything else (``"done"``) makes the stage

@@ -200,7 +200,7 @@ def test_no_generic_top_level_import_names_are_installed():
 
 # ----------------------------------------------------------------------------- smaller rooms, one of each thing
 
-PYTHON_TREES = ("framework", "plugins", "benchmarks", "tests", "examples")
+PYTHON_TREES = ("framework", "plugins", "benchmarks", "tests", "examples", "docs")
 
 
 def _python_files():
