@@ -19,7 +19,7 @@ against coal in the tests) and from coal for meshes. A broad phase on
 bounding spheres skips obstacles that cannot be the nearest one, so the
 result stays exact while far obstacles cost almost nothing. A scene of
 primitives only answers each batch in one compiled call
-(:mod:`surgiplan.geometry.compiled`); with a mesh, the vectorised groups.
+(``surgiplan.geometry.compiled``); with a mesh, the vectorised groups.
 """
 
 from __future__ import annotations

@@ -13,12 +13,12 @@ that loop:
 * :mod:`.record` — :class:`TraineeRecord`, the SQLite record of attempts per
   trainee and task, and proficiency from it;
 * :mod:`.trainee` — a synthetic trainee (seeded, documented parameters);
-* the skill assessment (``docs/assessment.md``): :mod:`.metrics` (the metrics
-  and the score), :mod:`.benchmark` (a task's thresholds and the proficiency
-  gate), :mod:`.cusum`, :mod:`.validity` (construct validity), :mod:`.cohort`
-  and :mod:`.assessment_figures` (learning curves), :mod:`.ghost` (the expert
-  ghost), :mod:`.assessment` (an attempt into the record, a trainee's
-  standing), :mod:`.schema` (the record's schema and migrations).
+* the skill assessment (``docs/assessment.md``): ``metrics`` (the metrics
+  and the score), ``benchmark`` (a task's thresholds and the proficiency
+  gate), ``cusum``, ``validity`` (construct validity), ``cohort``
+  and ``assessment_figures`` (learning curves), ``ghost`` (the expert
+  ghost), ``assessment`` (an attempt into the record, a trainee's
+  standing), ``schema`` (the record's schema and migrations).
 """
 
 from __future__ import annotations

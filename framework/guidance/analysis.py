@@ -333,7 +333,7 @@ class Guide:
         return min(1.0, self.measurements[-1].progress / self.length) if self.length > 0 else 0.0
 
     def metrics(self) -> dict[str, Any]:
-        """The attempt report's numbers (SI): the skill metrics and score (:func:`.metrics.assess`), the
+        """The attempt report's numbers (SI): the skill metrics and score (``surgiplan.guidance.metrics.assess``), the
         deviation and clearance extremes, the events and the per-sample timing."""
         ms = self.measurements
         if not ms:

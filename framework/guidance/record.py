@@ -129,7 +129,7 @@ class TraineeRecord:
         source: str = "",
         output_dir: str = "",
     ) -> int:
-        """Store one attempt, its samples and its metrics (those of :data:`~.metrics.METRICS` it has) in one
+        """Store one attempt, its samples and its metrics (those of ``surgiplan.guidance.METRICS`` it has) in one
         transaction; returns its id. ``level`` (when given) becomes the trainee's level."""
         n = len(samples.t)
         with self.db:  # one transaction: all of the attempt or none of it
@@ -238,6 +238,7 @@ class TraineeRecord:
         return [r[0] for r in rows]
 
     def all_tasks(self) -> list[str]:
+        """Every task with an attempt in the record, sorted."""
         return [r[0] for r in self.db.execute("SELECT DISTINCT task FROM attempts ORDER BY task")]
 
     def levels(self) -> dict[str, str | None]:
@@ -312,6 +313,7 @@ class TraineeRecord:
         return out
 
     def attempt(self, attempt_id: int) -> dict[str, Any] | None:
+        """One attempt's row (with its trainee's name), or None when there is no such attempt."""
         cursor = self.db.execute(
             "SELECT attempts.*, trainees.name AS trainee FROM attempts JOIN trainees ON trainees.id = trainee_id "
             "WHERE attempts.id = ?",
