@@ -41,7 +41,9 @@ def free_port() -> int:
 
 
 @contextlib.contextmanager
-def drives_process(device: str = "cast_gimbal", initial=None, node_ids=None, start_timeout: float = 120.0):
+def drives_process(
+    device: str = "cast_gimbal", initial=None, node_ids=None, start_timeout: float = 120.0, sync_timeout=None
+):
     """``surgiplan-sim-drives`` in a process of its own, hosting the loopback hub; yields the channel (port)."""
     port = free_port()
     command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim.process", "--device", device]
@@ -50,6 +52,8 @@ def drives_process(device: str = "cast_gimbal", initial=None, node_ids=None, sta
         command += ["--initial", *map(str, initial)]
     if node_ids is not None:
         command += ["--node-ids", *map(str, node_ids)]
+    if sync_timeout is not None:  # the drives' SYNC watchdog (s): lenient where a loaded machine delays SYNCs
+        command += ["--sync-timeout", str(sync_timeout)]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         ready, _, _ = select.select([process.stdout], [], [], start_timeout)

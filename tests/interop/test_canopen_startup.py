@@ -37,6 +37,7 @@ LENIENT = {
     "following_error_window": [0.1, 0.1, 0.01, 0.1],
     "following_error_timeout": 0.1,
     "settle_time": 1.0,
+    "sdo_timeout": 1.0,
 }
 
 
@@ -44,7 +45,7 @@ def test_the_standard_start_up_configures_drives_a_previous_master_left_in_any_s
     space = gimbal_space(block_world)
     path = gimbal_path(space, GAP_TIPS)
     log = tmp_path / "start-up.blf"
-    with drives_process("cast_gimbal", initial=path[0]) as port:
+    with drives_process("cast_gimbal", initial=path[0], sync_timeout=1.0) as port:
         with master(port) as network:  # the previous master
             nodes = [node402(network, i + 1, joint) for i, joint in enumerate(["yaw", "pitch", "insertion", "roll"])]
             node1, node2, node3 = nodes[:3]
