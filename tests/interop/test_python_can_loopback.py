@@ -6,6 +6,8 @@ can.player`` round trips through ``.log``, ``.asc`` and ``.blf`` files."""
 
 from __future__ import annotations
 
+import os
+import select
 import signal
 import subprocess
 import sys
@@ -185,9 +187,35 @@ def _same_frame(got: can.Message, sent: can.Message, remote_dlc: bool = True) ->
 
 
 def _run_module(module: str, *args: str) -> subprocess.Popen:
+    # -u: its lines reach us as printed; -X faulthandler: a process that does not end in time is asked
+    # (SIGABRT) where it is stuck
     return subprocess.Popen(
-        [sys.executable, "-m", module, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        [sys.executable, "-u", "-X", "faulthandler", "-m", module, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
+
+
+def _started(process: subprocess.Popen, marker: str, timeout: float = 60.0) -> str:
+    """What ``process`` printed up to the line with ``marker`` (bounded in time); "" if it never came."""
+    seen = ""
+    deadline = time.monotonic() + timeout
+    while marker not in seen and time.monotonic() < deadline and process.poll() is None:
+        ready, _, _ = select.select([process.stdout], [], [], 0.1)
+        if ready:  # from the descriptor: the file object's buffer would hide lines from select
+            seen += os.read(process.stdout.fileno(), 4096).decode()
+    return seen
+
+
+def _ended(process: subprocess.Popen, timeout: float) -> tuple[str, str]:
+    """Its output once it ends; if it does not within ``timeout`` s, where it is stuck (faulthandler's dump)."""
+    try:
+        return process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.send_signal(signal.SIGABRT)
+        _, err = process.communicate(timeout=30)
+        raise AssertionError(f"{process.args} did not end within {timeout:g} s of SIGINT; its stacks:\n{err}") from None
 
 
 SUFFIXES = (".log", ".asc", ".blf")
@@ -203,6 +231,9 @@ def test_can_logger_writes_what_can_logreader_and_can_player_read_back(tmp_path)
             s: _run_module("can.logger", "-i", "loopback", "-c", str(port), "-f", str(paths[s])) for s in SUFFIXES
         }
         try:
+            # each logger has connected, made its file and is about to receive (it says so)
+            started = {s: _started(logger, "Can Logger (Started") for s, logger in loggers.items()}
+            assert all("Can Logger (Started" in text for text in started.values()), started
             deadline = time.monotonic() + 60
             while len(host._hub.peers) < len(loggers) and time.monotonic() < deadline:
                 if any(logger.poll() is not None for logger in loggers.values()):
@@ -219,9 +250,10 @@ def test_can_logger_writes_what_can_logreader_and_can_player_read_back(tmp_path)
         finally:
             for logger in loggers.values():
                 logger.send_signal(signal.SIGINT)
-            outputs = {s: logger.communicate(timeout=60) for s, logger in loggers.items()}
+            outputs = {s: _ended(logger, 60) for s, logger in loggers.items()}
     for suffix, logger in loggers.items():
         out, err = outputs[suffix]
+        out = started[suffix] + out
         assert logger.returncode == 0, out + err
         assert f"Connected to LoopbackBus: loopback CAN 127.0.0.1:{port}" in out
 
