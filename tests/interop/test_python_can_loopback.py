@@ -187,10 +187,18 @@ def _same_frame(got: can.Message, sent: can.Message, remote_dlc: bool = True) ->
 
 
 def _run_module(module: str, *args: str) -> subprocess.Popen:
-    # -u: its lines reach us as printed; -X faulthandler: a process that does not end in time is asked
-    # (SIGABRT) where it is stuck
+    """``python -m module args`` with Ctrl-C (SIGINT) raising KeyboardInterrupt, as in a terminal.
+
+    A process started in the background by a non-interactive shell (``cmd &``, as CI runners may) inherits SIGINT
+    ignored, and Python then installs no handler: can.logger would never see the Ctrl-C it stops on. -u: its lines
+    reach us as printed; -X faulthandler: a process that does not end in time is asked (SIGABRT) where it is stuck.
+    """
+    code = (
+        "import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        f"sys.argv[0] = {module!r}; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"
+    )
     return subprocess.Popen(
-        [sys.executable, "-u", "-X", "faulthandler", "-m", module, *args],
+        [sys.executable, "-u", "-X", "faulthandler", "-c", code, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
