@@ -129,20 +129,15 @@ def red_pixels(pixels: np.ndarray) -> int:
     return int(np.count_nonzero((p[..., 0] > 150) & (p[..., 1] < 90) & (p[..., 2] < 90)))
 
 
-def start_live_view(exit_after: float = 120.0):
-    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL)."""
+def start_view(args: list[str], exit_after: float = 120.0, env=None):
+    """``surgiplan view ARGS --no-browser`` (it exits after ``exit_after`` s): (the process, the URL it prints)."""
     import re
     import subprocess
     import sys
     import time
 
-    command = [sys.executable, "-m", "surgiplan.cli", "view", "--live", "--port", "0", "--no-browser"]
-    process = subprocess.Popen(
-        [*command, "--exit-after", str(exit_after)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    command = [sys.executable, "-m", "surgiplan.cli", "view", *args, "--no-browser", "--exit-after", str(exit_after)]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         line = process.stdout.readline()
@@ -152,4 +147,9 @@ def start_live_view(exit_after: float = 120.0):
         if not line and process.poll() is not None:
             break
     process.kill()
-    raise RuntimeError(f"surgiplan view --live did not start: {process.stderr.read()}")
+    raise AssertionError(f"surgiplan view {' '.join(args)} did not start: {process.stderr.read()}")
+
+
+def start_live_view(exit_after: float = 120.0):
+    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL)."""
+    return start_view(["--live", "--port", "0"], exit_after)

@@ -10,7 +10,6 @@ from __future__ import annotations
 import itertools
 import json
 import os
-import re
 import subprocess
 import sys
 import time
@@ -19,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from browser_support import Browser, canvas_pixels, drawn_fraction, offsite, red_pixels, wait_for
+from browser_support import Browser, canvas_pixels, drawn_fraction, offsite, red_pixels, start_view, wait_for
 from conftest import CONFIGS
 from surgiplan import registry
 
@@ -324,23 +323,7 @@ def test_the_tissue_mesh_is_coloured_by_stress_over_the_sequence(browser, flap_r
 
 def _start(args: list[str], env=None) -> tuple[subprocess.Popen, str]:
     """Start a `surgiplan view` process; its URL (the first http:// line it prints)."""
-    process = subprocess.Popen(
-        [*SURGIPLAN, "view", *args, "--no-browser", "--exit-after", "120"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        line = process.stdout.readline()
-        match = re.search(r"(http://127\.0\.0\.1:\d+/\S*)", line)
-        if match:
-            return process, match.group(1)
-        if not line and process.poll() is not None:
-            break
-    process.kill()
-    raise AssertionError(f"surgiplan view did not start: {process.stderr.read()}")
+    return start_view(args, env=env)
 
 
 def test_view_serves_the_report_on_loopback(browser, main_job):
