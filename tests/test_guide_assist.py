@@ -385,43 +385,49 @@ def test_an_old_sample_ends_the_assistance(tmp_path, planned):
 @pytest.mark.parametrize(
     "settings, key, message",
     [
-        ({"assist": {"stiffness": -5}}, "stiffness", "greater than or equal to 0"),
-        ({"assist": {"torque_cap": 3500}}, "settings", "above the drives' peak torque 3000"),
+        ({"assist": {"stiffness": -5}}, "pipeline[1].settings.assist.stiffness", "greater than or equal to 0"),
+        ({"assist": {"torque_cap": 3500}}, "pipeline[1].settings", "above the drives' peak torque 3000"),
+        ({"assist": {"max_sample_age": 0.001}}, "pipeline[1].settings", "shorter than one SYNC period"),
     ],
 )
 def test_bad_assist_settings_are_refused_at_validation_with_file_line_and_key(tmp_path, cli, settings, key, message):
     path = assist_pipeline(tmp_path, settings)
-    result = cli("validate", str(path))
-    assert result.exit_code != 0
-    assert "assist.yaml" in result.output and "line" in result.output and key in result.output
-    assert message in result.output
-    assert "Traceback" not in result.output
+    code, out, err = cli("validate", path)
+    assert code == 2, out + err
+    assert "assist.yaml" in err and key in err and message in err, err
+    assert "line" in err and "Traceback" not in err
 
 
 def test_assist_on_a_plan_without_a_path_is_refused_at_validation(tmp_path, cli):
-    path = assist_pipeline(tmp_path)
-    data = yaml.safe_load(path.read_text())
-    data["pipeline"][0]["plugin"] = "retraction"
+    """A retraction plan (no goal: the planner chooses where its motion ends) recommends no path to pull toward."""
+    data = yaml.safe_load((CONFIGS / "retraction_incision.yaml").read_text())
+    guide = yaml.safe_load(assist_pipeline(tmp_path).read_text())["pipeline"][1]
+    guide["path_from"] = data["pipeline"][0]["name"]
+    guide["settings"]["fulcrum"] = {"xyz": [50, 25, 80], "rpy": [0, "90 deg", 0]}
+    data["pipeline"] = [data["pipeline"][0], guide]
+    data["pipeline"][0].pop("artifact", None)
+    path = tmp_path / "assist.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    result = cli("validate", str(path))
-    assert result.exit_code != 0
-    assert "Traceback" not in result.output
+    code, out, err = cli("validate", path)
+    assert code == 2, out + err
+    assert "has no goal: no recommended path" in err and "pipeline[1].settings.mode" in err, err
+    assert "assist.yaml:" in err and "Traceback" not in err
 
 
 def test_the_attempt_record_keeps_the_assistance_level_from_the_trainees_proficiency(tmp_path, cli):
     from surgiplan.guidance.record import TraineeRecord
 
     path = assist_pipeline(tmp_path, trainee={"name": "bea", "task": "gimbal"})
-    result = cli("run", str(path))
-    assert result.exit_code == 0, result.output
+    code, out, err = cli("run", path)
+    assert code == 0, out + err
     with TraineeRecord(tmp_path / "record.sqlite") as record:
         first = record.attempts("bea", "gimbal")[0]["id"]
-        deviation = record.samples(first)["deviation_m"]
+        deviation = record.samples(first)["deviation"]
         proficiency = record.proficiency("bea", "gimbal", last=5).d_thresh
     # the proficiency is the 95th percentile of the recorded deviations (computed here from the samples)
     assert proficiency == pytest.approx(float(np.percentile(deviation, 95)), rel=1e-9)
-    result = cli("run", str(path))
-    assert result.exit_code == 0, result.output
+    code, out, err = cli("run", path)
+    assert code == 0, out + err
     with TraineeRecord(tmp_path / "record.sqlite") as record:
         levels = [
             json.loads(record.db.execute("SELECT assessment FROM attempts WHERE id = ?", (a["id"],)).fetchone()[0])

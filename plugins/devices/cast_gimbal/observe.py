@@ -127,14 +127,20 @@ class CastGimbalObserver(PoseSource):
 
     @classmethod
     def check_plan(cls, settings: CastGimbalObserveSettings, plan) -> tuple[str, tuple[str, ...]] | None:
-        """Mode assist needs a recommended path: refuse a plan stage without a goal (it gives no path)."""
-        if settings.mode == "assist" and getattr(plan, "goal", 0) is None:
-            return (
-                f"mode assist pulls toward the recommended path, and plan stage '{plan.name}' has no goal, so no "
-                "path: give it a goal, or use mode observe",
-                ("mode",),
-            )
-        return None
+        """Mode assist pulls toward a recommended path of the gimbal's tip: refuse a plan stage without a goal (no
+        path to a target) or planning in a space whose path is not the tip's (neither cast_gimbal nor r3)."""
+        if settings.mode != "assist":
+            return None
+        space = getattr(getattr(plan, "space", None), "kind", None)
+        if getattr(plan, "goal", 0) is None:
+            why = "has no goal: no recommended path to a target to pull toward"
+        elif space not in (None, "cast_gimbal", "r3"):
+            why = f"plans in {space}: its path is not one of the gimbal's tip (plan in cast_gimbal or r3)"
+        else:
+            return None
+        return f"mode assist needs a recommended path, and plan stage '{plan.name}' {why}; or use mode observe", (
+            "mode",
+        )
 
     # ------------------------------------------------------------------ opening
     def open(self, context) -> None:
