@@ -377,6 +377,11 @@ class DriveSimulator(
             self.hand_stiffness = np.zeros(n) if stiffness is None else np.broadcast_to(stiffness, (n,)).astype(float)
             self.hand_damping = np.zeros(n) if damping is None else np.broadcast_to(damping, (n,)).astype(float)
 
+    def torque(self, i: int) -> int:
+        """Torque actual value 0x6077 of axis ``i`` (thousandths of the rated torque): the torque its drive applies
+        in cyclic synchronous torque (within 0x6072), 0 with the power stage off or in another mode."""
+        return round(self.torque_actual[i]) if self.state[i] == OE and self.mode[i] == cia402.CST else 0
+
     def positions(self) -> np.ndarray:
         """True joint positions (units): the simulation's ground truth, for tests."""
         return self.pos.copy()

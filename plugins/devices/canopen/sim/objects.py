@@ -55,7 +55,7 @@ class ObjectDictionary:
         if index == 0x60F4:
             return round((self.reference.at(self.t)[0][i] - self.pos[i]) * self.cpu[i])
         if index == 0x6077:
-            return round(self.torque_actual[i])
+            return self.torque(i)
         if index == 0x603F:
             return next(iter(reversed(self.errors[i])), 0)
         if index == 0x1001:
