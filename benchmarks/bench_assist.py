@@ -10,7 +10,8 @@ assistance (``fade: none``). Seeds 0 .. N-1, each seed the same intended motion 
 
 Then the loop's timing: the fixture's computation per cycle (median, p99, over every cycle of the "on" arm) and,
 in the simulated bus's real-time mode (``clock: realtime``: the drives in a thread of their own on the virtual
-bus), one attempt at 500 Hz (the paired comparison runs the simulated clock at 250 Hz): the cycle rate the loop held and the SYNCs it missed (target: 500 Hz, 0 missed).
+bus), one attempt at 500 Hz (the paired comparison runs the simulated clock at 250 Hz): the cycle rate the loop
+held and the SYNCs it missed (target: 500 Hz, 0 missed).
 
     python benchmarks/bench_assist.py [--seeds 20] [--quick]    (--quick: 3 seeds, writes nothing)
 """
@@ -118,11 +119,15 @@ def main(argv: list[str] | None = None) -> int:
                     "wall_s": time.perf_counter() - started,
                 })  # fmt: skip
                 r = rows[-1]
-                print(f"seed {seed:2d} {arm:3s}: p95 {r['deviation_p95_mm']:.2f} mm, below {r['below_threshold_s']:.2f} s, "
-                      f"contacts {r['contacts']}, score {r['score']:.1f} ({r['wall_s']:.1f} s)", flush=True)  # fmt: skip
+                print(
+                    f"seed {seed:2d} {arm:3s}: p95 {r['deviation_p95_mm']:.2f} mm, below "
+                    f"{r['below_threshold_s']:.2f} s, contacts {r['contacts']}, score {r['score']:.1f} "
+                    f"({r['wall_s']:.1f} s)",
+                    flush=True,
+                )
         # the real-time loop: one attempt at 500 Hz, the drives in their own thread on the virtual bus
-        realtime = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON,
-                                              "control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0})  # fmt: skip
+        live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0}
+        realtime = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
     summary = []
     for arm in ("off", "on"):
         mine = [r for r in rows if r["assist"] == arm]

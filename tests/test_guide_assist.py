@@ -16,8 +16,8 @@ from conftest import CONFIGS
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.guidance import GuideContext, SourceStopped
 from surgiplan.guidance.fixture import FixtureSettings, VirtualFixture, assistance_level
-from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice, CastGimbalDeviceSettings
 from surgiplan.plugins.devices.canopen.sim.statemachine import SOD
+from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice, CastGimbalDeviceSettings
 from surgiplan.plugins.devices.cast_gimbal.assist import TorqueLaw
 from surgiplan.results import StageContext
 
@@ -127,12 +127,12 @@ def sdo_downloads(frames, node_ids):
 # ----------------------------------------------------------------------------- the motor model in torque mode
 def test_a_constant_torque_accelerates_the_axis_as_inertia_and_friction_say():
     """CST on one simulated axis against the closed form of J v' = τ − b v − c (from rest, τ > c)."""
+    import can
     from surgiplan.plugins.devices.canopen.bus import ArmedFaults
     from surgiplan.plugins.devices.canopen.clock import SimulatedClock
     from surgiplan.plugins.devices.canopen.sim.drives import AxisHardware, DriveSimulator
     from surgiplan.plugins.devices.canopen.sim.motor import MotorModel
     from surgiplan.plugins.devices.canopen.sim.statemachine import OE
-    import can
 
     clock = SimulatedClock()
     bus = can.Bus(interface="virtual", channel="cst-motor-test")
@@ -166,7 +166,9 @@ def _gimbal(space):
     with warnings.catch_warnings():  # at pitch +-90 deg any split of roll and yaw is the same frame
         warnings.simplefilter("ignore", UserWarning)
         rpy = Rotation.from_matrix(space.frame).as_euler("xyz")
-    settings = CastGimbalDeviceSettings.model_validate({"fulcrum": {"xyz": space.fulcrum.tolist(), "rpy": rpy.tolist()}})
+    settings = CastGimbalDeviceSettings.model_validate(
+        {"fulcrum": {"xyz": space.fulcrum.tolist(), "rpy": rpy.tolist()}}
+    )
     device = CastGimbalDevice(settings)
     device.model = device.build_model()
     return device
@@ -211,7 +213,7 @@ def test_a_known_offset_from_the_path_gives_the_hand_computed_joint_torques(plan
     assert tau_moving == pytest.approx(expected, rel=1e-4, abs=1e-6)
     # ... a velocity across it is damped: F = k e - b v_perp
     qd = np.linalg.lstsq(_jacobian_by_differences(space, q), 0.02 * offset, rcond=None)[0]
-    tau_across, info = law.joint_torque(q, qd)
+    _tau_across, info = law.joint_torque(q, qd)
     assert info["guide"] == pytest.approx(force - 5.0 * 0.02 * offset, abs=1e-6)
 
 
@@ -349,12 +351,12 @@ def test_a_heartbeat_loss_sets_zero_torque_within_one_sync_period_and_drops_to_o
 
 def test_a_missed_tpdo_ends_the_assistance(tmp_path, planned):
     settings = {"bus": {"faults": [{"kind": "dead_node", "node": 3, "at_s": 0.6}]}, "pdo_timeout_cycles": 50}
-    samples, frames, node_ids, truth, source, _ = run_source(tmp_path, planned, settings)
+    _samples, frames, node_ids, truth, source, _ = run_source(tmp_path, planned, settings)
     answered = [t for t, cob, _ in frames if cob == 0x183]
     syncs = [t for t, cob, _ in frames if cob == 0x080]
     unanswered = min(t for t in syncs if t > answered[-1])  # the first SYNC node 3 did not answer
     sent = rpdos(frames, node_ids)
-    stop = [r for r in sent if r[0] > unanswered and r[2] == 0][0][0]
+    stop = next(r for r in sent if r[0] > unanswered and r[2] == 0)[0]
     assert stop - unanswered <= 1 / RATE + 1e-9
     assert "missed TPDO from CAN node 3" in source.assistance["ended"]
     assert all(r[3] == 0 for r in sent if r[0] >= stop)
@@ -367,7 +369,7 @@ def test_an_emcy_ends_the_assistance(tmp_path, planned):
         if k == 150:
             source.device.simulator.nodes[4].emcy.send(0x5000, 0x01)  # a device-hardware error, from the drive
 
-    samples, frames, node_ids, truth, source, _ = run_source(tmp_path, planned, during=emcy)
+    _samples, frames, node_ids, truth, source, _ = run_source(tmp_path, planned, during=emcy)
     emcy_time = min(t for t, cob, _ in frames if cob == 0x084)
     _ends_within_one_period(frames, node_ids, truth, emcy_time, 1 / RATE)
     assert "EMCY 0x5000 from CAN node 4" in source.assistance["ended"]
@@ -379,10 +381,10 @@ def test_an_old_sample_ends_the_assistance(tmp_path, planned):
             clock = source.device.clock
             clock.sleep_until(clock.now() + 0.02)
 
-    samples, frames, node_ids, truth, source, _ = run_source(tmp_path, planned, during=stall)
+    _samples, frames, node_ids, truth, source, _ = run_source(tmp_path, planned, during=stall)
     assert "old (max_sample_age)" in source.assistance["ended"]
     sent = rpdos(frames, node_ids)
-    stop = [r for r in sent if r[2] == 0 and r[0] > 0.3][0][0]
+    stop = next(r for r in sent if r[2] == 0 and r[0] > 0.3)[0]
     assert all(r[3] == 0 for r in sent if r[0] >= stop)
     assert all(s == SOD for s in truth.state)
 

@@ -41,7 +41,6 @@ from surgiplan.validation import file_length_scale, input_path
 from .assist import AssistLoop, AssistSettings, assistance_level, proficiency_of
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
 
-
 #: the simulated hand as an impedance on the joints (yaw, pitch, insertion, roll) while the drives push (assist):
 #: about 270 N/m at the tip at 15 cm insertion on yaw and pitch, 300 N/m along the shaft (a relaxed grip, of the
 #: order measured for human arms), near critically damped with the axes' inertia
@@ -104,7 +103,8 @@ class CastGimbalObserveSettings(CastGimbalDeviceSettings):
         if self.assist.max_sample_age < 1.0 / self.control_rate:
             raise ValueError(
                 f"assist.max_sample_age {self.assist.max_sample_age:g} s is shorter than one SYNC period "
-                f"({1.0 / self.control_rate:g} s at control_rate {self.control_rate:g} Hz): every sample would be too old"
+                f"({1.0 / self.control_rate:g} s at control_rate {self.control_rate:g} Hz): every sample would be "
+                "too old"
             )
         return self
 
