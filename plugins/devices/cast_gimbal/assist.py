@@ -186,6 +186,7 @@ class AssistLoop:
 
     @property
     def device_cpu(self) -> np.ndarray:
+        """Encoder counts per joint unit, per axis."""
         return np.array([a.counts_per_unit for a in self.master.axes], dtype=float)
 
     def stop(self, now: float, why: str | None) -> None:
