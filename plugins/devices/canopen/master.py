@@ -9,7 +9,8 @@ everything before any motion:
    message; a node that sends none within ``boot_timeout`` is a
    :class:`~.bus.BusError` naming it and its joint;
 3. per node, by SDO: device type 0x1000 (a CiA 402 drive?) and identity
-   0x1018 against the EDS; supported drive modes 0x6502 (CSP?); then the
+   0x1018 against the EDS; supported drive modes 0x6502 (CSP? in torque
+   mode: CST?); then the
    configuration, written as a DCF would (the EDS's variables with their
    values set, downloaded in order): heartbeat producer 0x1017 and consumer
    0x1016, communication cycle period 0x1006, abort connection option 0x6007
@@ -19,7 +20,9 @@ everything before any motion:
    limits 0x607D; a value the drive refuses is an error naming node, object
    and abort code;
 4. PDO mapping with CiA 301's procedure (canopen's ``PdoMap.save``): RPDO1
-   controlword + target position, TPDO1 statusword + position actual value,
+   controlword + target position (torque mode: 0x6060 = CST, max torque
+   0x6072 written, rated torque 0x6076 read, RPDO1 controlword + target
+   torque), TPDO1 statusword + position actual value,
    both synchronous; the node's other PDOs invalidated;
 5. NMT start (OPERATIONAL); enabling through the 402 state machine is the
    controller's (:meth:`.control.Controller.enable`).

@@ -114,10 +114,10 @@ class AssistLoop:
         self.emcy_seen = len(master.emcy)
         self.controlword = np.zeros(n, dtype=np.int64)
         self.heartbeat_timeout = 1.5 * device.settings.heartbeat_period
+        #: (clock time s, reason) when the assistance ended on a fault
         self.events: list[dict] = []
         self.started: float | None = None
-        #: per cycle: (time s, torques sent ‰ per axis) and the fixture's computing time (s)
-        self.sent: list[tuple[float, np.ndarray]] = []
+        #: the fixture's computing time of each cycle (s)
         self.compute_s: list[float] = []
 
     def _send(self, controlwords, torques) -> None:
@@ -126,7 +126,6 @@ class AssistLoop:
         except Exception as exc:  # a bus error: the bus is gone (the drives' SYNC watchdogs stop them)
             raise SourceStopped(f"the CAN bus failed: {exc}") from None
         self.controlword = np.asarray(controlwords, dtype=np.int64)
-        self.sent.append((self.device.clock.now(), np.asarray(torques, dtype=np.int64)))
 
     def fault(self, now: float, feedback, sample_time: float | None) -> str | None:
         """Why the assistance must end now (None: it may go on)."""
@@ -210,6 +209,7 @@ class AssistLoop:
             "wall_stiffness_n_per_m": s.wall_stiffness,
             "torque_cap_per_mille": s.torque_cap,
             "ended": self.ended,
+            "ended_at_s": self.events[0]["t"] if self.events else None,
             "cycles": len(self.compute_s),
             "fixture_median_ms": 1000 * float(np.median(self.compute_s)) if self.compute_s else None,
             "fixture_p99_ms": 1000 * float(np.percentile(self.compute_s, 99)) if self.compute_s else None,
