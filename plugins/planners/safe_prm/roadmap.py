@@ -38,6 +38,7 @@ from surgiplan.spaces.base import Space
 
 from .astar import Workspace, bucket_width
 from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
+from .landmarks import LANDMARKS, landmark_distances, landmark_tolerance
 
 
 class Grid(NamedTuple):
@@ -102,11 +103,17 @@ class RoadmapPair:
         #: the connected component of every milestone in R and in R_safe, and how many there are
         self.free_labels, self.free_count = component_labels(self.n, edges, every)
         self.safe_labels, self.safe_count = component_labels(self.n, edges, edge_safe)
+        #: every milestone's distance to the landmarks of R and of R_safe (the query's A* bounds, :mod:`.landmarks`)
+        self.free_far = landmark_distances(*self.free_rows, self.scaled_milestones, self.free_labels, LANDMARKS)
+        self.safe_far = landmark_distances(*self.safe_rows, self.scaled_milestones, self.safe_labels, LANDMARKS)
         #: what :func:`.query_kernel.search_and_repair` takes of the roadmap, in its order
         self.kernel_arrays = (
             *self.free_rows,
             *self.safe_rows,
             self.scaled_milestones,
+            self.free_far,
+            self.safe_far,
+            max(landmark_tolerance(self.free_far), landmark_tolerance(self.safe_far)),
             bucket_width(cost),
             self.safe_flags,
             self.free_labels,
