@@ -347,8 +347,11 @@ def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
         distance, predecessors = dijkstra(graph, directed=False, return_predecessors=True)
         # the last graph with buckets so narrow that keys overflow the window and are re-bucketed as it moves
         delta = 1e-5 if case == 3 else None
+        landmarks = 4 if case % 2 else 0  # the landmarks' bounds (ALT) on two graphs, the straight line alone on two
         for source, target in rng.integers(0, n, size=(60, 2)):
-            nodes, cost, settled = shortest_path(graph, points, int(source), int(target), delta=delta)
+            nodes, cost, settled = shortest_path(
+                graph, points, int(source), int(target), delta=delta, landmarks=landmarks
+            )
             if not np.isfinite(distance[source, target]):
                 assert len(nodes) == 0 and cost == np.inf
                 continue
@@ -384,6 +387,7 @@ def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
                 target_links=(links[1], link_cost[1], ends[1]),
                 direct_cost=direct,
                 delta=delta,
+                landmarks=landmarks,
             )
             if not np.isfinite(d[n + 1]):
                 assert len(nodes) == 0
