@@ -28,6 +28,7 @@ def test_landmark_distances_are_scipys_dijkstra():
             points,
             labels.astype(np.int64),
             6,
+            0.002,
         )
         largest = np.argmax(np.bincount(labels))
         assert far.shape == (300, min(6, np.count_nonzero(labels == largest)))

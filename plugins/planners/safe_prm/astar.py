@@ -42,8 +42,6 @@ import threading
 import numpy as np
 from numba import njit
 
-from .landmarks import landmark_distances, landmark_tolerance
-
 #: the heuristic's safety factor against round-off (see the module docstring)
 _SHRINK = 1.0 - 1e-12
 #: buckets in the window (a power of two)
@@ -332,6 +330,13 @@ def bucket_width(edge_cost: np.ndarray) -> float:
     return max(mean * BUCKET_FRACTION, 1e-12)
 
 
+def landmark_tolerance(far: np.ndarray) -> float:
+    """The round-off allowed in the landmark bounds: a billionth of the longest finite distance (a distance
+    summed over a path of up to thousands of edges is off by far less)."""
+    finite = far[np.isfinite(far)]
+    return 1e-9 * float(finite.max()) if finite.size else 0.0
+
+
 def shortest_path(
     graph,
     scaled: np.ndarray,
@@ -342,17 +347,15 @@ def shortest_path(
     target_links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     direct_cost: float = np.inf,
     delta: float | None = None,
-    landmarks: int = 0,
+    far: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, int]:
     """:func:`search` on a scipy CSR matrix; ``*_links`` = (milestones, costs, scaled position) of a virtual end;
-    ``delta``: the buckets' width (default :func:`bucket_width` of the graph's costs); ``landmarks``: how many
-    landmarks bound the cost to go besides the straight line (:func:`.landmarks.landmark_distances`).
+    ``delta``: the buckets' width (default :func:`bucket_width` of the graph's costs); ``far``: the nodes'
+    distances to landmarks that bound the cost to go besides the straight line (:mod:`.landmarks`).
 
     Returns (nodes, cost, expanded): the nodes -1 for the virtual start and -2 for the virtual goal, empty when
     the target cannot be reached.
     """
-    from scipy.sparse.csgraph import connected_components
-
     n = scaled.shape[0]
     workspace = Workspace(n, len(graph.indices) + n + 16)
     empty_i, empty_f, nowhere = np.empty(0, np.int64), np.empty(0), np.zeros(scaled.shape[1])
@@ -363,12 +366,10 @@ def shortest_path(
         np.ascontiguousarray(graph.indices, np.int32),
         np.ascontiguousarray(graph.data, np.float64),
     )
-    scaled = np.ascontiguousarray(scaled, np.float64)
-    _, labels = connected_components(graph, directed=False)
-    far = landmark_distances(*rows, scaled, labels.astype(np.int64), landmarks)
+    far = np.empty((n, 0)) if far is None else np.ascontiguousarray(far, np.float64)
     arguments = (
         *rows,
-        scaled,
+        np.ascontiguousarray(scaled, np.float64),
         far,
         landmark_tolerance(far),
         float(delta) if delta is not None else bucket_width(graph.data),

@@ -8,8 +8,8 @@ is at least ``|d(L, t) - d(L, v)|``: a lower bound that follows the roadmap arou
 straight-line distance cuts through them. :func:`.astar.search` takes the larger of the two bounds, so it
 settles only the nodes that could still lie on a shortest path, far fewer than with the distance alone.
 
-The distances come from :func:`dijkstra`, a binary-heap Dijkstra over the roadmap's CSR rows, compiled with
-numba (``tests/test_safe_prm.py`` checks it against scipy's). Compiled when the module is imported.
+The distances come from :func:`dijkstra`, the query's own bucket search run to exhaustion without a heuristic
+(``tests/test_safe_prm_query.py`` checks them against scipy's Dijkstra). Compiled when the module is imported.
 """
 
 from __future__ import annotations
@@ -17,67 +17,52 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .astar import BUCKETS, search
+
 #: how many landmarks each roadmap gets (R and R_safe): the query's A* settles 5-20x fewer nodes than with the
 #: straight-line bound alone; each costs one Dijkstra at build and 8 bytes per milestone
 LANDMARKS = 8
 
 
 @njit(cache=True, nogil=True)
-def dijkstra(indptr, indices, data, source, out):
-    """The roadmap distance from ``source`` to every node into ``out`` (``inf`` where unreachable)."""
+def dijkstra(indptr, indices, data, delta, source, out):
+    """The roadmap distance from ``source`` to every node into ``out`` (``inf`` where unreachable):
+    :func:`.astar.search` with no heuristic and a target it never reaches (a virtual goal without links), so it
+    runs until its queue is empty, when every reachable node holds its exact distance (``delta``: the buckets'
+    width, :func:`.astar.bucket_width`)."""
     n = indptr.shape[0] - 1
+    entries = indices.shape[0] + n + 64
+    node = np.zeros((n + 2, 3))
+    parent = np.empty(n + 2, dtype=np.int64)
+    end = np.zeros((n + 2, 2))
+    head = np.empty(BUCKETS, dtype=np.int64)
+    generation = np.zeros(1)
+    path = np.empty(n + 2, dtype=np.int64)
+    nothing = np.empty((n, 0))
+    no_links, no_costs, no_use, nowhere = np.empty(0, np.int64), np.empty(0), np.empty(0, np.bool_), np.empty(0)
+    while True:
+        entry_node = np.empty(entries, dtype=np.int64)
+        entry_key = np.empty(entries)
+        entry_next = np.empty(entries, dtype=np.int64)
+        count, _, _ = search(
+            indptr, indices, data, nothing, nothing, 0.0, delta,
+            source, no_links, no_costs, no_use, nowhere,
+            n + 1, no_links, no_costs, no_use, nowhere, np.inf,
+            node, parent, end, head, entry_node, entry_key, entry_next, generation, path,
+        )  # fmt: skip
+        if count >= 0:
+            break
+        entries *= 2  # ran out of entries (re-expansions): again with twice as many
     for v in range(n):
-        out[v] = np.inf
-    capacity = indices.shape[0] + 1
-    heap_key = np.empty(capacity)
-    heap_node = np.empty(capacity, dtype=np.int64)
-    done = np.zeros(n, dtype=np.bool_)
-    out[source] = 0.0
-    heap_key[0] = 0.0
-    heap_node[0] = source
-    size = 1
-    while size > 0:
-        key, v = heap_key[0], heap_node[0]
-        size -= 1
-        # the last entry sifts down from the root
-        last_key, last_node = heap_key[size], heap_node[size]
-        i = 0
-        while True:
-            child = 2 * i + 1
-            if child >= size:
-                break
-            if child + 1 < size and heap_key[child + 1] < heap_key[child]:
-                child += 1
-            if heap_key[child] >= last_key:
-                break
-            heap_key[i], heap_node[i] = heap_key[child], heap_node[child]
-            i = child
-        heap_key[i], heap_node[i] = last_key, last_node
-        if done[v]:
-            continue
-        done[v] = True
-        for e in range(indptr[v], indptr[v + 1]):
-            w = indices[e]
-            c = key + data[e]
-            if c < out[w]:
-                out[w] = c
-                # sift up
-                i = size
-                size += 1
-                while i > 0:
-                    up = (i - 1) // 2
-                    if heap_key[up] <= c:
-                        break
-                    heap_key[i], heap_node[i] = heap_key[up], heap_node[up]
-                    i = up
-                heap_key[i], heap_node[i] = c, w
+        out[v] = node[v, 1] if node[v, 0] == generation[0] else np.inf
     return out
 
 
 @njit(cache=True, nogil=True)
-def landmark_distances(indptr, indices, data, scaled, labels, count):
+def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
     """``count`` landmarks of the largest component (farthest strategy) and every node's roadmap distance to
-    each: (n, count), ``inf`` where a node cannot reach it; fewer columns when the component is smaller."""
+    each: (n, count), ``inf`` where a node cannot reach it; fewer columns when the component is smaller
+    (``delta``: :func:`dijkstra`'s)."""
     n = scaled.shape[0]
     if n == 0 or count == 0:
         return np.empty((n, 0))
@@ -108,7 +93,7 @@ def landmark_distances(indptr, indices, data, scaled, labels, count):
     nearest = np.full(n, np.inf)  # each node's distance to the nearest landmark so far
     landmark = first
     for j in range(count):
-        dijkstra(indptr, indices, data, landmark, column)
+        dijkstra(indptr, indices, data, delta, landmark, column)
         far[:, j] = column
         landmark, best = -1, -1.0
         for v in range(n):
@@ -118,17 +103,10 @@ def landmark_distances(indptr, indices, data, scaled, labels, count):
     return far
 
 
-def landmark_tolerance(far: np.ndarray) -> float:
-    """The round-off allowed in the landmark bounds: a billionth of the longest finite distance (a distance
-    summed over a path of up to thousands of edges is off by far less)."""
-    finite = far[np.isfinite(far)]
-    return 1e-9 * float(finite.max()) if finite.size else 0.0
-
-
 def _compile() -> None:
     indptr = np.array([0, 1, 2], dtype=np.int32)
     indices = np.array([1, 0], dtype=np.int32)
-    landmark_distances(indptr, indices, np.ones(2), np.zeros((2, 3)), np.zeros(2, dtype=np.int64), 2)
+    landmark_distances(indptr, indices, np.ones(2), np.zeros((2, 3)), np.zeros(2, dtype=np.int64), 2, 0.1)
 
 
 _compile()

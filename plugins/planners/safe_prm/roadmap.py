@@ -36,9 +36,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
-from .astar import Workspace, bucket_width
+from .astar import Workspace, bucket_width, landmark_tolerance
 from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
-from .landmarks import LANDMARKS, landmark_distances, landmark_tolerance
+from .landmarks import LANDMARKS, landmark_distances
 
 
 class Grid(NamedTuple):
@@ -104,8 +104,9 @@ class RoadmapPair:
         self.free_labels, self.free_count = component_labels(self.n, edges, every)
         self.safe_labels, self.safe_count = component_labels(self.n, edges, edge_safe)
         #: every milestone's distance to the landmarks of R and of R_safe (the query's A* bounds, :mod:`.landmarks`)
-        self.free_far = landmark_distances(*self.free_rows, self.scaled_milestones, self.free_labels, LANDMARKS)
-        self.safe_far = landmark_distances(*self.safe_rows, self.scaled_milestones, self.safe_labels, LANDMARKS)
+        delta = bucket_width(cost)
+        self.free_far = landmark_distances(*self.free_rows, self.scaled_milestones, self.free_labels, LANDMARKS, delta)
+        self.safe_far = landmark_distances(*self.safe_rows, self.scaled_milestones, self.safe_labels, LANDMARKS, delta)
         #: what :func:`.query_kernel.search_and_repair` takes of the roadmap, in its order
         self.kernel_arrays = (
             *self.free_rows,
@@ -114,7 +115,7 @@ class RoadmapPair:
             self.free_far,
             self.safe_far,
             max(landmark_tolerance(self.free_far), landmark_tolerance(self.safe_far)),
-            bucket_width(cost),
+            delta,
             self.safe_flags,
             self.free_labels,
             int(self.free_count),
