@@ -76,6 +76,7 @@ class Workspace:
         self.entry_next = np.empty(entries, dtype=np.int64)
 
     def arrays(self) -> tuple:
+        """The arrays in the order :func:`search` takes them."""
         return (
             self.node,
             self.parent,

@@ -243,7 +243,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
                 direct_safe,
                 source,
                 target,
-                *work.arrays(),
+                work.arrays(),
             )
             if status != 3:
                 break

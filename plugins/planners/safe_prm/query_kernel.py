@@ -107,19 +107,9 @@ def _kinds(
     risky = 0
     for k in range(count - 1):
         ok = _is_safe(
-            path[k],
-            path[k + 1],
-            n,
-            safe,
-            ends_safe,
-            safe_indptr,
-            safe_indices,
-            start_targets,
-            start_safe,
-            goal_targets,
-            goal_safe,
-            direct_safe,
-        )
+            path[k], path[k + 1], n, safe, ends_safe, safe_indptr, safe_indices, start_targets, start_safe,
+            goal_targets, goal_safe, direct_safe,
+        )  # fmt: skip
         kinds[k] = SAFE_EDGE if ok else RISK_EDGE
         risky += not ok
     return risky
@@ -156,22 +146,16 @@ def search_and_repair(
     direct_safe,
     source,
     target,
-    node,
-    parent,
-    end,
-    head,
-    entry_node,
-    entry_key,
-    entry_next,
-    generation,
-    path,
+    work,
 ):
     """Algorithms 2-4 from ``source`` to ``target`` (the start n / goal n+1, or a milestone a risky end was
     projected to). Returns (status, nodes, edge kinds, repairs, settled, avoided nodes, avoided offsets):
     status 0 found, 1 start and goal in different components of R, 2 no path in R, 3 the workspace ran out of
     entries (grow it and ask again); the nodes of each risky stretch a repair replaced are
-    ``avoided[offsets[i]:offsets[i + 1]]``. ``delta`` and the arrays after ``target``: :func:`.astar.search`'s."""
+    ``avoided[offsets[i]:offsets[i + 1]]``. ``delta``: :func:`.astar.search`'s; ``work``: a
+    :class:`.astar.Workspace`'s arrays (:meth:`~.astar.Workspace.arrays`)."""
     n = scaled.shape[0]
+    path = work[-1]
     every_start = np.ones(start_targets.shape[0], dtype=np.bool_)
     every_goal = np.ones(goal_targets.shape[0], dtype=np.bool_)
     direct = direct_cost < np.inf
@@ -201,15 +185,7 @@ def search_and_repair(
         every_goal,
         goal_point,
         direct_cost,
-        node,
-        parent,
-        end,
-        head,
-        entry_node,
-        entry_key,
-        entry_next,
-        generation,
-        path,
+        *work,
     )
     if count < 0:
         return 3, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
@@ -217,21 +193,9 @@ def search_and_repair(
         return 2, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
     core = path[:count].copy()
     kinds = np.empty(max(count - 1, 0), dtype=np.uint8)
-    risky = _kinds(
-        core,
-        count,
-        kinds,
-        n,
-        safe,
-        ends_safe,
-        safe_indptr,
-        safe_indices,
-        start_targets,
-        start_safe,
-        goal_targets,
-        goal_safe,
-        direct_safe,
-    )
+    # what deciding an edge's kind takes (:func:`_is_safe`)
+    safety = (n, safe, ends_safe, safe_indptr, safe_indices, start_targets, start_safe, goal_targets, goal_safe)
+    risky = _kinds(core, count, kinds, *safety, direct_safe)
     offsets = np.zeros(1, dtype=np.int64)
     if risky == 0:  # Algorithm 3: a path already safe is returned as it is
         return 0, core, kinds, 0, settled, empty, offsets
@@ -295,15 +259,7 @@ def search_and_repair(
                 goal_safe,
                 goal_point,
                 no_direct,
-                node,
-                parent,
-                end,
-                head,
-                entry_node,
-                entry_key,
-                entry_next,
-                generation,
-                path,
+                *work,
             )
             settled += more
             if sub < 0:
@@ -326,21 +282,7 @@ def search_and_repair(
         l = m  # p_m is the last of its component on the path: the next round appends it and moves on
     result = out[:size].copy()
     result_kinds = np.empty(max(size - 1, 0), dtype=np.uint8)
-    _kinds(
-        result,
-        size,
-        result_kinds,
-        n,
-        safe,
-        ends_safe,
-        safe_indptr,
-        safe_indices,
-        start_targets,
-        start_safe,
-        goal_targets,
-        goal_safe,
-        direct_safe,
-    )
+    _kinds(result, size, result_kinds, *safety, direct_safe)
     return 0, result, result_kinds, repaired, settled, avoided[:avoided_size].copy(), offsets[: stretches + 1].copy()
 
 
@@ -455,7 +397,7 @@ def _compile() -> None:
             True,
             source,
             target,
-            *work.arrays(),
+            work.arrays(),
         )
 
 
