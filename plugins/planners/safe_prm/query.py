@@ -105,7 +105,7 @@ def _link_euclidean(
     exact check decides only what the covering balls leave open."""
     space = roadmap.space
     grid = roadmap.grid
-    targets, owner, cost, free, keeps, direct, direct_free, direct_keeps = link_ends(
+    targets, owner, cost, free, keeps, direct, direct_free, direct_keeps, split, undecided = link_ends(
         ends,
         ends_slack,
         ends_safe,
@@ -121,6 +121,11 @@ def _link_euclidean(
         roadmap.search_slack,
         roadmap.search_safe,
     )
+    if not undecided:  # the covering balls decided every link (the common case): the entries are the links
+        safe_ok = keeps == 1
+        start = Links(targets[:split], cost[:split], safe_ok[:split])
+        goal = Links(targets[split:], cost[split:], safe_ok[split:])
+        return start, goal, (direct if direct_free else np.inf), bool(direct_free and direct_keeps)
     free_ok = free == 1
     open_free = free == 2
     if open_free.any():
@@ -224,7 +229,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     timings["link_s"] = time.perf_counter() - started
 
     started = time.perf_counter()
-    scaled = roadmap.scaled(ends)
+    scaled = ends * space.coordinate_weights  # the frame of the search (RoadmapPair.scaled, for both at once)
     work = roadmap.search_workspace
     with work.lock:
         while True:

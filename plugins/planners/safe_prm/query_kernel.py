@@ -304,9 +304,10 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
     Euclidean (``Space.euclidean_motions``: the neighbour distance is the link's cost and speed bound).
 
     ``ends`` (2, d); ``ends_slack`` and ``slack`` (per milestone): the clearance, at most the workspace slack.
-    Returns (targets, owner, cost, free, keeps d_thresh, direct cost, direct free, direct keeps d_thresh): the
-    decisions as :func:`_covered` gives them (1, 0, or 2: ask the space), the direct start-goal motion only when
-    within ``s`` (else its cost is inf)."""
+    Returns (targets, owner, cost, free, keeps d_thresh, direct cost, direct free, direct keeps d_thresh, how
+    many of the entries are the start's, whether any decision is left to the space): the decisions as
+    :func:`_covered` gives them (1, 0, or 2: ask the space), the neighbours a motion cannot reach (0) left out,
+    the start's entries first; the direct start-goal motion only when within ``s`` (else its cost is inf)."""
     kk = max(k, 1)
     index = np.empty((2, kk), dtype=np.int64)
     distance = np.empty((2, kk))
@@ -320,13 +321,19 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
     free = np.empty(m, dtype=np.int8)
     keeps = np.zeros(m, dtype=np.int8)
     at = 0
+    split = 0
     for i in range(2):
+        if i == 1:
+            split = at
         for slot in range(counts[i]):
             t = index[i, slot]
             reach = distance[i, slot]
             targets[at], owner[at], cost[at] = t, i, reach
             free[at] = _covered(ends_slack[i], slack[t], reach, 0.0)
-            if free[at] != 0 and ends_safe[i] and safe[t]:
+            if free[at] == 0:
+                continue  # never a link
+            keeps[at] = 0
+            if ends_safe[i] and safe[t]:
                 keeps[at] = (
                     free[at]
                     if d_thresh <= 0
@@ -349,7 +356,21 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
             )
     else:
         direct = np.inf
-    return targets, owner, cost, free, keeps, direct, direct_free, direct_keeps
+    undecided = direct_free == 2 or direct_keeps == 2
+    for e in range(at):
+        undecided = undecided or free[e] == 2 or keeps[e] == 2
+    return (
+        targets[:at],
+        owner[:at],
+        cost[:at],
+        free[:at],
+        keeps[:at],
+        direct,
+        direct_free,
+        direct_keeps,
+        split,
+        undecided,
+    )
 
 
 def _compile() -> None:
@@ -366,7 +387,7 @@ def _compile() -> None:
     safe = np.ones(2, dtype=np.bool_)
     origin, dims, first, order, ordered = grid_build(points, 1.0)
     ends = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.0]])
-    targets, owner, cost, free, _, direct, _, _ = link_ends(
+    targets, owner, cost, free, _, direct, _, _, _, _ = link_ends(
         ends, np.ones(2), safe, 0.0, ordered, origin, dims, 1.0, first, order, 2, 2.0, np.ones(2), safe
     )
     work = Workspace(2, 16)
