@@ -470,10 +470,20 @@ def _reference_query(roadmap, start, goal):
     return out
 
 
+def query_as_the_reference(roadmap, start, goal):
+    """The compiled query's outcome, checked to be :func:`_reference_query`'s path milestone for milestone."""
+    from surgiplan.plugins.planners.safe_prm import query as prm_query
+
+    outcome = prm_query.query(roadmap, start, goal)
+    nodes = np.concatenate([roadmap.milestones, start[None], goal[None]])[_reference_query(roadmap, start, goal)]
+    assert outcome.found
+    np.testing.assert_array_equal(outcome.path, nodes)
+    return outcome
+
+
 @pytest.mark.parametrize("level", ["expert", "intermediate", "beginner"])
 def test_query_and_repair_match_a_plain_scipy_implementation(block_world, level):
     """The compiled search, batched links and labelled repair give Algorithms 2-4's exact answer."""
-    from surgiplan.plugins.planners.safe_prm import query as prm_query
 
     space = R3Space(block_world)
     rng = np.random.default_rng(3)
@@ -489,11 +499,7 @@ def test_query_and_repair_match_a_plain_scipy_implementation(block_world, level)
             if np.all(space.clearance(q) >= roadmap.d_thresh):  # the reference does not project
                 pairs.append((q[0], q[1]))
         for start, goal in pairs:
-            outcome = prm_query.query(roadmap, start, goal)
-            expected = _reference_query(roadmap, start, goal)
-            nodes = np.concatenate([roadmap.milestones, start[None], goal[None]])[expected]
-            assert outcome.found
-            np.testing.assert_array_equal(outcome.path, nodes)
+            query_as_the_reference(roadmap, start, goal)
 
 
 @pytest.mark.parametrize("tip_radius", [0.0, 0.5 * MM])
