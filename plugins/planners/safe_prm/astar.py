@@ -6,14 +6,16 @@ touching the graph: the *start* n (its links are the source's out-edges)
 and the *goal* n+1 (a milestone linked to it ends a path there at the
 link's cost), plus an optional direct start-goal motion.
 
-The heuristic is the space's distance to the target, ``|w * (x - x_t)|``
-(the edge costs are that same weighted Euclidean distance), scaled down by
-one part in 10^12 so that round-off can never make it exceed a true
-remaining cost: it is admissible, so the search returns a shortest path
-(Hart, Nilsson & Raphael 1968) while expanding only the nodes whose cost
-plus heuristic is below the answer, not the whole roadmap as a Dijkstra
-search from the source does. ``tests/test_safe_prm.py`` checks the paths and
-costs against scipy's Dijkstra.
+The heuristic is the larger of two lower bounds on the cost to go: the
+space's distance to the target, ``|w * (x - x_t)|`` (the edge costs are that
+same weighted Euclidean distance), scaled down by one part in 10^12 so that
+round-off can never make it exceed a true remaining cost, and the bound of
+the roadmap's landmarks (:mod:`.landmarks`, loosened by a tolerance), which
+follows the roadmap around obstacles. Both are admissible, so the search
+returns a shortest path (Hart, Nilsson & Raphael 1968) while expanding only
+the nodes whose cost plus heuristic is below the answer, not the whole
+roadmap as a Dijkstra search from the source does. ``tests/test_safe_prm.py``
+checks the paths and costs against scipy's Dijkstra.
 
 The open set is a bucket queue, not a heap: entries go to buckets of width
 ``delta`` by their key (cost plus heuristic) and come out bucket by bucket,
