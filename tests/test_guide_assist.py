@@ -346,6 +346,7 @@ def test_a_heartbeat_loss_sets_zero_torque_within_one_sync_period_and_drops_to_o
     last_beat = beats[int(gap[0])] if gap.size else beats[-1]
     stop = _ends_within_one_period(frames, node_ids, truth, last_beat + 1.5 * 0.05, 1 / RATE)
     assert "heartbeat lost from CAN node 2" in source.assistance["ended"]
+    assert source.assistance["ended_at_s"] == pytest.approx(stop - source.origin, abs=1e-9)
     # observe from then on: SYNCs and samples go on, no RPDO
     assert samples[-1].t + source.origin > stop + 0.2
 

@@ -298,6 +298,8 @@ class CastGimbalObserver(PoseSource):
         finally:
             summary = assist.summary()
             span = self.loop_span[1] - self.loop_span[0]
+            if summary["ended_at_s"] is not None:  # from the attempt's start, as the samples' times
+                summary["ended_at_s"] -= self.origin
             summary["missed_syncs"] = self.missed_syncs
             summary["cycle_rate_hz"] = (self.loop_syncs - 1) / span if span > 0 else None
             self.assistance = summary
