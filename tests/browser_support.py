@@ -130,7 +130,8 @@ def red_pixels(pixels: np.ndarray) -> int:
 
 
 def start_view(args: list[str], exit_after: float = 120.0, env=None):
-    """``surgiplan view ARGS --no-browser`` (it exits after ``exit_after`` s): (the process, the URL it prints)."""
+    """``surgiplan view ARGS --no-browser`` (it exits after ``exit_after`` s): (the process, the URL it prints,
+    with its token)."""
     import re
     import subprocess
     import sys
@@ -150,6 +151,15 @@ def start_view(args: list[str], exit_after: float = 120.0, env=None):
     raise AssertionError(f"surgiplan view {' '.join(args)} did not start: {process.stderr.read()}")
 
 
+def feed_url(page_url: str, path: str = "/feed") -> str:
+    """The websocket address of the live viewer whose page is ``page_url``, with the page's token."""
+    from urllib.parse import parse_qs, urlsplit
+
+    parts = urlsplit(page_url)
+    return f"ws://{parts.netloc}{path}?token={parse_qs(parts.query)['token'][0]}"
+
+
 def start_live_view(exit_after: float = 120.0):
-    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL)."""
+    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL, with its token;
+    :func:`feed_url` gives the feed's)."""
     return start_view(["--live", "--port", "0"], exit_after)

@@ -18,7 +18,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from browser_support import Browser, canvas_pixels, drawn_fraction, offsite, red_pixels, start_view, wait_for
+from browser_support import (
+    Browser,
+    canvas_pixels,
+    drawn_fraction,
+    feed_url,
+    offsite,
+    red_pixels,
+    start_view,
+    wait_for,
+)
 from conftest import CONFIGS
 from surgiplan import registry
 
@@ -330,7 +339,7 @@ def test_view_serves_the_report_on_loopback(browser, main_job):
     out, _ = main_job
     process, url = _start([str(out), "--port", "0"])
     try:
-        assert url.endswith("/report.html")
+        assert "/report.html?token=" in url
         page = browser.page(url)
         assert page.problems == []
         assert offsite(page.requests, allowed=("http://127.0.0.1:",)) == []
@@ -345,7 +354,7 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
     process, url = _start(["--live", "--port", "0"])
     try:
         page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
-        feed = url.replace("http://", "ws://").rstrip("/") + "/feed"
+        feed = feed_url(url)
         path = robot_pipeline(tmp_path, "live", realtime=True, speed=60.0)  # about 2.4 s of motion
         run = subprocess.Popen(
             [*SURGIPLAN, "run", str(path), "--quiet", "--live", feed],
