@@ -18,7 +18,9 @@ Channels and payloads (JSON values, SI units):
 * ``stage``: ``{"name", "kind", "plugin", "path_from"?, "recommended"?: [[x, y, z], ...]}`` when a stage starts;
 * ``tip``: ``{"t", "tip": [x, y, z], "commanded"?: [x, y, z], "clearance"?, "deviation"?}``;
 * ``event``: ``{"t", "kind", "message"}``;
-* ``status``: ``{"status", "message"?}`` when the stage ends.
+* ``status``: ``{"status", "message"?}`` when the stage ends;
+* ``drops``: ``{"feed": n}`` samples the feed dropped so far (sent by :class:`WebSocketFeed` when it grows; the
+  viewer adds ``{"page": n}``, what it dropped for one page), shown in the page.
 """
 
 from __future__ import annotations
@@ -167,6 +169,7 @@ class WebSocketFeed(LiveFeed):
         log = logging.getLogger(__name__)
         give_up = time.monotonic() + self.retry_for
         warned = reconnect = False
+        reported = 0
         while True:
             try:
                 socket = connect(
@@ -212,6 +215,9 @@ class WebSocketFeed(LiveFeed):
                         batch = []
                         while self._queue and len(batch) < 5000:
                             batch.append(self._queue.popleft())
+                        if self.dropped != reported:  # the page shows what the feed dropped
+                            reported = self.dropped
+                            socket.send(self._encode([("drops", {"feed": reported})]))
                         if batch:
                             socket.send(self._encode(batch))
                             self.sent += len(batch)

@@ -7,9 +7,11 @@
   ``/feed`` (``surgiplan run --live``, :class:`surgiplan.live.WebSocketFeed`)
   and relays it to every page watching at ``/watch``. A page that connects
   late first gets the scene, the running stage and what it did so far. The
-  relay never waits for a slow page (``websockets.broadcast`` skips a
-  connection whose buffer is full), so no page can slow the feed, and the
-  feed never waits for the viewer (see ``WebSocketFeed``).
+  relay never waits for a page: each page has its own bounded queue
+  (drop-oldest, the drops counted and shown in the page) and a page that
+  stops reading is disconnected (:mod:`.relay`), so no page can slow the
+  feed or grow the viewer's memory, and the feed never waits for the
+  viewer (see ``WebSocketFeed``).
 
 Bounds: at most :data:`MAX_WATCHERS` pages and :data:`MAX_FEEDS` feeds at
 once, messages of at most 4 MiB from a feed and 64 KiB from a page, pings
@@ -35,6 +37,7 @@ from typing import Any
 from ...errors import OutputError
 from ...live import DEFAULT_PORT
 from . import access, page
+from .relay import Watcher
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +49,7 @@ HISTORY = 20_000
 EVENTS = 1_000
 #: what a request without the token gets (with a 403), whatever it asked for
 FORBIDDEN = "403: open the URL `surgiplan view` printed: it carries this viewer's token\n"
-CHANNELS = ("run", "scene", "stage", "tip", "event", "status", "run_end")
+CHANNELS = ("run", "scene", "stage", "tip", "event", "status", "run_end", "drops")
 
 
 def _open(url: str, open_browser: bool, announce: Callable[[str], None]) -> None:
@@ -153,8 +156,10 @@ def serve_directory(
 class LiveViewer:
     """The live viewer's state and its websocket server (see the module docstring)."""
 
-    def __init__(self, port: int = DEFAULT_PORT, *, token: str | None = None) -> None:
+    def __init__(self, port: int = DEFAULT_PORT, *, token: str | None = None, **relay: Any) -> None:
         self.port = port
+        #: each page's relay bounds (:class:`.relay.Watcher`'s keywords; its defaults when empty)
+        self.relay = relay
         #: what every request must present (see :mod:`.access`); printed in the URLs :meth:`serve` announces
         self.token = token or access.new_token()
         self.watchers: set = set()
@@ -225,23 +230,24 @@ class LiveViewer:
         items = [{"channel": c, "payload": self.sticky[c]} for c in ("run", "scene", "stage") if c in self.sticky]
         items += [{"channel": "tip", "payload": p} for p in self.tips]
         items += [{"channel": "event", "payload": p} for p in self.events]
-        items += [{"channel": c, "payload": self.sticky[c]} for c in ("status", "run_end") if c in self.sticky]
+        items += [{"channel": c, "payload": self.sticky[c]} for c in ("status", "run_end", "drops") if c in self.sticky]
         return json.dumps(items)
 
     async def _watch(self, connection) -> None:
-        self.watchers.add(connection)
+        watcher = Watcher(connection, **self.relay)
+        self.watchers.add(watcher)  # from now on what the feed sends waits in its queue
         try:
-            await connection.send(self._snapshot())
+            await asyncio.wait_for(connection.send(self._snapshot()), watcher.stall_after)
+            watcher.start()
             async for _ in connection:  # a page sends nothing; this waits for it to close
                 pass
         except Exception as exc:
             log.debug("view: a page went away: %s", exc)
         finally:
-            self.watchers.discard(connection)
+            self.watchers.discard(watcher)
+            await watcher.stop()
 
     async def _feed(self, connection) -> None:
-        from websockets.asyncio.server import broadcast
-
         self.feeds += 1
         try:
             async for message in connection:
@@ -274,7 +280,9 @@ class LiveViewer:
                             self.sticky.pop("run_end", None)
                         self.sticky[channel] = payload
                 self.received += len(items)
-                broadcast(self.watchers, json.dumps(items))
+                message = json.dumps(items)
+                for watcher in list(self.watchers):  # never waits: each page's own bounded queue
+                    watcher.offer(message, len(items))
         except Exception as exc:
             log.debug("view: a feed went away: %s", exc)
         finally:

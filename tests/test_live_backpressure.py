@@ -1,0 +1,142 @@
+"""A page that stops reading cannot grow the live viewer's memory and is disconnected; the others keep up.
+
+The viewer runs in this process (so its memory can be traced, tracemalloc, and its per-page queues read). A
+*stalled* client is a raw socket that completes the websocket upgrade (with the token) and then never reads a
+byte (its receive buffer made small). A feed pushes about 40 MB through the viewer; a normal watcher (websockets'
+own client) reads everything. With websockets' ``broadcast`` (what the viewer did before) the stalled page's
+write buffer grew by every byte pushed; now its share stays under its queue's bound and it is cut off.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import threading
+import time
+import tracemalloc
+
+from surgiplan.live import WebSocketFeed
+from surgiplan.outputs.report.server import LiveViewer
+
+MAX_BYTES = 2**20
+EVENTS = 5000
+PAD = 8000  # bytes of padding per event: 40 MB in all
+
+
+def stalled_client(port: int, token: str) -> socket.socket:
+    """A websocket client that upgrades to /watch and then never reads."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    s.settimeout(10)
+    s.connect(("127.0.0.1", port))
+    s.sendall(
+        (
+            f"GET /watch?token={token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+            f"Origin: http://127.0.0.1:{port}\r\n\r\n"
+        ).encode()
+    )
+    head = b""
+    for _ in range(100):  # the 101 answer, and not a byte more than needed
+        head += s.recv(1)
+        if head.endswith(b"\r\n\r\n"):
+            break
+    assert head.startswith(b"HTTP/1.1 101"), head
+    return s
+
+
+def test_a_stalled_page_is_bounded_and_disconnected_while_a_normal_one_gets_everything():
+    from websockets.sync.client import connect
+
+    viewer = LiveViewer(port=0, max_messages=64, max_bytes=MAX_BYTES, stall_after=5, patience=3)
+    loop = asyncio.new_event_loop()
+    ready = threading.Event()
+    thread = threading.Thread(
+        target=loop.run_until_complete,
+        args=(viewer.serve(open_browser=False, exit_after=120, announce=lambda _: ready.set()),),
+        daemon=True,
+    )
+    thread.start()
+    assert ready.wait(20)
+    port, token = viewer.bound, viewer.token
+    tracemalloc.start()
+    try:
+        stalled_socket = stalled_client(port, token)
+        for _ in range(500):
+            if viewer.watchers:
+                break
+            time.sleep(0.01)
+        (stalled,) = viewer.watchers
+
+        got = {"events": 0, "page_drops": 0, "status": False, "closed": None}
+
+        def watch() -> None:
+            with connect(f"ws://127.0.0.1:{port}/watch?token={token}", origin=f"http://127.0.0.1:{port}") as ws:
+                for _ in range(1_000_000):  # bounded; ends at the status
+                    for item in json.loads(ws.recv(timeout=60)):
+                        if item["channel"] == "event":
+                            got["events"] += 1
+                        elif item["channel"] == "drops" and "page" in item["payload"]:
+                            got["page_drops"] = item["payload"]["page"]
+                        elif item["channel"] == "status":
+                            got["status"] = True
+                            return
+
+        normal = threading.Thread(target=watch, daemon=True)
+        normal.start()
+        for _ in range(500):
+            if len(viewer.watchers) == 2:
+                break
+            time.sleep(0.01)
+        assert len(viewer.watchers) == 2
+        (normal_watcher,) = viewer.watchers - {stalled}
+        baseline = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+
+        feed = WebSocketFeed(viewer.feed_url, token=token)
+        pushed = 0
+        for i in range(EVENTS):
+            payload = {"t": i / 100, "kind": "note", "message": "x" * PAD}
+            pushed += PAD
+            feed.publish("event", payload)
+            if i % 20 == 19:
+                time.sleep(0.002)  # small batches (a feed message is at most 4 MiB)
+        feed.publish("status", {"status": "completed"})
+        feed.close(timeout=60)
+        normal.join(60)
+        peak = tracemalloc.get_traced_memory()[1] - baseline
+
+        # the stalled page: cut off, and its share bounded by its queue plus one write buffer's worth
+        for _ in range(2000):  # at most stall_after once the feed ended
+            if stalled.disconnected is not None and stalled not in viewer.watchers:
+                break
+            time.sleep(0.01)
+        assert stalled.disconnected is not None and "stalled" in stalled.disconnected
+        assert stalled not in viewer.watchers and normal_watcher.disconnected is None
+        assert stalled.peak_bytes <= MAX_BYTES + 2**15 + 20 * (PAD + 200), stalled.peak_bytes
+        assert stalled.queued_bytes == 0 and not stalled.queue
+        assert stalled.sent_messages < 64  # it took (into the kernel's buffers) hardly anything
+        # its socket was closed by the viewer: once what the kernel holds is read, the stream ends
+        stalled_socket.settimeout(10)
+        received = 0
+        try:
+            for _ in range(100_000):
+                chunk = stalled_socket.recv(65536)
+                if not chunk:
+                    break
+                received += len(chunk)
+        except ConnectionResetError:
+            pass
+        stalled_socket.close()
+        assert received < 4 * MAX_BYTES  # the kernel's buffers, a few queue-lengths at most, not 40 MB
+
+        # the normal page got every event, or was told which it lost
+        assert feed.sent == EVENTS + 1 and feed.dropped == 0
+        assert got["status"] and got["events"] + got["page_drops"] == EVENTS, got
+        # the viewer's memory while 40 MB went through: its history of events (1000 kept) and bounded queues
+        assert pushed == EVENTS * PAD and peak < 32 * 2**20, peak / 2**20
+    finally:
+        tracemalloc.stop()
+        viewer.stop()
+        thread.join(10)
