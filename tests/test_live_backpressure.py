@@ -11,39 +11,17 @@ from __future__ import annotations
 
 import asyncio
 import json
-import socket
 import threading
 import time
 import tracemalloc
 
+from browser_support import stalled_client
 from surgiplan.live import WebSocketFeed
 from surgiplan.outputs.report.server import LiveViewer
 
 MAX_BYTES = 2**20
 EVENTS = 5000
 PAD = 8000  # bytes of padding per event: 40 MB in all
-
-
-def stalled_client(port: int, token: str) -> socket.socket:
-    """A websocket client that upgrades to /watch and then never reads."""
-    s = socket.socket()
-    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-    s.settimeout(10)
-    s.connect(("127.0.0.1", port))
-    s.sendall(
-        (
-            f"GET /watch?token={token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-            f"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
-            f"Origin: http://127.0.0.1:{port}\r\n\r\n"
-        ).encode()
-    )
-    head = b""
-    for _ in range(100):  # the 101 answer, and not a byte more than needed
-        head += s.recv(1)
-        if head.endswith(b"\r\n\r\n"):
-            break
-    assert head.startswith(b"HTTP/1.1 101"), head
-    return s
 
 
 def test_a_stalled_page_is_bounded_and_disconnected_while_a_normal_one_gets_everything():
@@ -62,7 +40,7 @@ def test_a_stalled_page_is_bounded_and_disconnected_while_a_normal_one_gets_ever
     port, token = viewer.bound, viewer.token
     tracemalloc.start()
     try:
-        stalled_socket = stalled_client(port, token)
+        stalled_socket = stalled_client(f"http://127.0.0.1:{port}/?token={token}")
         for _ in range(500):
             if viewer.watchers:
                 break
