@@ -374,7 +374,8 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
         live = page.evaluate(
             "({tips: surgiplan.live.tips, last: surgiplan.live.last, status: surgiplan.live.status,"
             " events: surgiplan.live.events, stage: surgiplan.live.stage, updates: surgiplan.live.updates,"
-            " obstacles: surgiplan.counts.obstacles})"
+            " obstacles: surgiplan.counts.obstacles, drops: surgiplan.live.drops,"
+            " dropsShown: document.getElementById('live-drops').textContent})"
         )
         assert page.problems == [] and page.evaluate("surgiplan.errors") == []
         assert offsite(page.requests) == []
@@ -395,4 +396,35 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
     np.testing.assert_allclose(live["last"]["tip"], timeline["tip"][-1], atol=1e-12)
     assert [e["kind"] for e in live["events"]] == [e["kind"] for e in timeline["events"]]
     assert live["updates"] > 10  # the scene was redrawn as samples arrived
+    assert live["drops"] == {"feed": 0, "page": 0} and live["dropsShown"] == "samples dropped: 0"
     registry.reset_default_registry()
+
+
+def test_the_live_page_shows_the_samples_the_feed_dropped(browser):
+    """A feed whose queue overflows before it connects: the page says how many samples it will never see."""
+    from surgiplan.live import WebSocketFeed
+
+    process, url = _start(["--live", "--port", "0"])
+    try:
+        page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
+        feed = WebSocketFeed(feed_url(url), queue_size=50, retry_for=10)
+        feed.publish("stage", {"name": "s", "kind": "execute", "recommended": [[0, 0, 0], [0.1, 0, 0]]})
+        for i in range(500):  # faster than any connection: the oldest are dropped
+            feed.publish("tip", {"t": i / 100, "tip": [i / 5000, 0.0, 0.0]})
+        dropped = feed.dropped
+        feed.publish("status", {"status": "completed"})
+        feed.close()
+        wait_for(page, "surgiplan.live.status !== null", 30_000)
+        got = page.evaluate(
+            "({drops: surgiplan.live.drops, tips: surgiplan.live.tips,"
+            " shown: document.getElementById('live-drops').textContent})"
+        )
+        assert page.problems == [] and page.evaluate("surgiplan.errors") == []
+        page.close()
+    finally:
+        process.terminate()
+        process.wait(10)
+    assert dropped >= 400 and feed.dropped == dropped  # nothing was dropped after the burst
+    assert got["drops"] == {"feed": dropped, "page": 0}
+    assert 500 - dropped <= got["tips"] <= 501 - dropped  # the page got every sample that was not dropped
+    assert got["shown"] == f"samples dropped: {dropped} (by the run's feed {dropped}, by the viewer for this page 0)"

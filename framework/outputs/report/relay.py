@@ -36,9 +36,9 @@ MAX_BYTES = 4 * 2**20
 #: a page that lost a whole queue's worth and took nothing for this long is disconnected
 PATIENCE = 2.0
 #: a send that waits this long means the page stopped reading
-STALL_AFTER = 10.0
+STALL_AFTER = 5.0
 #: the kernel's send buffer for a page's socket (fixed: autotuning on loopback lets it grow to megabytes)
-SEND_BUFFER = 256 * 2**10
+SEND_BUFFER = 64 * 2**10
 
 
 class Watcher:
