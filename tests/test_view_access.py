@@ -154,6 +154,8 @@ def test_the_server_is_read_only(served):
     for method in ("POST", "PUT", "DELETE"):
         status, _, body = request(port, f"/report.html?token={token}", ("Content-Length: 0",), method=method)
         assert status == 405 and REPORT not in body
+        status, _, body = request(port, "/report.html", ("Content-Length: 0",), method=method)
+        assert (status, body) == (403, access_forbidden())
 
 
 def test_every_start_draws_a_new_token(cli, tmp_path):

@@ -81,7 +81,11 @@ class _Handler(http.server.BaseHTTPRequestHandler):
         self._serve(body=False)
 
     def do_POST(self):
-        self._reply(405, "read-only\n")
+        query = self.path.partition("?")[2]
+        if not access.authorised(self.token, query, self.headers, self.server.server_address[1]):
+            self._reply(403, FORBIDDEN)
+        else:
+            self._reply(405, "read-only\n")
 
     do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_POST
 
