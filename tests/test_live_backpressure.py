@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import socket
 import threading
 import time
 import tracemalloc
@@ -118,3 +119,59 @@ def test_a_stalled_page_is_bounded_and_disconnected_while_a_normal_one_gets_ever
         tracemalloc.stop()
         viewer.stop()
         thread.join(10)
+
+
+def test_a_viewer_that_stops_reading_the_feed_cannot_hold_the_stage():
+    """The other direction: a 'viewer' that accepts the feed's websocket and never reads. Publishing goes on
+    (it only appends to the feed's bounded queue), the queue stays within its bound and the excess is counted."""
+    import base64
+    import hashlib
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    accepted: list[socket.socket] = []
+
+    def accept() -> None:
+        server.settimeout(20)
+        conn, _ = server.accept()
+        conn.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        request = b""
+        for _ in range(10_000):  # the upgrade request, then nothing is ever read again
+            request += conn.recv(1)
+            if request.endswith(b"\r\n\r\n"):
+                break
+        lines = request.split(b"\r\n")
+        key = next(line.split(b":", 1)[1].strip() for line in lines if line.lower().startswith(b"sec-websocket-key"))
+        accept_key = base64.b64encode(hashlib.sha1(key + b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11").digest())
+        conn.sendall(
+            b"HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            b"Sec-WebSocket-Accept: " + accept_key + b"\r\n\r\n"
+        )
+        accepted.append(conn)
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    feed = WebSocketFeed(f"ws://127.0.0.1:{port}/feed", queue_size=1000, token="t")
+    for _ in range(500):
+        if feed.connected:
+            break
+        time.sleep(0.01)
+    assert feed.connected
+    published = 0
+    for i in range(200):  # 200 x 1000 samples of 1 kB: far more than the sockets' buffers take
+        for j in range(1000):
+            feed.publish("tip", {"t": i + j / 1000, "tip": [0.0, 0.0, 0.0], "pad": "x" * 1000})
+            published += 1
+        assert len(feed._queue) <= 1000
+        time.sleep(0.001)
+    # the sender is stuck in a send the stalled viewer never takes; the stage went on, and every sample is
+    # either sent (into the sockets' buffers), waiting in the bounded queue, or counted as dropped
+    batch_in_flight = published - feed.sent - feed.dropped - len(feed._queue)
+    assert 0 <= batch_in_flight <= 5000 and feed.dropped > published - 20_000, (feed.sent, feed.dropped)
+    feed.active = False  # close() would wait for the stuck send; the sender thread is a daemon
+    for conn in accepted:
+        conn.close()
+    server.close()
+    thread.join(5)
