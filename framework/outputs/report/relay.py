@@ -8,13 +8,13 @@ message it gets), and shows it beside the feed's own drops.
 
 One task per page sends its queue in order with flow control (``send`` waits while the connection's write
 buffer is above websockets' high-water mark, 32 KiB), so what a page has not taken waits in its queue, never in an
-unbounded buffer. A page that takes nothing is *stalled* and is disconnected (its transport aborted: a stalled
-peer would not answer a closing handshake) once it has lost a whole queue's worth since its last completed send
-(``max_messages`` messages or ``max_bytes`` bytes dropped) and that send is ``patience`` seconds ago, or when one
-send has waited ``stall_after`` seconds.
-What a stalled page can hold in the viewer is thus bounded by ``max_bytes`` in its queue, the write buffer's
-high-water mark plus the message being sent, and the kernel's send buffer (:data:`SEND_BUFFER`); a slow page
-that keeps taking messages stays connected and loses the oldest.
+unbounded buffer. A page that takes nothing is *stalled* and is disconnected once it has lost a whole queue's
+worth since its last completed send (``max_messages`` messages or ``max_bytes`` bytes dropped) and that send is
+``patience`` seconds ago, or when one send has waited ``stall_after`` seconds. Disconnected means reset (its
+transport aborted with ``SO_LINGER`` 0): a stalled peer would not answer a closing handshake, and a FIN would
+wait behind the data it never takes. What a stalled page can hold in the viewer is thus bounded by
+``max_bytes`` in its queue, the write buffer's high-water mark plus the message being sent, and the kernel's
+send buffer (:data:`SEND_BUFFER`); a slow page that keeps taking messages stays connected and loses the oldest.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import contextlib
 import json
 import logging
 import socket
+import struct
 import time
 
 log = logging.getLogger(__name__)
@@ -118,6 +119,9 @@ class Watcher:
         log.warning("view: a page was disconnected: %s", reason)
         self.queue.clear()
         self.queued_bytes = 0
+        with contextlib.suppress(Exception):  # a reset, not a FIN queued behind data the page will never take
+            sock = self.connection.transport.get_extra_info("socket")
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
         with contextlib.suppress(Exception):
             self.connection.transport.abort()
         self._wake.set()
