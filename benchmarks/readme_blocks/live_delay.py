@@ -19,7 +19,7 @@ def render_live_delay(results: Path) -> str:
                 r["case"],
                 str(r["runs"]),
                 f"{r['samples']:,}",
-                str(r["late_over_2ms"]),
+                f"{r['late_over_2ms']:,}",
                 f"{r['median_ms']:.2f} ms",
                 f"{r['p99_ms']:.2f} ms",
                 f"{r['max_ms']:.1f} ms",
@@ -40,9 +40,17 @@ def render_live_delay(results: Path) -> str:
     cut = [r["stalled_cut_after_s"] for r in runs if r["stalled_cut_after_s"] is not None]
     delayed = watched["delayed_by_viewer_over_2ms"]
     tail = (
-        f"Target: no sample delayed by more than {late:g} ms by the viewer: {met(delayed == 0)} ({delayed} of "
+        f"Target: no sample delayed by more than {late:g} ms by the viewer: {met(delayed == 0)} ({delayed:,} of "
         f"{watched['samples']:,} samples were, paired with the same sample of the attempt with no viewer; p99 of "
-        f"the difference {watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms). The stalled "
+        f"the difference {watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms)."
+        + (
+            f" The attempt with no viewer had {alone['late_over_2ms']:,} samples later than {late:g} ms itself "
+            f"(p99 {alone['p99_ms']:.1f} ms): at this load the count measures the machine's scheduling as much as "
+            "the viewer; rerun on a quiet machine for the figure that matters."
+            if alone["late_over_2ms"]
+            else ""
+        )
+        + f" The stalled "
         f"client was disconnected in {len(cut)} of {len(runs)} runs"
         + (f" ({', '.join(f'{c:.1f}' for c in cut)} s after it connected)" if cut else "")
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
