@@ -411,9 +411,9 @@ def test_the_live_page_shows_the_samples_the_feed_dropped(browser):
         feed.publish("stage", {"name": "s", "kind": "execute", "recommended": [[0, 0, 0], [0.1, 0, 0]]})
         for i in range(500):  # faster than any connection: the oldest are dropped
             feed.publish("tip", {"t": i / 100, "tip": [i / 5000, 0.0, 0.0]})
-        dropped = feed.dropped
-        feed.publish("status", {"status": "completed"})
+        feed.publish("status", {"status": "completed"})  # the newest: kept (the oldest go first)
         feed.close()
+        dropped = feed.dropped
         wait_for(page, "surgiplan.live.status !== null", 30_000)
         got = page.evaluate(
             "({drops: surgiplan.live.drops, tips: surgiplan.live.tips,"
@@ -424,7 +424,7 @@ def test_the_live_page_shows_the_samples_the_feed_dropped(browser):
     finally:
         process.terminate()
         process.wait(10)
-    assert dropped >= 400 and feed.dropped == dropped  # nothing was dropped after the burst
+    assert dropped >= 400
     assert got["drops"] == {"feed": dropped, "page": 0}
     assert 500 - dropped <= got["tips"] <= 501 - dropped  # the page got every sample that was not dropped
     assert got["shown"] == f"samples dropped: {dropped} (by the run's feed {dropped}, by the viewer for this page 0)"
