@@ -48,6 +48,9 @@ class LiveFeed:
 DEFAULT_PORT = 8765
 DEFAULT_URL = f"ws://127.0.0.1:{DEFAULT_PORT}/feed"
 
+#: the largest message a feed sends, in characters (a batch above it is split; the viewer takes up to 4 MiB)
+MAX_MESSAGE = 2**20
+
 #: channels whose latest payload is sent again first whenever the feed (re)connects
 STICKY = ("run", "scene", "stage")
 
@@ -159,6 +162,16 @@ class WebSocketFeed(LiveFeed):
 
         return json.dumps([{"channel": c, "payload": p} for c, p in items], default=_json_default, allow_nan=False)
 
+    def _send(self, socket, batch: list) -> None:
+        """Send ``batch`` as one message, or halves of it while its text exceeds :data:`MAX_MESSAGE`."""
+        text = self._encode(batch)
+        if len(text) > MAX_MESSAGE and len(batch) > 1:
+            half = len(batch) // 2
+            self._send(socket, batch[:half])
+            self._send(socket, batch[half:])
+        else:
+            socket.send(text)
+
     def _run(self) -> None:
         import logging
         import time
@@ -219,7 +232,7 @@ class WebSocketFeed(LiveFeed):
                             reported = self.dropped
                             socket.send(self._encode([("drops", {"feed": reported})]))
                         if batch:
-                            socket.send(self._encode(batch))
+                            self._send(socket, batch)
                             self.sent += len(batch)
                         elif self._closing.is_set():
                             break
