@@ -259,7 +259,3 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: 
 
 def _stage_failure(spec: StageSpec, status: RunStatus, message: str) -> StageResult:
     return StageResult(spec.kind, spec.name, spec.plugin.name if spec.plugin else "", status.value, message=message)
-
-
-def debug_enabled() -> bool:
-    return os.environ.get("SURGIPLAN_DEBUG", "") not in ("", "0")

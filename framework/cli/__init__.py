@@ -16,7 +16,7 @@ import logging
 import sys
 import traceback
 
-from ..errors import SurgiplanError
+from ..errors import SurgiplanError, debug_enabled
 from . import benchmark, benchmark_task, can_decode, canopen_conformance, cohort, export, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
@@ -84,8 +84,6 @@ def _where_the_record_is(exc: BaseException) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from ..runner import debug_enabled
-
     debug = args.debug or debug_enabled()
     restore_logging = _setup_logging(args.verbose)
     try:
