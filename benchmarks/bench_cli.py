@@ -87,6 +87,11 @@ main(["run", sys.argv[1], "--out", sys.argv[2], "--quiet"])
 """
 
 
+#: the commands' environment: as a user's shell has it, Python writes and reuses its bytecode cache (this machine's
+#: sessions set PYTHONDONTWRITEBYTECODE, under which every run compiles the editable checkout's sources again)
+ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+
+
 def _surgiplan() -> list[str]:
     return [sys.executable, "-m", "surgiplan.cli"]
 
@@ -94,7 +99,7 @@ def _surgiplan() -> list[str]:
 def timed_run(args: list[str]) -> tuple[float, int]:
     """Wall time (s) and peak resident memory (bytes) of one process; it must succeed."""
     start = time.perf_counter()
-    proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(args, cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
     elapsed = time.perf_counter() - start
     proc.returncode = os.waitstatus_to_exitcode(status)
@@ -109,7 +114,7 @@ def import_breakdown(args: list[str], top: int = 12) -> dict:
     """``python -X importtime``: total import time, the modules with the largest cumulative time, and the
     third-party libraries loaded (with their cumulative time where each was first imported)."""
     done = subprocess.run(
-        [sys.executable, "-X", "importtime", *args], cwd=ROOT, capture_output=True, text=True, timeout=600
+        [sys.executable, "-X", "importtime", *args], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=600
     )
     rows = []
     for line in done.stderr.splitlines():
@@ -139,7 +144,7 @@ def small_run_memory(config: str = SMALL) -> dict:
     probe = f"HEAVY = {HEAVY!r}\n{RSS_PROBE}"
     with tempfile.TemporaryDirectory(prefix="bench-cli-") as out:
         done = subprocess.run(
-            [sys.executable, "-c", probe, config, out], cwd=ROOT, capture_output=True, text=True, timeout=900
+            [sys.executable, "-c", probe, config, out], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=900
         )
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
     if not lines:

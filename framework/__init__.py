@@ -13,8 +13,9 @@ imports below.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from .lazy import lazy_exports
 
 if TYPE_CHECKING:
     from .deformable import Constraints, DeformableModel, EquilibriumState
@@ -101,17 +102,15 @@ _LAZY = {
 }
 
 
+_lazy_getattr, __dir__ = lazy_exports(__name__, _LAZY)
+
+
 def __getattr__(name: str):
     """Import the submodule that defines a public name at its first use and keep the name here."""
     if name == "__version__":  # reading the installed distribution's metadata costs a tenth of a second
         globals()[name] = value = _installed_version()
         return value
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
+    return _lazy_getattr(name)
 
 
 def _installed_version() -> str:
@@ -121,11 +120,6 @@ def _installed_version() -> str:
         return version("surgiplan")
     except PackageNotFoundError:  # pragma: no cover - running from a source tree
         return "0.0.0+unknown"
-
-
-def __dir__() -> list[str]:
-    """The module's names and the public names not imported yet."""
-    return sorted(set(globals()) | set(__all__) | {"__version__"})
 
 
 __all__ = [

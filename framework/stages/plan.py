@@ -38,8 +38,6 @@ from ..errors import ConfigError, ConfigErrors, PlanningInputError, SurgiplanErr
 from ..hookspecs import PluginSpec, hookspec
 from ..kinds import FileContext, PluginKind, StageKind, StageModel, StageRun, StageSpec
 from ..models import QuaternionPoseModel
-from ..outputs.figures import PathView, overview_figure, plan_figure
-from ..outputs.report.paths import plan_report
 from ..planning import Planner, PlanningProblem, PlanResult
 from ..resources import ResourceEstimate
 from ..results import StageResult
@@ -287,6 +285,8 @@ class PlanKind(StageKind):
 
     # ------------------------------------------------------------------ running
     def run(self, run: StageRun) -> StageResult:
+        from ..outputs.figures import PathView, plan_figure  # matplotlib: loaded when a plan stage runs
+
         spec: PlanSpec = run.spec
         context = run.context
         planner = run.call("construction", spec.plugin.cls, spec.settings)
@@ -447,6 +447,8 @@ class PlanKind(StageKind):
         return ", ".join(parts)
 
     def finish(self, state) -> list[str]:
+        from ..outputs.figures import overview_figure
+
         views = state.kept.get(self.name, [])
         if not state.figures or len(views) < 2:
             return []
@@ -470,4 +472,6 @@ class PlanKind(StageKind):
 
     # ------------------------------------------------------------------ presenting
     def report(self, stage, entry, inputs) -> None:
+        from ..outputs.report.paths import plan_report
+
         plan_report(stage, entry, inputs.specs.get(stage["name"]), inputs.scene, inputs.notes)
