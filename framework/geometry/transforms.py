@@ -27,7 +27,10 @@ def _rotation():
 
 def rpy_to_matrix(rpy) -> np.ndarray:
     """Rotation matrix (…, 3, 3) from roll, pitch, yaw (…, 3) in radians."""
-    return _rotation().from_euler("xyz", np.asarray(rpy, dtype=float)).as_matrix()
+    rpy = np.asarray(rpy, dtype=float)
+    if rpy.shape[-1:] == (3,) and not rpy.any():  # no rotation (most obstacles): exactly what scipy gives, sooner
+        return np.broadcast_to(np.eye(3), (*rpy.shape[:-1], 3, 3)).copy()
+    return _rotation().from_euler("xyz", rpy).as_matrix()
 
 
 def matrix_to_rpy(rotation) -> np.ndarray:
