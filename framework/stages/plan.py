@@ -285,8 +285,6 @@ class PlanKind(StageKind):
 
     # ------------------------------------------------------------------ running
     def run(self, run: StageRun) -> StageResult:
-        from ..outputs.figures import PathView, plan_figure  # matplotlib: loaded when a plan stage runs
-
         spec: PlanSpec = run.spec
         context = run.context
         planner = run.call("construction", spec.plugin.cls, spec.settings)
@@ -373,6 +371,8 @@ class PlanKind(StageKind):
             common, tips, clearance = path_metrics(spec.space, path, threshold.value if threshold else None)
             metrics.update(common)
             stage.tip_path = spec.space.tip(path)
+            from ..outputs.figures import PathView, plan_figure  # matplotlib: once there is a path to draw
+
             view = PathView(
                 spec.name,
                 tips,
