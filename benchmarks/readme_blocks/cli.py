@@ -19,12 +19,13 @@ def render_cli(results: Path) -> str:
         return ", ".join(found) if found else "none"
 
     body = table(
-        ["command", "median", "runs", "target", "", "peak memory", "imports", "libraries loaded"],
+        ["command", "median", "runs", "CPU (median)", "target", "", "peak memory", "imports", "libraries loaded"],
         [
             [
                 f"`{r['command']}`",
                 f"{r['median_s']:.2f} s",
                 span(r["runs_s"], lambda v: f"{v:.2f}") + " s",
+                f"{r['cpu_median_s']:.2f} s",
                 f"≤ {r['target_s']:g} s",
                 met(r["met"]),
                 f"{r['peak_rss_MB']:.0f} MB",
@@ -38,7 +39,8 @@ def render_cli(results: Path) -> str:
         f"Measured by `benchmarks/bench_cli.py`: each command a fresh process, as typed, {repeats} runs after a "
         f"warm-up, with Python's bytecode cache; 2 cores shared with other work, load average "
         f"{loads['load_before'][0]:.1f} before and {loads['load_after'][0]:.1f} after (1 min), so the times are "
-        f"upper bounds. A bare `python -c pass` takes {data['python_startup_s']:.2f} s here. *imports* is what "
+        f"upper bounds; the CPU time (user + system) does not count the waiting for a core. A bare "
+        f"`python -c pass` takes {data['python_startup_s']:.2f} s here. *imports* is what "
         f"`python -X importtime` counts for the command (one run):"
     )
     breakdown = []
