@@ -67,13 +67,14 @@ class PluginSpec:
     unavailable: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class PluginInfo:
     """A plugin as the registry knows it: what it is and where it came from.
 
     ``target`` is the class its :class:`PluginSpec` gave, or the ``"module:Class"`` reference to it; :attr:`cls`
     is the class, imported at its first use and then checked by ``check`` (the registry's test of a plugin
-    class: an interface subclass with a strict ``Settings`` model).
+    class: an interface subclass with a strict ``Settings`` model). ``cls=`` is accepted for ``target=`` when
+    constructing one (``dataclasses.replace(info, cls=Other)``), as before classes could be named by reference.
     """
 
     name: str
@@ -85,6 +86,34 @@ class PluginInfo:
     entry_point: str
     unavailable: str = ""
     check: Callable[[Any], str] | None = field(default=None, repr=False, compare=False)
+
+    def __init__(
+        self,
+        name: str,
+        kind: str,
+        target: type[Any] | str | None = None,
+        description: str = "",
+        package: str = "",
+        version: str = "",
+        entry_point: str = "",
+        unavailable: str = "",
+        check: Callable[[Any], str] | None = None,
+        *,
+        cls: type[Any] | None = None,
+    ) -> None:
+        fields = {
+            "name": name,
+            "kind": kind,
+            "target": cls if cls is not None else target,
+            "description": description,
+            "package": package,
+            "version": version,
+            "entry_point": entry_point,
+            "unavailable": unavailable,
+            "check": check,
+        }
+        for key, value in fields.items():  # frozen: set once, here
+            object.__setattr__(self, key, value)
 
     @functools.cached_property
     def cls(self) -> type[Any] | None:
