@@ -301,6 +301,12 @@ class Cia402Device(Device):
             raise
 
     def on_activate(self) -> None:
+        scene = getattr(self.context, "scene", None)
+        if scene is not None and scene.obstacles:
+            # the scene's distance queries (compiled kernels, numba: seconds to import on a loaded machine) load
+            # now, before the drives hold: certifying a trajectory needs them, and an import that holds the GIL
+            # while the drives wait for SYNC trips their watchdog
+            scene.signed_distance(np.asarray(scene.bounds_min, dtype=float)[None, :])
         if self.clock.realtime and not self._frozen:
             # what exists now (models, dictionaries, imported modules) is never garbage: out of the cyclic
             # collector's sight, so that a full collection while holding or between trajectories scans only
