@@ -20,8 +20,8 @@ changes the sentence, not only the figure. Every block opens with the commit its
 (and the load average before and after), from the results file's provenance.
 
 Each section's blocks are rendered by a module of ``readme_blocks`` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``devices``, ``canopen``,
-``live_delay``), with the
+``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``assist``, ``devices``, ``canopen``,
+``live_delay``, ``cli``), with the
 formatting they share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the pages and
 rewrites or checks them.
 """
@@ -38,6 +38,7 @@ from pathlib import Path
 from readme_blocks.assessment import render_assessment, render_cues
 from readme_blocks.assist import render_assist
 from readme_blocks.canopen import render_canopen_conformance
+from readme_blocks.cli import render_cli
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
 from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
@@ -83,6 +84,7 @@ BLOCKS: dict[str, Block] = {
     "cues": Block(render_cues, ("cues",)),
     "assist": Block(render_assist, ("assist",)),
     "live_delay": Block(render_live_delay, ("live_delay",)),
+    "cli": Block(render_cli, ("cli",)),
 }
 
 

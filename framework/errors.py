@@ -11,6 +11,7 @@ choices, the choices.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -115,3 +116,8 @@ def choices_hint(name: str, choices: Iterable[str]) -> str:
     if close:
         hint = f"did you mean '{close[0]}'? {hint}"
     return hint
+
+
+def debug_enabled() -> bool:
+    """Whether ``SURGIPLAN_DEBUG`` asks for tracebacks of internal errors (any value but empty or ``0``)."""
+    return os.environ.get("SURGIPLAN_DEBUG", "") not in ("", "0")

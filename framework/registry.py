@@ -23,6 +23,8 @@ Environment variables:
 
 from __future__ import annotations
 
+import email.parser
+import functools
 import importlib.metadata as metadata
 import logging
 import os
@@ -78,7 +80,13 @@ def _dist_name(ep: metadata.EntryPoint) -> tuple[str, str]:
     dist = getattr(ep, "dist", None)
     if dist is None:
         return "unknown", ""
-    return dist.metadata["Name"] or dist.name, dist.version or ""
+    # the metadata's headers only: dist.metadata parses the whole file, long description included (surgiplan's
+    # README), and dist.name and dist.version each parse it again; that was most of `surgiplan plugins`' time
+    text = dist.read_text("METADATA") or dist.read_text("PKG-INFO")
+    if text is None:
+        return dist.metadata["Name"] or dist.name, dist.version or ""
+    headers = email.parser.HeaderParser().parsestr(text.split("\n\n", 1)[0])
+    return headers["Name"] or dist.name, headers["Version"] or ""
 
 
 @dataclass
@@ -274,7 +282,7 @@ class PluginRegistry:
             if spec.name in self.disabled:
                 self.skipped.append(f"{spec.name} ({package})")
                 continue
-            if not spec.unavailable:
+            if not spec.unavailable and not isinstance(spec.cls, str):  # a "module:Class" is checked at first use
                 problem = plugin_class_problem(self.plugin_kinds[kind], spec.cls)
                 if problem:
                     self._fail(
@@ -297,7 +305,15 @@ class PluginRegistry:
                 )
                 continue
             self.plugins[key] = PluginInfo(
-                spec.name, kind, spec.cls, spec.description, package, version, ep_name, spec.unavailable
+                spec.name,
+                kind,
+                spec.cls,
+                spec.description,
+                package,
+                version,
+                ep_name,
+                spec.unavailable,
+                check=functools.partial(plugin_class_problem, self.plugin_kinds[kind]),
             )
 
     # ------------------------------------------------------------------ lookup
@@ -329,6 +345,11 @@ class PluginRegistry:
         if info is not None and info.unavailable:
             raise PluginError(f"{label} '{name}' is not available: {info.unavailable}", location=location)
         if info is not None:
+            try:
+                info.cls  # noqa: B018 - a class named by "module:Class" is imported (and checked) here
+            except PluginError as exc:
+                exc.location = exc.location or location
+                raise
             return info
         message = f"unknown {label} '{name}'"
         elsewhere = [k for (k, n) in self.plugins if n == name]

@@ -36,8 +36,6 @@ from .errors import OutputError, SurgiplanError
 from .executors import DaskExecutor, Executor, LocalExecutor
 from .kinds import RunState, StageKind, StageRun, StageSpec
 from .live import LiveFeed
-from .outputs.gltf import write_scene_glb
-from .outputs.report import write_run_report
 from .pipeline import Pipeline
 from .progress import NullProgress, Progress, StageProgress
 from .results import StageContext, StageResult
@@ -219,6 +217,8 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: 
         for kind in dict.fromkeys(kinds.values()):  # each kind once, in pipeline order
             files.extend(kind.finish(state))
         if pipeline.model.output.gltf:
+            from .outputs.gltf import write_scene_glb  # trimesh: loaded when the scene is written, after the stages
+
             paths = [(r.name, r.tip_path) for r in results if r.tip_path is not None and len(r.tip_path) >= 2]
             markers = [
                 marker
@@ -247,6 +247,8 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: 
         "not_run": [{"stage": s.kind, "name": s.name, "plugin": s.plugin.name if s.plugin else ""} for s in not_run],
         "files": sorted(set(files)),
     }
+    from .outputs.report import write_run_report
+
     write_run_report(out, document, pipeline)  # report.html, last but one (lists itself in document["files"])
     write_json_atomic(out / "result.json", document)
     marker.unlink(missing_ok=True)
@@ -259,7 +261,3 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: 
 
 def _stage_failure(spec: StageSpec, status: RunStatus, message: str) -> StageResult:
     return StageResult(spec.kind, spec.name, spec.plugin.name if spec.plugin else "", status.value, message=message)
-
-
-def debug_enabled() -> bool:
-    return os.environ.get("SURGIPLAN_DEBUG", "") not in ("", "0")

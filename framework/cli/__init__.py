@@ -16,8 +16,7 @@ import logging
 import sys
 import traceback
 
-from .. import __version__
-from ..errors import SurgiplanError
+from ..errors import SurgiplanError, debug_enabled
 from . import benchmark, benchmark_task, can_decode, canopen_conformance, cohort, export, plugins, run, trainee, view
 
 #: the command groups, in the order --help lists them
@@ -46,11 +45,24 @@ def _setup_logging(verbose: bool):
     return restore
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: the installed version, read from the distribution's metadata only when asked."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help="show the version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from .. import __version__
+
+        print(f"surgiplan {__version__}")  # to stdout, as argparse's own version action does
+        parser.exit()
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="surgiplan", description="Plugin-based planning for surgical training and robotics."
     )
-    parser.add_argument("--version", action="version", version=f"surgiplan {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     parser.add_argument(
         "-v",
@@ -72,8 +84,6 @@ def _where_the_record_is(exc: BaseException) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from ..runner import debug_enabled
-
     debug = args.debug or debug_enabled()
     restore_logging = _setup_logging(args.verbose)
     try:

@@ -3,7 +3,6 @@ the SQLite database Planner Arena reads (:mod:`surgiplan.plannerarena`)."""
 
 from __future__ import annotations
 
-import statistics
 import sys
 from pathlib import Path
 
@@ -25,6 +24,8 @@ def add_parsers(sub) -> None:
 
 
 def _cmd_benchmark(args) -> int:
+    import statistics
+
     from ..pipeline import load_pipeline
     from ..plannerarena import benchmark_pipeline, write_database, write_log
     from ..storage import prepare_output_dir

@@ -15,27 +15,37 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+
+def _rotation():
+    """scipy's ``Rotation``, imported at the first conversion: ``scipy.spatial`` costs about half a second, which a
+    scene of boxes and ``surgiplan validate`` need not pay."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 
 def rpy_to_matrix(rpy) -> np.ndarray:
     """Rotation matrix (…, 3, 3) from roll, pitch, yaw (…, 3) in radians."""
-    return Rotation.from_euler("xyz", np.asarray(rpy, dtype=float)).as_matrix()
+    rpy = np.asarray(rpy, dtype=float)
+    if rpy.shape[-1:] == (3,) and not rpy.any():  # no rotation (most obstacles): exactly what scipy gives, sooner
+        return np.broadcast_to(np.eye(3), (*rpy.shape[:-1], 3, 3)).copy()
+    return _rotation().from_euler("xyz", rpy).as_matrix()
 
 
 def matrix_to_rpy(rotation) -> np.ndarray:
     """Roll, pitch, yaw (…, 3) in radians from rotation matrices (…, 3, 3)."""
-    return Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_euler("xyz")
+    return _rotation().from_matrix(np.asarray(rotation, dtype=float)).as_euler("xyz")
 
 
 def quaternion_to_matrix(quaternion) -> np.ndarray:
     """Rotation matrices from scalar-last unit quaternions (…, 4)."""
-    return Rotation.from_quat(np.asarray(quaternion, dtype=float)).as_matrix()
+    return _rotation().from_quat(np.asarray(quaternion, dtype=float)).as_matrix()
 
 
 def matrix_to_quaternion(rotation) -> np.ndarray:
     """Scalar-last unit quaternions, sign chosen with ``qw >= 0``."""
-    q = Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_quat()
+    q = _rotation().from_matrix(np.asarray(rotation, dtype=float)).as_quat()
     return canonical_quaternion(q)
 
 

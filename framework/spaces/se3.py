@@ -19,7 +19,6 @@ from typing import ClassVar
 import coal
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
-from scipy.spatial.transform import Rotation
 
 from ..errors import PlanningInputError
 from ..geometry.transforms import canonical_quaternion, quaternion_angle, quaternion_to_matrix, slerp
@@ -124,6 +123,8 @@ class SE3Space(Space):
         return np.concatenate([self.scene.bounds_max, np.ones(4)])
 
     def sample(self, rng, n):
+        from scipy.spatial.transform import Rotation  # scipy.spatial: at first use, not when spaces are listed
+
         position = rng.uniform(self.scene.bounds_min, self.scene.bounds_max, size=(n, 3))
         rotation = canonical_quaternion(Rotation.random(n, random_state=rng).as_quat())
         return np.concatenate([position, rotation], axis=1)
@@ -189,6 +190,8 @@ class SE3Space(Space):
             if value.get("quaternion") is not None:
                 quaternion = canonical_quaternion(np.asarray(value["quaternion"], float))
             else:
+                from scipy.spatial.transform import Rotation
+
                 quaternion = canonical_quaternion(Rotation.from_euler("xyz", value.get("rpy") or (0, 0, 0)).as_quat())
             return np.concatenate([xyz, quaternion])
         value = np.asarray(value, dtype=float).reshape(-1)

@@ -48,7 +48,6 @@ from ..guidance.assessment import record_attempt
 from ..guidance.ghost import GhostKeys, load_ghost
 from ..guidance.metrics import AssessmentSettings
 from ..guidance.record import RecordError, TraineeRecord
-from ..guidance.report import attempt_figure, write_samples_csv
 from ..guidance.source import GuideContext, PoseSample, PoseSource, SourceStopped
 from ..hookspecs import PluginSpec, hookspec
 from ..kinds import (
@@ -253,6 +252,8 @@ class GuideKind(StageKind):
             raise files.error(exc.message, *where) from None
 
     def run(self, run: StageRun) -> StageResult:
+        from ..guidance.report import attempt_figure, write_samples_csv  # matplotlib: loaded when it runs
+
         source = planned(run, minimum=2)
         if isinstance(source, StageResult):
             return source

@@ -38,8 +38,6 @@ from ..errors import ConfigError, ConfigErrors, PlanningInputError, SurgiplanErr
 from ..hookspecs import PluginSpec, hookspec
 from ..kinds import FileContext, PluginKind, StageKind, StageModel, StageRun, StageSpec
 from ..models import QuaternionPoseModel
-from ..outputs.figures import PathView, overview_figure, plan_figure
-from ..outputs.report.paths import plan_report
 from ..planning import Planner, PlanningProblem, PlanResult
 from ..resources import ResourceEstimate
 from ..results import StageResult
@@ -373,6 +371,8 @@ class PlanKind(StageKind):
             common, tips, clearance = path_metrics(spec.space, path, threshold.value if threshold else None)
             metrics.update(common)
             stage.tip_path = spec.space.tip(path)
+            from ..outputs.figures import PathView, plan_figure  # matplotlib: once there is a path to draw
+
             view = PathView(
                 spec.name,
                 tips,
@@ -447,6 +447,8 @@ class PlanKind(StageKind):
         return ", ".join(parts)
 
     def finish(self, state) -> list[str]:
+        from ..outputs.figures import overview_figure
+
         views = state.kept.get(self.name, [])
         if not state.figures or len(views) < 2:
             return []
@@ -470,4 +472,6 @@ class PlanKind(StageKind):
 
     # ------------------------------------------------------------------ presenting
     def report(self, stage, entry, inputs) -> None:
+        from ..outputs.report.paths import plan_report
+
         plan_report(stage, entry, inputs.specs.get(stage["name"]), inputs.scene, inputs.notes)

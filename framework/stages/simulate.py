@@ -19,7 +19,6 @@ from ..deformable import DeformableModel
 from ..hookspecs import PluginSpec, hookspec
 from ..kinds import PluginKind, StageKind, StageRun
 from ..outputs.report.meshes import simulate_mesh
-from ..outputs.summary import si
 from ..results import StageResult
 from ..status import SimulateStatus
 
@@ -59,6 +58,8 @@ class SimulateKind(StageKind):
         return result
 
     def details(self, result: StageResult, k: float, unit: str) -> list[str]:
+        from ..outputs.summary import si  # rich: the summary table is being drawn anyway
+
         if not result.succeeded:
             return []
         m = result.metrics

@@ -27,12 +27,29 @@ calls this model for every sampled gripper pose. Modules:
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .mesh import TetMesh, box_mesh, read_tet_mesh
-from .model import AxisConstraints, StVKModel
-from .settings import StVKSettings
-from .stage import StVK
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .mesh import TetMesh, box_mesh, read_tet_mesh
+    from .model import AxisConstraints, StVKModel
+    from .settings import StVKSettings
+    from .stage import StVK
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "TetMesh": ".mesh",
+        "box_mesh": ".mesh",
+        "read_tet_mesh": ".mesh",
+        "AxisConstraints": ".model",
+        "StVKModel": ".model",
+        "StVKSettings": ".settings",
+        "StVK": ".stage",
+    },
+)
 
 __all__ = ["AxisConstraints", "StVK", "StVKModel", "StVKSettings", "TetMesh", "box_mesh", "read_tet_mesh"]
 
@@ -42,7 +59,7 @@ def surgiplan_register_deformable_models():
     return [
         PluginSpec(
             "stvk",
-            StVK,
+            "surgiplan.plugins.fem.stage:StVK",
             "nonlinear St. Venant-Kirchhoff tetrahedral FEM: static equilibria of grasped tissue (paper 002 §V)",
         )
     ]

@@ -13,10 +13,19 @@ The CAST gimbal itself is a source too, in observe mode: registered by
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .recorded import RecordedAttempt, RecordedAttemptSettings
-from .synthetic import SyntheticTrainee
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .recorded import RecordedAttempt, RecordedAttemptSettings
+    from .synthetic import SyntheticTrainee
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"RecordedAttempt": ".recorded", "RecordedAttemptSettings": ".recorded", "SyntheticTrainee": ".synthetic"},
+)
 
 __all__ = ["RecordedAttempt", "RecordedAttemptSettings", "SyntheticTrainee"]
 
@@ -25,11 +34,13 @@ __all__ = ["RecordedAttempt", "RecordedAttemptSettings", "SyntheticTrainee"]
 def surgiplan_register_sources():
     return [
         PluginSpec(
-            "recorded_attempt", RecordedAttempt, "replays a recorded attempt: time and tip position or gimbal joints"
+            "recorded_attempt",
+            "surgiplan.plugins.guidance.recorded:RecordedAttempt",
+            "replays a recorded attempt: time and tip position or gimbal joints",
         ),
         PluginSpec(
             "synthetic_trainee",
-            SyntheticTrainee,
+            "surgiplan.plugins.guidance.synthetic:SyntheticTrainee",
             "a seeded synthetic trainee following the recommended path (expert, intermediate, beginner)",
         ),
     ]

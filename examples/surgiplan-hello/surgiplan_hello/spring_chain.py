@@ -15,9 +15,7 @@ use); ``run_stage`` makes it usable as a pipeline's ``simulate`` stage.
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 from pydantic import Field, PositiveFloat
-from scipy.sparse.linalg import spsolve
 from surgiplan import (
     Constraints,
     DeformableModel,
@@ -53,6 +51,10 @@ class SpringChain(DeformableModel):
         return [ResourceEstimate(n * 3 * 8 * 20, f"a chain of {n:,} nodes", "nodes")]
 
     def __init__(self, settings: SpringChainSettings) -> None:
+        # heavy libraries are imported where they are used: loading the plugin (surgiplan plugins, validate)
+        # does not pay for scipy.sparse
+        import scipy.sparse as sp
+
         super().__init__(settings)
         s = settings
         t = np.linspace(0.0, 1.0, s.nodes)[:, None]
@@ -73,6 +75,8 @@ class SpringChain(DeformableModel):
         return self._elements
 
     def solve(self, constraints: Constraints, initial: EquilibriumState | None = None) -> EquilibriumState:
+        from scipy.sparse.linalg import spsolve
+
         n = len(self._rest)
         held = np.asarray(constraints.prescribed_nodes, dtype=np.int64)
         free = np.setdiff1d(np.arange(n), held)

@@ -232,6 +232,12 @@ class Cia402Device(Device):
     # ------------------------------------------------------------------ lifecycle
     def on_configure(self, context) -> None:
         s = self.settings
+        scene = getattr(context, "scene", None)
+        if scene is not None and scene.obstacles:
+            # the scene's distance queries (compiled kernels, numba: seconds to import on a loaded machine) load
+            # now, before the bus is opened: certifying a trajectory needs them, and an import that holds the GIL
+            # while drives wait for SDO answers or SYNC trips their time-outs and watchdogs
+            scene.signed_distance(np.asarray(scene.bounds_min, dtype=float)[None, :])
         if s.bus.faults and not s.bus.simulated:
             raise ConfigError("bus.faults are injected by the simulated bus: use them with interface: virtual")
         if s.bus.simulated and self.simulated_drives is None:

@@ -12,10 +12,24 @@ package data).
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .device import CastGimbalDevice, CastGimbalDeviceSettings
-from .observe import CastGimbalObserver, CastGimbalObserveSettings
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .device import CastGimbalDevice, CastGimbalDeviceSettings
+    from .observe import CastGimbalObserver, CastGimbalObserveSettings
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {
+        "CastGimbalDevice": ".device",
+        "CastGimbalDeviceSettings": ".device",
+        "CastGimbalObserver": ".observe",
+        "CastGimbalObserveSettings": ".observe",
+    },
+)
 
 __all__ = ["CastGimbalDevice", "CastGimbalDeviceSettings", "CastGimbalObserveSettings", "CastGimbalObserver"]
 
@@ -25,7 +39,7 @@ def surgiplan_register_devices():
     return [
         PluginSpec(
             "cast_gimbal",
-            CastGimbalDevice,
+            "surgiplan.plugins.devices.cast_gimbal.device:CastGimbalDevice",
             "CAST laparoscopic gimbal (yaw, pitch, insertion, roll): 4 CiA 402 drives over CAN",
         )
     ]
@@ -36,7 +50,7 @@ def surgiplan_register_sources():
     return [
         PluginSpec(
             "cast_gimbal",
-            CastGimbalObserver,
+            "surgiplan.plugins.devices.cast_gimbal.observe:CastGimbalObserver",
             "the CAST gimbal in observe mode: drives not commanded, encoder positions by TPDO (guide stages)",
         )
     ]

@@ -26,9 +26,18 @@ distance from obstacles except in critical regions. The ground-station side:
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .device import MavlinkVehicle, MavlinkVehicleSettings
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .device import MavlinkVehicle, MavlinkVehicleSettings
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"MavlinkVehicle": ".device", "MavlinkVehicleSettings": ".device"},
+)
 
 __all__ = ["MavlinkVehicle", "MavlinkVehicleSettings"]
 
@@ -38,7 +47,7 @@ def surgiplan_register_devices():
     return [
         PluginSpec(
             "mavlink_vehicle",
-            MavlinkVehicle,
+            "surgiplan.plugins.devices.mavlink.device:MavlinkVehicle",
             "a MAVLink 2 vehicle (PX4) flying R3 paths by mission or offboard setpoints; simulated by default",
         )
     ]

@@ -10,10 +10,18 @@ listed as unavailable with that hint.
 from __future__ import annotations
 
 import importlib.util
+from typing import TYPE_CHECKING
 
 from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
 
-from .bridge import OmplPlanner, OmplSettings
+if TYPE_CHECKING:
+    from .bridge import OmplPlanner, OmplSettings
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"OmplPlanner": ".bridge", "OmplSettings": ".bridge"},
+)
 
 __all__ = ["OmplPlanner", "OmplSettings"]
 
@@ -24,9 +32,15 @@ def surgiplan_register_planners():
         return [
             PluginSpec(
                 "ompl",
-                OmplPlanner,
+                "surgiplan.plugins.planners.ompl_bridge.bridge:OmplPlanner",
                 "OMPL planners (PRM, PRM*, RRT-Connect, RRT*)",
                 unavailable="OMPL is not installed: pip install 'surgiplan[ompl]'",
             )
         ]
-    return [PluginSpec("ompl", OmplPlanner, "OMPL planners (PRM, PRM*, RRT-Connect, RRT*) on surgiplan's checks")]
+    return [
+        PluginSpec(
+            "ompl",
+            "surgiplan.plugins.planners.ompl_bridge.bridge:OmplPlanner",
+            "OMPL planners (PRM, PRM*, RRT-Connect, RRT*) on surgiplan's checks",
+        )
+    ]

@@ -22,14 +22,29 @@ The online half of paper 001 (segmented pathmap, A*) is
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .offline import OptMISSettings
-from .planner import OptMIS
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .offline import OptMISSettings
+    from .planner import OptMIS
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"OptMISSettings": ".offline", "OptMIS": ".planner"},
+)
 
 __all__ = ["OptMIS", "OptMISSettings"]
 
 
 @hookimpl
 def surgiplan_register_planners():
-    return [PluginSpec("optmis", OptMIS, "optMIS offline planner: all-pairs certified optimal paths (Rao et al.)")]
+    return [
+        PluginSpec(
+            "optmis",
+            "surgiplan.plugins.planners.optmis.planner:OptMIS",
+            "optMIS offline planner: all-pairs certified optimal paths (Rao et al.)",
+        )
+    ]

@@ -28,10 +28,19 @@ The tissue is any deformable-model plugin, found by its registered name
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .planner import RetractionPlanner
-from .settings import RetractionSettings
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .planner import RetractionPlanner
+    from .settings import RetractionSettings
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"RetractionPlanner": ".planner", "RetractionSettings": ".settings"},
+)
 
 __all__ = ["RetractionPlanner", "RetractionSettings"]
 
@@ -41,7 +50,7 @@ def surgiplan_register_planners():
     return [
         PluginSpec(
             "retraction",
-            RetractionPlanner,
+            "surgiplan.plugins.planners.retraction.planner:RetractionPlanner",
             "tissue retraction on FEM equilibria: min-max energy/stress or control effort, best grasp (paper 002)",
         )
     ]

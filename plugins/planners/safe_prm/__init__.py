@@ -23,9 +23,18 @@ Conference, Modeling and Simulation in Medicine (SpringSim-MSM), 2019
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .planner import SafePRM, SafePRMSettings, critical_regions
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .planner import SafePRM, SafePRMSettings, critical_regions
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"SafePRM": ".planner", "SafePRMSettings": ".planner", "critical_regions": ".planner"},
+)
 
 __all__ = ["SafePRM", "SafePRMSettings", "critical_regions"]
 
@@ -33,5 +42,9 @@ __all__ = ["SafePRM", "SafePRMSettings", "critical_regions"]
 @hookimpl
 def surgiplan_register_planners():
     return [
-        PluginSpec("safe_prm", SafePRM, "proficiency-based safe PRM with path repair (Jain, Hong & Rozenblit 2019)")
+        PluginSpec(
+            "safe_prm",
+            "surgiplan.plugins.planners.safe_prm.planner:SafePRM",
+            "proficiency-based safe PRM with path repair (Jain, Hong & Rozenblit 2019)",
+        )
     ]

@@ -35,7 +35,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import (
@@ -54,10 +54,10 @@ from surgiplan.resources import ResourceEstimate
 from surgiplan.units import Length, PositiveLength
 from surgiplan.validation import file_length_scale, input_path
 
-from . import query as prm_query
 from .proficiency import DEFAULT_LEVELS, threshold_from_attempts
-from .roadmap import RoadmapPair, build_roadmaps
-from .smoothing import raise_clearance, shortcut, smooth_in_corridor
+
+if TYPE_CHECKING:
+    from .roadmap import RoadmapPair
 
 
 class FromAttempts(StrictModel):
@@ -251,6 +251,12 @@ class SafePRM(Planner):
     #: paper 000: d_thresh is kept except in critical regions, where no detour exists
     clearance_policy = ClearancePolicy.EXCEPT_CRITICAL
 
+    def __init__(self, settings: SafePRMSettings) -> None:
+        super().__init__(settings)
+        # the roadmap, query and smoothing modules (numba kernels from numba's cache, scipy, OSQP) load here, when
+        # a stage constructs its planner, before the timed build and query; validating settings does not load them
+        from . import query, roadmap, smoothing  # noqa: F401
+
     @classmethod
     def clearance_threshold_from(cls, settings):
         """d_thresh, from ``proficiency`` (a level, a length, recorded attempts or the trainee record)."""
@@ -273,6 +279,8 @@ class SafePRM(Planner):
         space = problem.space
         if space.coordinate_weights is None:
             raise ValueError(f"safe_prm plans in R3 or the CAST gimbal space, not in '{space.kind}'")
+        from .roadmap import build_roadmaps
+
         s = self.settings.s or auto_radius(space, milestones)
         return build_roadmaps(
             space,
@@ -303,6 +311,8 @@ class SafePRM(Planner):
         }
 
     def load_artifact(self, data, problem: PlanningProblem) -> SafePRMArtifact:
+        from .roadmap import RoadmapPair
+
         roadmap = RoadmapPair(
             problem.space,
             np.asarray(data["milestones"], float).reshape(-1, problem.space.dimension),
@@ -327,6 +337,9 @@ class SafePRM(Planner):
 
     # ------------------------------------------------------------------ query
     def query(self, artifact: SafePRMArtifact, start, goal) -> PlanResult:
+        from . import query as prm_query
+        from .smoothing import shortcut, smooth_in_corridor
+
         roadmap = artifact.roadmap
         space = roadmap.space
         d_thresh = roadmap.d_thresh
@@ -451,6 +464,8 @@ class SafePRM(Planner):
     @staticmethod
     def _centre_critical(space, dense: np.ndarray, risky: np.ndarray, resolution: float, d_thresh: float) -> np.ndarray:
         """Raise the clearance inside critical stretches (as much as the passage allows, up to d_thresh)."""
+        from .smoothing import raise_clearance
+
         movable = np.zeros(len(dense), dtype=bool)
         movable[1:-1] = risky[:-1] & risky[1:]  # interior points of critical stretches
         raised = raise_clearance(space, dense, movable, step=resolution, target=d_thresh)
@@ -486,6 +501,8 @@ def _stretches(mask: np.ndarray) -> list[tuple[int, int]]:
 
 def _densify(space, path: np.ndarray, kinds: list[str], resolution: float) -> tuple[np.ndarray, np.ndarray]:
     """The path densified to ``resolution``, and per dense motion whether it is on a risk/link edge."""
+    from . import query as prm_query
+
     pieces = [path[:1]]
     risky = []
     for i, kind in enumerate(kinds):

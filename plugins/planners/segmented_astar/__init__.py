@@ -22,9 +22,18 @@ packages that the import contracts allow.
 
 from __future__ import annotations
 
-from surgiplan.hookspecs import PluginSpec, hookimpl
+from typing import TYPE_CHECKING
 
-from .search import SegmentedAStar
+from surgiplan.hookspecs import PluginSpec, hookimpl
+from surgiplan.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from .search import SegmentedAStar
+
+__getattr__, __dir__ = lazy_exports(
+    __name__,
+    {"SegmentedAStar": ".search"},
+)
 
 __all__ = ["SegmentedAStar"]
 
@@ -34,7 +43,7 @@ def surgiplan_register_planners():
     return [
         PluginSpec(
             "segmented_astar",
-            SegmentedAStar,
+            "surgiplan.plugins.planners.segmented_astar.search:SegmentedAStar",
             "online A* on the segmented pathmap of an optMIS repository (Rao, Valenzuela & Rozenblit)",
         )
     ]
