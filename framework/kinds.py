@@ -190,6 +190,7 @@ class StageRun:
         )
 
     def skipped(self, message: str) -> StageResult:
+        """The stage's result as ``skipped``, ``message`` saying why (e.g. the stage it needs did not succeed)."""
         return self.result(RunStatus.SKIPPED.value, message=message)
 
 
@@ -238,6 +239,8 @@ class StageKind:
 
     # ------------------------------------------------------------------ validation
     def plugin_statuses(self) -> frozenset[str]:
+        """The values of :attr:`statuses`: what the kind's stages may report besides the framework's own
+        (:class:`~surgiplan.status.RunStatus`); the runner makes any other status ``invalid_result``."""
         return frozenset(s.value for s in self.statuses) if self.statuses is not None else frozenset()
 
     def resolve(self, spec: StageSpec, files: FileContext) -> None:
@@ -256,6 +259,9 @@ class StageKind:
 
     # ------------------------------------------------------------------ running
     def run(self, run: StageRun) -> StageResult:
+        """Run one stage of the kind and return its :class:`~surgiplan.results.StageResult` (made by
+        :meth:`StageRun.result`; plugin calls go through :meth:`StageRun.call`, which names the stage when they fail).
+        Subclasses implement it; the runner checks what it returns."""
         raise NotImplementedError
 
     def finish(self, state: RunState) -> list[str]:
@@ -288,6 +294,9 @@ class PathStageModel(StageModel):
 
 @dataclass
 class PathStageSpec(StageSpec):
+    """A resolved stage that takes a plan stage's path: ``path_from`` names that stage (see
+    :func:`resolve_path_from`)."""
+
     path_from: str | None = None
 
 

@@ -65,6 +65,9 @@ class StageKindInfo:
 
 @dataclass
 class LoadFailure:
+    """A plugin that could not be loaded and was skipped (``surgiplan plugins`` lists them): its entry point, its
+    distribution (``package``) and the reason (``error``)."""
+
     entry_point: str
     package: str
     error: str
@@ -302,9 +305,12 @@ class PluginRegistry:
 
     # ------------------------------------------------------------------ lookup
     def names(self, kind: str) -> list[str]:
+        """The names of the usable (installed and available) plugins of ``kind`` (``planner``, ``device``, ...),
+        sorted."""
         return sorted(name for (k, name), info in self.plugins.items() if k == kind and not info.unavailable)
 
     def all(self) -> list[PluginInfo]:
+        """Every registered plugin, unavailable ones included, by kind then name."""
         return sorted(self.plugins.values(), key=lambda p: (p.kind, p.name))
 
     def stage_kind(self, name: str, *, location: str | None = None) -> StageKind:

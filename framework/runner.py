@@ -54,6 +54,9 @@ IN_PROGRESS = ".in-progress.json"
 
 @dataclass
 class RunOutcome:
+    """What :func:`run_pipeline` did: the output directory, each stage's result in order, the files it wrote there
+    (relative names) and the run's status; :attr:`ok` when the run and every stage succeeded."""
+
     output_dir: Path
     results: list[StageResult]
     files: list[str] = field(default_factory=list)
@@ -262,4 +265,5 @@ def _stage_failure(spec: StageSpec, status: RunStatus, message: str) -> StageRes
 
 
 def debug_enabled() -> bool:
+    """Whether ``SURGIPLAN_DEBUG`` is set (and not ``0``): the command line then prints tracebacks, as ``--debug``."""
     return os.environ.get("SURGIPLAN_DEBUG", "") not in ("", "0")

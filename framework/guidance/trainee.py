@@ -59,6 +59,8 @@ class TraineeModel(StrictModel):
     seed: int = 0
 
     def parameter(self, name: str) -> float:
+        """The value of ``name`` (``speed``, ``deviation``, ``hesitation_rate`` or ``hesitation``; SI): the setting
+        when given, else its level's default from :data:`LEVELS`."""
         value = getattr(self, name)
         return float(LEVELS[self.level][name] if value is None else value)
 
