@@ -141,8 +141,9 @@ class StageRun:
     state: RunState
 
     def call(self, what: str, fn, *args, **kwargs):
-        """Call into the stage's plugin; a crash becomes a :class:`StageError` naming the stage, the plugin
-        and its package (a :class:`SurgiplanError` it raises keeps its message, located at the stage)."""
+        """Call into the stage's plugin; a crash becomes a :class:`~surgiplan.errors.StageError` naming the stage,
+        the plugin and its package (a :class:`~surgiplan.errors.SurgiplanError` it raises keeps its message, located
+        at the stage)."""
         spec = self.spec
         try:
             return fn(*args, **kwargs)
@@ -176,7 +177,7 @@ class StageRun:
         return kept
 
     def result(self, status: str, **fields: Any) -> StageResult:
-        """A :class:`StageResult` of this stage."""
+        """A :class:`~surgiplan.results.StageResult` of this stage."""
         spec = self.spec
         return StageResult(spec.kind, spec.name, spec.plugin.name if spec.plugin else "", str(status), **fields)
 

@@ -71,7 +71,7 @@ def load_pipeline(
 ) -> Pipeline:
     """Read, validate and resolve a pipeline file (all four passes).
 
-    Every problem found is reported at once (:class:`ConfigErrors`, sorted by line): a stage whose
+    Every problem found is reported at once (:class:`~surgiplan.errors.ConfigErrors`, sorted by line): a stage whose
     structure is wrong is left out of the later passes, the others go on, so a file with three
     mistakes needs one ``surgiplan validate``, not three.
     """

@@ -314,7 +314,7 @@ class PluginRegistry:
         return sorted(self.plugins.values(), key=lambda p: (p.kind, p.name))
 
     def stage_kind(self, name: str, *, location: str | None = None) -> StageKind:
-        """The stage kind ``name``; a :class:`PluginError` that lists the choices otherwise."""
+        """The stage kind ``name``; a :class:`~surgiplan.errors.PluginError` that lists the choices otherwise."""
         info = self.stage_kinds.get(name)
         if info is not None:
             return info.kind
@@ -329,7 +329,8 @@ class PluginRegistry:
         return {n: self.stage_kinds[n].kind for n in names if n in self.stage_kinds}
 
     def get(self, kind: str, name: str, *, location: str | None = None) -> PluginInfo:
-        """The plugin ``name`` of ``kind``; a :class:`PluginError` that lists the choices otherwise."""
+        """The plugin ``name`` of ``kind``; a :class:`~surgiplan.errors.PluginError` that lists the choices
+        otherwise."""
         info = self.plugins.get((kind, name))
         label = kind.replace("_", " ")
         if info is not None and info.unavailable:
@@ -357,7 +358,7 @@ def _declared(manager: pluggy.PluginManager, hook: str) -> bool:
 def plugin_class_problem(kind: PluginKind, cls: Any) -> str:
     """Why ``cls`` cannot be a plugin of ``kind`` (empty if it can).
 
-    It must subclass the interface of its kind (:class:`~surgiplan.Planner`, ...) and declare a pydantic
+    It must subclass the interface of its kind (:class:`~surgiplan.planning.Planner`, ...) and declare a pydantic
     ``Settings`` model that forbids unknown keys (``extra="forbid"``) at every level, so that a misspelt
     setting is an error naming it rather than silently ignored.
     """

@@ -165,7 +165,7 @@ def test_the_cli_page_lists_every_command_and_option(site):
 
 def test_every_public_module_has_an_api_page(site):
     index = (DOCS / "reference" / "api" / "index.rst").read_text()
-    modules = re.findall(r"^   (\w+)$", index, flags=re.M)
+    modules = re.findall(r"^   ([\w.]+)$", index, flags=re.M)
     assert {"kinds", "clearance", "devices", "planning", "guidance", "spaces", "units", "errors"} <= set(modules)
     for module in modules:
         html = (site / "reference" / "api" / f"{module}.html").read_text()

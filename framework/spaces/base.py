@@ -205,7 +205,7 @@ class Space(ABC):
 
         Exact where the swept volume is known in closed form (R3); otherwise a
         certified lower bound, below the true value by at most
-        :meth:`segment_clearance_tolerance`: each motion is sampled finely
+        :meth:`~surgiplan.spaces.Space.segment_clearance_tolerance`: each motion is sampled finely
         enough that no body point moves more than twice the tolerance between
         samples, and half that motion is subtracted.
         """
@@ -230,8 +230,8 @@ class Space(ABC):
 
     @abstractmethod
     def settings_spec(self) -> dict:
-        """The settings that shape the space, canonical and JSON-able (SI), for :meth:`spec`: two spaces with equal
-        specs are the same space."""
+        """The settings that shape the space, canonical and JSON-able (SI), for :meth:`~surgiplan.spaces.Space.spec`:
+        two spaces with equal specs are the same space."""
 
 
 def certify_by_covering(
