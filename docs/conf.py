@@ -14,7 +14,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent / "_ext"))
 
 import surgiplan
-from surgiplan_docs import known_gaps
 
 project = "surgiplan"
 author = "the surgiplan developers"
@@ -31,7 +30,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-exclude_patterns = ["_build", "known-gaps.txt"]
+exclude_patterns = ["_build"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
@@ -48,9 +47,6 @@ nitpick_ignore_regex = [
     (r"py:class", r"(BaseModel|FieldInfo|ValidationInfo|Enum|StrEnum|IntEnum|ABC|Protocol|TypeVar)"),
 ]
 
-# the debt the code had when the site came: let through, nothing new (the list only shrinks)
-surgiplan_known_undocumented, _known_references = known_gaps(Path(__file__).parent / "known-gaps.txt")
-nitpick_ignore = _known_references
 # sphinx-argparse's domain answers no MyST "any" reference; harmless, and not ours to fix
 suppress_warnings = ["myst.domains"]
 

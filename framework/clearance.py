@@ -91,6 +91,8 @@ class CriticalRegion(StrictModel):
         return (self.start_m, self.end_m)
 
     def to_json(self) -> dict[str, Any]:
+        """The region as ``result.json`` stores it (``annotations.critical_regions``): its fields, obstacles as a
+        list; :func:`regions_from_json` reads it back."""
         data = self.model_dump()
         data["obstacles"] = list(self.obstacles)
         return data

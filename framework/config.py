@@ -29,6 +29,9 @@ LengthUnit = Literal[tuple(LENGTH_UNITS)]  # type: ignore[valid-type]
 
 
 class BoundsModel(StrictModel):
+    """The workspace box: corners ``min`` and ``max`` ([x, y, z] in the file's ``length_unit``); ``max`` must exceed
+    ``min`` along every axis. Planners sample inside it and paths must stay in it."""
+
     min: Vec3
     max: Vec3
 
@@ -62,6 +65,8 @@ class BoxModel(StrictModel):
 
 
 class SphereModel(StrictModel):
+    """A solid sphere of ``radius`` centred on the obstacle's pose."""
+
     radius: PositiveLength
 
 
@@ -107,6 +112,9 @@ class MeshModel(StrictModel):
 
 
 class ObstacleModel(StrictModel):
+    """A named obstacle: exactly one shape (``box``, ``sphere``, ``cylinder``, ``capsule`` or ``mesh``) placed by
+    ``pose`` (default: at the origin, unrotated). Names are unique within a scene."""
+
     name: str = Field(min_length=1)
     box: BoxModel | None = None
     sphere: SphereModel | None = None
@@ -201,6 +209,9 @@ class ExecutorModel(StrictModel):
 
 
 class OutputModel(StrictModel):
+    """Where a run writes and what: ``figures`` draws a PNG per plan stage (and ``overview.png`` when there are
+    several), ``gltf`` writes the scene and the paths as ``scene.glb``."""
+
     #: output directory, relative to the current directory; default out/<name>
     dir: str | None = None
     figures: bool = True
@@ -208,6 +219,9 @@ class OutputModel(StrictModel):
 
 
 class PipelineModel(StrictModel):
+    """A pipeline file: its ``name``, the scene (inline or a file), the stages in order, where they run
+    (``executor``), what they write (``output``) and the trainee record guide stages use."""
+
     name: str = Field(min_length=1)
     description: str | None = None
     length_unit: LengthUnit = "m"

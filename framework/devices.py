@@ -34,6 +34,8 @@ if TYPE_CHECKING:
 
 
 class LifecycleState(enum.StrEnum):
+    """Where a :class:`Device` is in its lifecycle (ros2_control's managed-node states; see the module's diagram)."""
+
     UNCONFIGURED = "unconfigured"
     INACTIVE = "inactive"
     ACTIVE = "active"
@@ -134,23 +136,32 @@ class Device(ABC):
         self.state = target
 
     def configure(self, context: StageContext) -> None:
+        """unconfigured -> inactive: keep ``context`` (output directory, scene) and run :meth:`on_configure`.
+
+        Raises :class:`LifecycleError` from another state; a failing ``on_configure`` leaves the device in
+        ``error`` and propagates."""
         self.context = context
         self._transition("configure", lambda: self.on_configure(context))
 
     def activate(self) -> None:
+        """inactive -> active through :meth:`on_activate`; :meth:`execute` is accepted afterwards."""
         self._transition("activate", self.on_activate)
 
     def deactivate(self) -> None:
+        """active -> inactive through :meth:`on_deactivate`."""
         self._transition("deactivate", self.on_deactivate)
 
     def cleanup(self) -> None:
+        """inactive -> unconfigured through :meth:`on_cleanup`."""
         self._transition("cleanup", self.on_cleanup)
 
     def shutdown(self) -> None:
+        """Any state -> finalized through :meth:`on_shutdown`; does nothing when already finalized."""
         if self.state is not LifecycleState.FINALIZED:
             self._transition("shutdown", self.on_shutdown)
 
     def execute(self, trajectory: Trajectory) -> ExecutionReport:
+        """Move along ``trajectory`` (:meth:`run`) and report what happened; :class:`LifecycleError` unless active."""
         if self.state is not LifecycleState.ACTIVE:
             raise LifecycleError(f"a device must be active to execute; it is {self.state.value}")
         return self.run(trajectory)

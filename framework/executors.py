@@ -56,7 +56,7 @@ class Executor(ABC):
         return results
 
     def close(self) -> None:
-        pass
+        """Release the workers (also on leaving a ``with`` block); the base has nothing to release."""
 
     def __enter__(self) -> Executor:
         return self
@@ -65,6 +65,7 @@ class Executor(ABC):
         self.close()
 
     def describe(self) -> str:
+        """Where tasks run, for the run's log (``local (4 workers)``); the base gives :attr:`kind`."""
         return self.kind
 
 
@@ -126,11 +127,13 @@ class LocalExecutor(Executor):
                 future.cancel()
 
     def close(self):
+        """Shut the process pool down (queued tasks cancelled, running ones awaited); a later task starts a new one."""
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
     def describe(self):
+        """``local (N workers)``."""
         return f"local ({self.workers} worker{'s' if self.workers != 1 else ''})"
 
 
@@ -204,9 +207,11 @@ class DaskExecutor(Executor):
             self._client.cancel(futures)
 
     def close(self):
+        """Disconnect from the scheduler; the cluster (scheduler and workers) keeps running."""
         self._client.close()
 
     def describe(self):
+        """``dask (ADDRESS)``: the scheduler's address."""
         return f"dask ({self.address})"
 
 
@@ -255,10 +260,13 @@ class TaskStore:
         return self._path(key).is_file()
 
     def save(self, key: str, result: Mapping[str, Any]) -> None:
+        """Store the result of task ``key`` atomically: its numpy arrays as arrays, every other value as JSON."""
         arrays, meta = _split(result)
         save_bundle(self._path(key), arrays, {"key": key, "values": meta})
 
     def load(self, key: str) -> dict[str, Any]:
+        """The result :meth:`save` stored for ``key`` (JSON values and arrays in one dict); :class:`ValueError` when
+        its file is not a readable bundle."""
         arrays, meta = load_bundle(self._path(key))
         return {**meta["values"], **arrays}
 

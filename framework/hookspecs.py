@@ -160,4 +160,4 @@ def surgiplan_register_stage_kinds() -> list[Any]:
 
 @hookspec
 def surgiplan_register_spaces() -> list[PluginSpec]:
-    """Configuration spaces (subclasses of :class:`surgiplan.Space`), chosen by ``space: {kind: name}``."""
+    """Configuration spaces (subclasses of :class:`~surgiplan.spaces.Space`), chosen by ``space: {kind: name}``."""

@@ -141,8 +141,9 @@ class StageRun:
     state: RunState
 
     def call(self, what: str, fn, *args, **kwargs):
-        """Call into the stage's plugin; a crash becomes a :class:`StageError` naming the stage, the plugin
-        and its package (a :class:`SurgiplanError` it raises keeps its message, located at the stage)."""
+        """Call into the stage's plugin; a crash becomes a :class:`~surgiplan.errors.StageError` naming the stage,
+        the plugin and its package (a :class:`~surgiplan.errors.SurgiplanError` it raises keeps its message, located
+        at the stage)."""
         spec = self.spec
         try:
             return fn(*args, **kwargs)
@@ -176,7 +177,7 @@ class StageRun:
         return kept
 
     def result(self, status: str, **fields: Any) -> StageResult:
-        """A :class:`StageResult` of this stage."""
+        """A :class:`~surgiplan.results.StageResult` of this stage."""
         spec = self.spec
         return StageResult(spec.kind, spec.name, spec.plugin.name if spec.plugin else "", str(status), **fields)
 
@@ -190,6 +191,7 @@ class StageRun:
         )
 
     def skipped(self, message: str) -> StageResult:
+        """The stage's result as ``skipped``, ``message`` saying why (e.g. the stage it needs did not succeed)."""
         return self.result(RunStatus.SKIPPED.value, message=message)
 
 
@@ -238,6 +240,8 @@ class StageKind:
 
     # ------------------------------------------------------------------ validation
     def plugin_statuses(self) -> frozenset[str]:
+        """The values of :attr:`statuses`: what the kind's stages may report besides the framework's own
+        (:class:`~surgiplan.status.RunStatus`); the runner makes any other status ``invalid_result``."""
         return frozenset(s.value for s in self.statuses) if self.statuses is not None else frozenset()
 
     def resolve(self, spec: StageSpec, files: FileContext) -> None:
@@ -256,6 +260,9 @@ class StageKind:
 
     # ------------------------------------------------------------------ running
     def run(self, run: StageRun) -> StageResult:
+        """Run one stage of the kind and return its :class:`~surgiplan.results.StageResult` (made by
+        :meth:`StageRun.result`; plugin calls go through :meth:`StageRun.call`, which names the stage when they fail).
+        Subclasses implement it; the runner checks what it returns."""
         raise NotImplementedError
 
     def finish(self, state: RunState) -> list[str]:
@@ -288,6 +295,9 @@ class PathStageModel(StageModel):
 
 @dataclass
 class PathStageSpec(StageSpec):
+    """A resolved stage that takes a plan stage's path: ``path_from`` names that stage (see
+    :func:`resolve_path_from`)."""
+
     path_from: str | None = None
 
 

@@ -9,7 +9,7 @@ its :attr:`StageContext.live <surgiplan.results.StageContext.live>` feed::
 
 The default feed (:class:`LiveFeed`) drops everything, so publishing costs
 nothing when nobody watches; ``surgiplan run --live`` (see
-:mod:`surgiplan.outputs.report`) connects a feed that forwards to a viewer on
+``surgiplan.outputs.report``) connects a feed that forwards to a viewer on
 127.0.0.1. Publishing never blocks the stage: a feed that cannot keep up
 drops samples, never delays the control loop.
 
@@ -39,6 +39,7 @@ class LiveFeed:
         """Send ``payload`` on ``channel``; never blocks, never raises."""
 
     def close(self) -> None:
+        """Stop publishing (the run calls it when it ends); this feed holds nothing to flush."""
         pass
 
 
@@ -67,7 +68,8 @@ def redact(url: str) -> str:
 
 
 def loopback_url(url: str) -> tuple[str, int, str]:
-    """(host, port, path) of a ``ws://`` URL on this machine; anything else is a :class:`ConfigError`."""
+    """(host, port, path) of a ``ws://`` URL on this machine; anything else is a
+    :class:`~surgiplan.errors.ConfigError`."""
     import ipaddress
     from urllib.parse import urlsplit
 
@@ -98,7 +100,7 @@ class WebSocketFeed(LiveFeed):
     :meth:`publish` only appends to a bounded queue and wakes a sender thread: it never blocks and never
     raises, whatever the viewer does. The sender batches what has queued (one websocket message per
     batch), so thousands of samples a second cost one send every few milliseconds. When the queue is full
-    the oldest samples are dropped (counted in :attr:`dropped`). The latest ``run``, ``scene`` and
+    the oldest samples are dropped (counted in ``dropped``). The latest ``run``, ``scene`` and
     ``stage`` payloads are sent again first on every (re)connection, so a viewer started late still
     draws the scene and the running stage. Connection attempts are bounded: one a second for
     ``retry_for`` seconds, after which the feed stops trying and drops everything.

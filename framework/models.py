@@ -33,6 +33,8 @@ class PoseModel(StrictModel):
     rpy: tuple[Angle, Angle, Angle] = (0.0, 0.0, 0.0)
 
     def to_pose(self) -> Pose:
+        """The pose as a ``Pose`` (rotation matrix and translation, m): ``rpy`` as extrinsic rotations about x, y
+        then z."""
         return Pose.from_xyz_rpy(self.xyz, self.rpy)
 
 

@@ -44,6 +44,10 @@ __all__ = ["Pipeline", "StageSpec", "load_pipeline", "load_scene", "looks_like_s
 
 @dataclass
 class Pipeline:
+    """A validated, resolved pipeline file (:func:`load_pipeline`): its ``name``, parsed ``model``, the ``scene``
+    built in SI, the ``stages`` in order, the ``output_dir`` a run writes to, the file's directory (``base_dir``,
+    which relative paths in it start from) and the ``registry`` its plugins came from."""
+
     file: Path
     name: str
     model: PipelineModel
@@ -67,7 +71,7 @@ def load_pipeline(
 ) -> Pipeline:
     """Read, validate and resolve a pipeline file (all four passes).
 
-    Every problem found is reported at once (:class:`ConfigErrors`, sorted by line): a stage whose
+    Every problem found is reported at once (:class:`~surgiplan.errors.ConfigErrors`, sorted by line): a stage whose
     structure is wrong is left out of the later passes, the others go on, so a file with three
     mistakes needs one ``surgiplan validate``, not three.
     """

@@ -96,6 +96,8 @@ class PlanResult:
 
     @classmethod
     def failure(cls, status: PlanStatus, dimension: int, message: str, **metrics) -> PlanResult:
+        """A result without a path (an empty (0, ``dimension``) array) with ``status`` and ``message`` saying
+        why, and any ``metrics`` measured before it failed."""
         return cls(status, np.empty((0, dimension)), dict(metrics), message)
 
 

@@ -29,12 +29,15 @@ class ProgressTask:
     abandoned = False
 
     def abandon(self) -> None:
+        """Mark the task as ended unfinished: its bar stays where it got to when the ``with`` block ends."""
         self.abandoned = True
 
     def advance(self, amount: float = 1.0) -> None:  # pragma: no cover - interface
+        """Add ``amount`` finished units (of the task's ``total``)."""
         pass
 
     def update(self, completed: float) -> None:  # pragma: no cover - interface
+        """Set the finished units to ``completed`` (of the task's ``total``)."""
         pass
 
 
@@ -43,10 +46,12 @@ class Progress:
 
     @contextlib.contextmanager
     def task(self, description: str, total: float | None = None) -> Iterator[ProgressTask]:
+        """A context manager giving the :class:`ProgressTask` of one task, shown as ``description`` with ``total``
+        units (None: unknown) while the ``with`` block runs."""
         yield ProgressTask()
 
     def close(self) -> None:
-        pass
+        """Stop reporting (the run calls it at its end); the base has nothing to stop."""
 
 
 class NullProgress(Progress):
@@ -62,12 +67,13 @@ class StageProgress(Progress):
         self.stage = stage
 
     def task(self, description: str, total: float | None = None):
+        """The run's task, its description prefixed with the stage's name (``expert: sampling milestones``)."""
         if not description.startswith(f"{self.stage}:"):
             description = f"{self.stage}: {description}"
         return self.inner.task(description, total)
 
     def close(self) -> None:  # the run closes the real one
-        pass
+        """Nothing: the run closes the progress this view wraps."""
 
 
 class _RichTask(ProgressTask):
@@ -109,6 +115,8 @@ class RichProgress(Progress):
 
     @contextlib.contextmanager
     def task(self, description: str, total: float | None = None) -> Iterator[ProgressTask]:
+        """A bar for the task (the display starts with the first); full at the end of the ``with`` block unless
+        abandoned or left by an exception."""
         if not self._started:
             self._progress.start()
             self._started = True
@@ -122,6 +130,7 @@ class RichProgress(Progress):
             self._progress.stop_task(task_id)
 
     def close(self) -> None:
+        """Stop the display, leaving the bars on the terminal."""
         if self._started:
             self._progress.stop()
             self._started = False

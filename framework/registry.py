@@ -67,6 +67,9 @@ class StageKindInfo:
 
 @dataclass
 class LoadFailure:
+    """A plugin that could not be loaded and was skipped (``surgiplan plugins`` lists them): its entry point, its
+    distribution (``package``) and the reason (``error``)."""
+
     entry_point: str
     package: str
     error: str
@@ -318,13 +321,16 @@ class PluginRegistry:
 
     # ------------------------------------------------------------------ lookup
     def names(self, kind: str) -> list[str]:
+        """The names of the usable (installed and available) plugins of ``kind`` (``planner``, ``device``, ...),
+        sorted."""
         return sorted(name for (k, name), info in self.plugins.items() if k == kind and not info.unavailable)
 
     def all(self) -> list[PluginInfo]:
+        """Every registered plugin, unavailable ones included, by kind then name."""
         return sorted(self.plugins.values(), key=lambda p: (p.kind, p.name))
 
     def stage_kind(self, name: str, *, location: str | None = None) -> StageKind:
-        """The stage kind ``name``; a :class:`PluginError` that lists the choices otherwise."""
+        """The stage kind ``name``; a :class:`~surgiplan.errors.PluginError` that lists the choices otherwise."""
         info = self.stage_kinds.get(name)
         if info is not None:
             return info.kind
@@ -339,7 +345,8 @@ class PluginRegistry:
         return {n: self.stage_kinds[n].kind for n in names if n in self.stage_kinds}
 
     def get(self, kind: str, name: str, *, location: str | None = None) -> PluginInfo:
-        """The plugin ``name`` of ``kind``; a :class:`PluginError` that lists the choices otherwise."""
+        """The plugin ``name`` of ``kind``; a :class:`~surgiplan.errors.PluginError` that lists the choices
+        otherwise."""
         info = self.plugins.get((kind, name))
         label = kind.replace("_", " ")
         if info is not None and info.unavailable:
@@ -372,7 +379,7 @@ def _declared(manager: pluggy.PluginManager, hook: str) -> bool:
 def plugin_class_problem(kind: PluginKind, cls: Any) -> str:
     """Why ``cls`` cannot be a plugin of ``kind`` (empty if it can).
 
-    It must subclass the interface of its kind (:class:`~surgiplan.Planner`, ...) and declare a pydantic
+    It must subclass the interface of its kind (:class:`~surgiplan.planning.Planner`, ...) and declare a pydantic
     ``Settings`` model that forbids unknown keys (``extra="forbid"``) at every level, so that a misspelt
     setting is an error naming it rather than silently ignored.
     """

@@ -4,7 +4,7 @@
 allocates until the machine swaps or the kernel kills it. So every plugin
 class may say, from its settings alone and before any work starts, how much
 memory its stage will need (:meth:`Planner.estimate_resources
-<surgiplan.Planner.estimate_resources>` and the same class method on
+<surgiplan.planning.Planner.estimate_resources>` and the same class method on
 deformable models and devices). ``surgiplan validate`` and ``run`` compare
 each estimate with :func:`memory_limit` and refuse the file, naming the
 setting, the estimate and the limit, when one exceeds

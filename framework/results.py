@@ -46,6 +46,10 @@ class StageContext:
 
 @dataclass
 class StageResult:
+    """What one stage produced, as ``result.json`` records it: its kind (``stage``), ``name``, ``plugin`` and
+    ``status`` (whether that counts as success depends on the kind: :attr:`succeeded`), the ``path`` it planned or
+    took (configurations, SI), its ``metrics``, a ``message`` and the ``annotations`` its plugin added."""
+
     stage: str
     name: str
     plugin: str
@@ -77,6 +81,7 @@ class StageResult:
         return status_succeeded(self.stage, self.status)
 
     def to_json(self) -> dict[str, Any]:
+        """The stage's entry of ``result.json`` (JSON types only; optional keys left out when empty)."""
         entry: dict[str, Any] = {
             "stage": self.stage,
             "name": self.name,

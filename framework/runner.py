@@ -52,6 +52,9 @@ IN_PROGRESS = ".in-progress.json"
 
 @dataclass
 class RunOutcome:
+    """What :func:`run_pipeline` did: the output directory, each stage's result in order, the files it wrote there
+    (relative names) and the run's status; :attr:`ok` when the run and every stage succeeded."""
+
     output_dir: Path
     results: list[StageResult]
     files: list[str] = field(default_factory=list)

@@ -77,6 +77,7 @@ class Scene:
         return self.bounds_max - self.bounds_min
 
     def obstacle(self, name: str) -> Obstacle:
+        """The obstacle called ``name``; :class:`KeyError` when the scene has none of that name."""
         for obstacle in self.obstacles:
             if obstacle.name == name:
                 return obstacle
@@ -87,6 +88,8 @@ class Scene:
         return Scene(bounds_min, bounds_max, self.obstacles, dict(self.points), self.name, self.unit)
 
     def in_bounds(self, points) -> np.ndarray:
+        """Per point (an (N, 3) array or one [x, y, z], m), whether it lies inside the workspace bounds (boundary
+        included): a bool array of N."""
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         return np.all((points >= self.bounds_min) & (points <= self.bounds_max), axis=1)
 
@@ -246,6 +249,7 @@ class Scene:
         }
 
     def digest(self) -> str:
+        """The SHA-256 (hex) of :meth:`spec`: equal digests mean the same scene, in SI, whatever file it came from."""
         return hashlib.sha256(json.dumps(self.spec(), sort_keys=True).encode()).hexdigest()
 
     def describe_point(self, point) -> str:

@@ -25,7 +25,7 @@ from .yamlio import LineMap, format_path, load_yaml
 
 
 def build_obstacle(model, base_dir: Path, unit: str, location: str, file: Path | None) -> Obstacle:
-    """An :class:`Obstacle` from a validated :class:`~surgiplan.config.ObstacleModel`."""
+    """An ``Obstacle`` from a validated :class:`~surgiplan.config.ObstacleModel`."""
     pose = model.pose.to_pose()
     name = model.name
     if model.box is not None:
@@ -60,7 +60,8 @@ def build_obstacle(model, base_dir: Path, unit: str, location: str, file: Path |
 def build_scene(
     model: SceneModel, *, base_dir: Path, unit: str, file: Path | None = None, prefix: str = "scene"
 ) -> Scene:
-    """A :class:`Scene` from a validated :class:`SceneModel`; mesh files load here."""
+    """A :class:`~surgiplan.scene.Scene` from a validated :class:`~surgiplan.config.SceneModel`; mesh files load
+    here."""
     scene, errors = _build_scene_collecting(model, list(range(len(model.obstacles))), base_dir, unit, file, prefix)
     if errors:
         raise ConfigErrors(errors)

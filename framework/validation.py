@@ -52,7 +52,8 @@ def file_length_scale(info: ValidationInfo | None) -> float:
 
 
 def declared_unit(data: Any, default: str, file: Path, lines: LineMap, prefix: tuple[Any, ...]) -> str:
-    """The ``length_unit`` a mapping declares (``default`` if none); an unknown one is a :class:`ConfigError`."""
+    """The ``length_unit`` a mapping declares (``default`` if none); an unknown one is a
+    :class:`~surgiplan.errors.ConfigError`."""
     unit = data.get("length_unit", default) if isinstance(data, dict) else default
     if unit is None:
         return default
@@ -127,7 +128,7 @@ def validation_errors(
     prefix: tuple[Any, ...] = (),
     root: type[BaseModel] | None = None,
 ) -> list[ConfigError]:
-    """pydantic's errors as :class:`ConfigError` records with YAML paths and lines."""
+    """pydantic's errors as :class:`~surgiplan.errors.ConfigError` records with YAML paths and lines."""
     errors: list[ConfigError] = []
     for err in exc.errors(include_url=False):
         loc = _clean_loc(tuple(err["loc"]), data, err["type"])
@@ -155,7 +156,7 @@ def validate_model(
     prefix: tuple[Any, ...] = (),
     context: dict[str, Any] | None = None,
 ) -> BaseModel:
-    """``model.model_validate(data)``, raising :class:`ConfigErrors` that name file, path and line."""
+    """``model.model_validate(data)``, raising :class:`~surgiplan.errors.ConfigErrors` that name file, path and line."""
     try:
         return model.model_validate(data, context=context or {})
     except ValidationError as exc:

@@ -2,7 +2,7 @@
 
 A plan stage's path goes to figures, to ``result.json`` and to devices that
 move motors; a third-party planner may be wrong, so the runner never takes
-its word for it. :func:`verify_plan_result` checks a :class:`PlanResult`
+its word for it. :func:`verify_plan_result` checks a :class:`~surgiplan.planning.PlanResult`
 against the stage:
 
 * it *is* a :class:`~surgiplan.planning.PlanResult` whose status is a
@@ -16,7 +16,7 @@ against the stage:
   bounds;
 * every waypoint is collision free, and every motion between consecutive
   waypoints is certified clear by the space's own certified check
-  (:meth:`~surgiplan.spaces.base.Space.motion_is_clear`, the check the
+  (:meth:`~surgiplan.spaces.Space.motion_is_clear`, the check the
   built-in planners use), so no segment passes through an obstacle anywhere
   between its waypoints.
 

@@ -12,7 +12,7 @@ A device reports its executed motion in its :class:`~surgiplan.devices.Execution
 consecutive samples (exact for a tip sphere), whatever the device reported, and says where it came
 closest: the sample, its time when the device gave times (``executed_t`` or the timeline's ``t``), the
 arc length along the executed tips, and the obstacle. The execute stage turns a contact, or a clearance
-below the device's safety margin (:attr:`surgiplan.Device.safety_margin`), into the status ``unsafe``;
+below the device's safety margin (:attr:`~surgiplan.devices.Device.safety_margin`), into the status ``unsafe``;
 a device that reports no executed motion gets a warning.
 """
 
@@ -46,6 +46,8 @@ class MotionCheck:
     tip: list[float] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
+        """The check as the execute stage records it (``metrics.verified`` in ``result.json``): where the motion came
+        closest as ``at: {sample, t_s, arc_m, tip_m}``."""
         return {
             "geometry": self.geometry,
             "samples": self.samples,

@@ -144,30 +144,11 @@ def _skip_foreign(app, what, name, obj, skip, options):
     return None
 
 
-def known_gaps(path) -> tuple[set[str], list[tuple[str, str]]]:
-    """The documentation debt recorded in ``known-gaps.txt``: undocumented names and unresolved references
-    that the code had when the site was introduced. The build lets these through and nothing new; the list
-    only shrinks."""
-    undocumented, references = set(), []
-    for line in path.read_text().splitlines():
-        line = line.split("#", 1)[0].strip()
-        if not line:
-            continue
-        kind, target = line.split(None, 1)
-        if kind == "undocumented":
-            undocumented.add(target)
-        else:
-            references.append((kind, target))
-    return undocumented, references
-
-
 def _require_docstring(app, what, name, obj, options, lines) -> None:
     """Warn (an error under -W) when a public class, function, method or module has no docstring."""
     if what not in ("module", "class", "exception", "function", "method"):
         return
     if any(part.startswith("_") for part in name.split(".")):
-        return
-    if name in app.config.surgiplan_known_undocumented:
         return
     if not any(line.strip() for line in lines):
         logger.warning("undocumented public name %s (%s): give it a docstring", name, what, type="surgiplan")
@@ -176,7 +157,6 @@ def _require_docstring(app, what, name, obj, options, lines) -> None:
 def setup(app):
     app.add_directive("surgiplan-schema", SchemaDirective)
     app.add_directive("surgiplan-exports", ExportsDirective)
-    app.add_config_value("surgiplan_known_undocumented", set(), "env")
     app.connect("autodoc-process-docstring", _require_docstring)
     app.connect("autodoc-skip-member", _skip_foreign)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

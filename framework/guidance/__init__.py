@@ -4,15 +4,15 @@ Paper 000's recommended path keeps a clearance matched to the trainee's
 proficiency; a trainer watches the instrument against it. This package is
 that loop:
 
-* :mod:`.source` — :class:`PoseSource`, the plugin interface of pose sources
+* ``source`` — :class:`PoseSource`, the plugin interface of pose sources
   (hook ``surgiplan_register_sources``), and :class:`PoseSample`;
-* :mod:`.analysis` — :class:`Guide`: per sample deviation, progress, clearance,
+* ``analysis`` — :class:`Guide`: per sample deviation, progress, clearance,
   critical regions, lateral offset, insertion and events;
-* :mod:`.stage` — the ``guide`` stage;
-* :mod:`.report` — the attempt's figure and samples CSV;
-* :mod:`.record` — :class:`TraineeRecord`, the SQLite record of attempts per
+* ``stage`` — the ``guide`` stage;
+* ``report`` — the attempt's figure and samples CSV;
+* ``record`` — :class:`TraineeRecord`, the SQLite record of attempts per
   trainee and task, and proficiency from it;
-* :mod:`.trainee` — a synthetic trainee (seeded, documented parameters);
+* ``trainee`` — a synthetic trainee (seeded, documented parameters);
 * the skill assessment (``docs/assessment.md``): ``metrics`` (the metrics
   and the score), ``benchmark`` (a task's thresholds and the proficiency
   gate), ``cusum``, ``validity`` (construct validity), ``cohort``

@@ -87,6 +87,10 @@ class GuidanceSettings(StrictModel):
 
 @dataclass
 class Measurement:
+    """One sample measured against the recommended path (see the module): its time ``t`` (s), ``tip`` position
+    (m), ``deviation`` from the path (m), ``progress`` along it (arc length, m), ``clearance`` (m; <= 0 is
+    contact) and whether it is in a ``critical`` region."""
+
     t: float
     tip: np.ndarray
     deviation: float
@@ -111,6 +115,10 @@ class Measurement:
 
 @dataclass
 class Event:
+    """A stretch of consecutive samples that met one condition (``kind``: one of the module's table), from
+    ``start_t`` to ``end_t`` (s) and from ``start_progress_m`` to ``end_progress_m`` along the path; ``message``
+    says it for the trainee."""
+
     kind: str
     start_t: float
     end_t: float
@@ -121,6 +129,7 @@ class Event:
     message: str = ""
 
     def to_json(self) -> dict[str, Any]:
+        """The event's fields as a JSON object (how ``result.json`` and the live view carry it)."""
         return {
             "kind": self.kind,
             "start_t": self.start_t,
@@ -288,6 +297,8 @@ class Guide:
         return event
 
     def describe(self, event: Event) -> str:
+        """The event in words, lengths in the guide's unit: what happened, when (s) and where along the path, e.g.
+        ``off the recommended path by up to 3.2 mm (tolerance 2 mm), 1.20-2.45 s, 30-42 mm along the path``."""
         k, u = self.k, self.unit
         where = f"{event.start_progress_m * k:.4g}-{event.end_progress_m * k:.4g} {u} along the path"
         span = f"{event.start_t:.2f}-{event.end_t:.2f} s"

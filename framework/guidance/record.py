@@ -60,6 +60,10 @@ class RecordError(SurgiplanError):
 
 @dataclass(frozen=True)
 class Proficiency:
+    """A trainee's proficiency on a task (:meth:`TraineeRecord.proficiency`): ``d_thresh`` (m), the ``percentile`` of
+    their tip deviations it is, from how many ``attempts`` and ``samples``, and the deviations' median and maximum
+    (m)."""
+
     d_thresh: float
     percentile: float
     attempts: int
@@ -104,6 +108,7 @@ class TraineeRecord:
         return version
 
     def close(self) -> None:
+        """Close the database (also on leaving a ``with`` block); everything written is already committed."""
         self.db.close()
 
     def __enter__(self) -> TraineeRecord:
@@ -246,6 +251,8 @@ class TraineeRecord:
         return dict(self.db.execute("SELECT name, level FROM trainees ORDER BY name").fetchall())
 
     def tasks(self, trainee: str) -> list[str]:
+        """The tasks ``trainee`` has attempted, sorted; :class:`RecordError` naming the recorded trainees when there
+        is no such trainee."""
         self._trainee_id(trainee)
         rows = self.db.execute(
             "SELECT DISTINCT task FROM attempts JOIN trainees ON trainees.id = trainee_id WHERE name = ? ORDER BY task",

@@ -1,7 +1,7 @@
 """A synthetic trainee: follows a recommended tip path with proficiency-dependent deviation, hesitation and speed.
 
 For rehearsing guidance without a trainee, and for tests with known
-behaviour. Seeded and documented; each level of :data:`LEVELS` is a set of
+behaviour. Seeded and documented; each level of ``LEVELS`` is a set of
 parameters (all overridable):
 
 * ``speed`` (m/s): the tip's mean speed along the path, varied by a slow
@@ -59,6 +59,8 @@ class TraineeModel(StrictModel):
     seed: int = 0
 
     def parameter(self, name: str) -> float:
+        """The value of ``name`` (``speed``, ``deviation``, ``hesitation_rate`` or ``hesitation``; SI): the setting
+        when given, else its level's default from ``LEVELS``."""
         value = getattr(self, name)
         return float(LEVELS[self.level][name] if value is None else value)
 

@@ -37,7 +37,8 @@ class Space(ABC):
 
     @classmethod
     @abstractmethod
-    def from_settings(cls, settings: BaseModel, scene: Scene) -> Space: ...
+    def from_settings(cls, settings: BaseModel, scene: Scene) -> Space:
+        """The space over ``scene`` that ``settings`` (a validated :attr:`Settings`, SI) describe."""
 
     # ------------------------------------------------------------------ coordinates
     @property
@@ -85,6 +86,8 @@ class Space(ABC):
         return None
 
     def within_limits(self, q) -> np.ndarray:
+        """Per configuration (one, or (n, dimension)), whether every coordinate is within :attr:`low` and
+        :attr:`high` (to 1e-12): a bool array of n."""
         q = np.atleast_2d(q)
         return np.all((q >= self.low - 1e-12) & (q <= self.high + 1e-12), axis=1)
 
@@ -202,7 +205,7 @@ class Space(ABC):
 
         Exact where the swept volume is known in closed form (R3); otherwise a
         certified lower bound, below the true value by at most
-        :meth:`segment_clearance_tolerance`: each motion is sampled finely
+        :meth:`~surgiplan.spaces.Space.segment_clearance_tolerance`: each motion is sampled finely
         enough that no body point moves more than twice the tolerance between
         samples, and half that motion is subtracted.
         """
@@ -226,7 +229,9 @@ class Space(ABC):
         return {"kind": self.kind, **self.settings_spec()}
 
     @abstractmethod
-    def settings_spec(self) -> dict: ...
+    def settings_spec(self) -> dict:
+        """The settings that shape the space, canonical and JSON-able (SI), for :meth:`~surgiplan.spaces.Space.spec`:
+        two spaces with equal specs are the same space."""
 
 
 def certify_by_covering(

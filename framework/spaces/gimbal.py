@@ -61,6 +61,9 @@ class CastGimbalSettings(StrictModel):
 
 
 class CastGimbalSpace(Space):
+    """The CAST gimbal's space: ``q = (yaw, pitch, insertion, roll)`` (rad, rad, m, rad) about a fixed fulcrum,
+    the whole shaft checked for clearance (see the module)."""
+
     kind: ClassVar[str] = "cast_gimbal"
     Settings: ClassVar[type[BaseModel]] = CastGimbalSettings
 

@@ -63,6 +63,8 @@ def _default_body() -> list[BodyPart]:
 
 
 class SE3Settings(StrictModel):
+    """The moving rigid body (its parts in its own frame), the rotation weight of the metric and the tool point."""
+
     body: list[BodyPart] = Field(default_factory=_default_body)
     #: metres per radian of rotation in the distance metric
     rotation_weight: PositiveLength = 0.05
@@ -71,6 +73,9 @@ class SE3Settings(StrictModel):
 
 
 class SE3Space(Space):
+    """A rigid body free in position and orientation: ``q = (x, y, z, qx, qy, qz, qw)`` (see the module); the
+    position ranges over the scene's bounds, the orientation over all rotations."""
+
     kind: ClassVar[str] = "se3"
     Settings: ClassVar[type[BaseModel]] = SE3Settings
 
@@ -144,6 +149,8 @@ class SE3Space(Space):
         return np.concatenate([position, slerp(q1[..., 3:], q2[..., 3:], t)], axis=-1)
 
     def within_limits(self, q):
+        """Per configuration, whether its position is within the scene's bounds and its quaternion has unit norm
+        (to 1e-6)."""
         q = np.atleast_2d(q)
         lo, hi = self.scene.bounds_min - 1e-12, self.scene.bounds_max + 1e-12
         inside = np.all((q[:, :3] >= lo) & (q[:, :3] <= hi), axis=1)
@@ -154,6 +161,7 @@ class SE3Space(Space):
         return self.within_limits(q)
 
     def rotation(self, q) -> np.ndarray:
+        """The body's rotation matrices (n, 3, 3) at configurations ``q`` (one, or (n, 7))."""
         return quaternion_to_matrix(np.atleast_2d(q)[:, 3:])
 
     def tip(self, q):

@@ -48,6 +48,9 @@ DEVICE = PluginKind("device", "surgiplan_register_devices", Device)
 
 
 class ExecuteKind(StageKind):
+    """``stage: execute``: a device plugin runs an earlier plan stage's path through its lifecycle; the framework
+    re-measures the executed motion (:mod:`surgiplan.verify_motion`)."""
+
     name = "execute"
     description = "a device runs the path of an earlier plan stage"
     model = PathStageModel

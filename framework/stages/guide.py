@@ -167,6 +167,10 @@ class _InvalidSample(SurgiplanError):
 
 
 class GuideKind(StageKind):
+    """``stage: guide``: a pose-source plugin's samples followed live against an earlier plan stage's recommended
+    path (:class:`~surgiplan.guidance.Guide`); with ``trainee:``, the attempt is scored and kept in the trainee
+    record."""
+
     name = "guide"
     description = "an instrument followed live against an earlier plan stage's recommended path"
     model = GuideStageModel

@@ -123,6 +123,9 @@ def path_metrics(space, path: np.ndarray, threshold: float | None) -> tuple[dict
 
 
 class PlanKind(StageKind):
+    """``stage: plan``: a planner plugin builds (or loads its stored build) and answers the stage's query; the
+    framework checks the path (:mod:`surgiplan.verify`) and measures its metrics and critical regions."""
+
     name = "plan"
     description = "a planner builds (or loads its stored build), then answers the stage's query"
     model = PlanStageModel

@@ -38,6 +38,8 @@ DEFORMABLE_MODEL = PluginKind("deformable_model", "surgiplan_register_deformable
 
 
 class SimulateKind(StageKind):
+    """``stage: simulate``: a deformable-model plugin computes equilibria of tissue on its own (no path)."""
+
     name = "simulate"
     description = "a deformable model computes equilibria of tissue on its own"
     plugin_kind = DEFORMABLE_MODEL

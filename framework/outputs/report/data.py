@@ -9,11 +9,11 @@ it is at hand. A file that is missing, unreadable, outside the output
 directory or too large is skipped with a note in the report, never an error.
 
 The result is a JSON-ready dict; numeric arrays are packed as little-endian
-base64 (:func:`pack`) so a large roadmap or mesh sequence stays compact and
+base64 (``pack``) so a large roadmap or mesh sequence stays compact and
 loads fast in the browser.
 
 What each stage contributes is its kind's (:meth:`surgiplan.kinds.StageKind.report`,
-with the helpers of :mod:`.paths`, :mod:`.meshes` and :mod:`.timeline`); a stage of a
+with the helpers of ``paths``, ``meshes`` and :mod:`.timeline`); a stage of a
 kind that is not installed (a run recorded elsewhere) is drawn as a path, with its
 timeline when it has one. The data contract of time series is in :mod:`.timeline`.
 """
