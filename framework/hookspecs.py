@@ -134,7 +134,7 @@ class PluginInfo:
 
 
 def import_reference(reference: str, label: str) -> Any:
-    """The object a ``"package.module:name"`` reference names, imported now; a :class:`PluginError` saying which
+    """The object a ``"package.module:name"`` reference names, imported now; a :class:`~surgiplan.errors.PluginError` saying which
     plugin (``label``) and what failed otherwise."""
     module_name, _, attribute = reference.partition(":")
     if not module_name or not attribute:
