@@ -134,8 +134,8 @@ class PluginInfo:
 
 
 def import_reference(reference: str, label: str) -> Any:
-    """The object a ``"package.module:name"`` reference names, imported now; a :class:`~surgiplan.errors.PluginError` saying which
-    plugin (``label``) and what failed otherwise."""
+    """The object a ``"package.module:name"`` reference names, imported now; a
+    :class:`~surgiplan.errors.PluginError` saying which plugin (``label``) and what failed otherwise."""
     module_name, _, attribute = reference.partition(":")
     if not module_name or not attribute:
         raise PluginError(f"{label}: its class reference {reference!r} is not of the form 'package.module:Class'")
