@@ -28,6 +28,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from ..scene import Scene
 from ..storage import atomic_write
+from .merged import MAX_SEPARATE, drawn_meshes, group_of
 
 SAFE_COLOUR = "#1f6fb4"
 LOW_COLOUR = "#d62728"
@@ -77,7 +78,12 @@ def _scale(unit_scale: float) -> float:
 
 
 def _obstacle_meshes(scene: Scene):
-    return [(o.name, o.to_trimesh()) for o in scene.obstacles]
+    """(name, obstacles held, trimesh) of what is drawn: one an obstacle, or one merged mesh a group (merged.py)."""
+    import trimesh
+
+    return [
+        (d.name, d.count, trimesh.Trimesh(d.vertices, d.faces, process=False)) for d in drawn_meshes(scene.obstacles)
+    ]
 
 
 def _oval(points: np.ndarray, k: float, pad: float, n: int = 72) -> np.ndarray:
@@ -114,7 +120,7 @@ def _inside(mesh, lo: np.ndarray, hi: np.ndarray):
 
 
 def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, meshes) -> None:
-    for _, whole in meshes:
+    for _, _, whole in meshes:
         mesh = _inside(whole, scene.bounds_min, scene.bounds_max)
         if mesh is None:
             continue
@@ -172,23 +178,31 @@ def _over_obstacles(scene: Scene, tips: np.ndarray) -> list[tuple[int, int, str,
     distance, index = scene.signed_distance(column.reshape(-1, 3))
     inside = (distance < 0).reshape(len(tips), -1)
     owner = np.where(inside, index.reshape(len(tips), -1), -1).max(axis=1)
+    # many obstacles are drawn merged (merged.py): a stretch is named by the group it passes over
+    name = (lambda o: o.name) if len(scene.obstacles) <= MAX_SEPARATE else group_of
+    names = [None if o < 0 else name(scene.obstacles[int(o)]) for o in owner]
     out = []
     i = 0
     while i < len(tips):
-        if owner[i] < 0:
+        if names[i] is None:
             i += 1
             continue
         j = i
-        while j + 1 < len(tips) and owner[j + 1] == owner[i]:
+        while j + 1 < len(tips) and names[j + 1] == names[i]:
             j += 1
-        out.append((i, j, scene.obstacles[int(owner[i])].name, float(tips[i : j + 1, 2].mean())))
+        out.append((i, j, names[i], float(tips[i : j + 1, 2].mean())))
         i = j + 1
     return out
 
 
 def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> None:
-    for _, mesh in meshes:
-        triangles = mesh.vertices[mesh.faces][:, :, :2] * k
+    for _, count, mesh in meshes:
+        faces = mesh.faces
+        if count > 1:
+            # a closed surface's footprint is its upward faces' (a vertical line enters through a downward face
+            # and leaves through an upward one): half the triangles, the same pixels
+            faces = faces[mesh.face_normals[:, 2] > 1e-9]
+        triangles = mesh.vertices[faces][:, :, :2] * k
         ax.add_collection(PolyCollection(triangles, facecolor=OBSTACLE_COLOUR, edgecolor="none", alpha=0.8))
     lo, hi = scene.bounds_min * k, scene.bounds_max * k
     ax.add_patch(plt.Rectangle(lo[:2], *(hi - lo)[:2], fill=False, edgecolor="black", linewidth=0.8))
@@ -205,7 +219,9 @@ def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> 
     for points in view.detours:
         ring = _oval(np.asarray(points), k, _pad(scene))
         ax.plot(ring[:, 0], ring[:, 1], color=DETOUR_COLOUR, linewidth=1.4, linestyle="--")
-    for name, mesh in meshes:
+    for name, count, mesh in meshes:
+        if count > 1:
+            continue  # a merged group: its name is in the legend, not on thousands of boxes
         centre = mesh.vertices.mean(axis=0)[:2] * k
         ax.annotate(name, centre, ha="center", va="center", fontsize=7, color="#333333")
     # the top view hides height: mark where the path passes over an obstacle, and how high

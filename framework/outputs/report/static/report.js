@@ -248,7 +248,8 @@
       g = g.toNonIndexed();
       g.computeVertexNormals();
       const mesh = new THREE.Mesh(g, material);
-      mesh.userData = { kind: "obstacle", name: o.name, label: `obstacle ${o.name} (${o.kind})` };
+      const many = (o.count || 1) > 1; // a merged mesh of many obstacles (outputs/merged.py)
+      mesh.userData = { kind: "obstacle", name: o.name, count: o.count || 1, label: many ? `${o.name}: ${o.count} obstacles, merged` : `obstacle ${o.name} (${o.kind})` };
       mesh.renderOrder = 2;
       obstacleGroup.add(mesh);
       pickable.push(mesh);
@@ -705,7 +706,7 @@
     const c = { obstacles: 0, paths: 0, points: 0, critical_regions: 0, roadmaps: 0, roadmap_edges: 0, path_sets: 0, stored_paths: 0, meshes: 0, mesh_triangles: 0, timelines: 0, ghosts: 0, zones: 0 };
     world.traverse((o) => {
       const u = o.userData;
-      if (u.kind === "obstacle") c.obstacles++;
+      if (u.kind === "obstacle") c.obstacles += u.count || 1;
       else if (u.kind === "path") c.paths++;
       else if (u.kind === "point") c.points++;
       else if (u.kind === "critical") c.critical_regions++;
