@@ -88,9 +88,14 @@ def _parse(text: str, path: str | Path, loader_type: type) -> tuple[Any, LineMap
         loader = loader_type(text)
         try:
             node = loader.get_single_node()
+            lines: LineMap = {}
             if node is not None:
-                _check_size(node, path)
-                _check_duplicate_keys(node, path)
+                if "&" in text:  # anchors, and so aliases, may be used: count the document as expanded first
+                    _check_size(node, path)
+                    _check_duplicate_keys(node, path)
+                    _walk(node, (), lines)
+                else:  # a tree: its size is its node count, and one walk finds duplicate keys and lines
+                    _walk_tree(node, path, lines)
             data = loader.construct_document(node) if node is not None else None
         finally:
             loader.dispose()
@@ -103,9 +108,6 @@ def _parse(text: str, path: str | Path, loader_type: type) -> tuple[Any, LineMap
         raise ConfigError(f"invalid YAML: {exc}", file=path) from None
     except RecursionError:
         raise ConfigError("invalid YAML: nested too deeply", file=path) from None
-    lines: LineMap = {}
-    if node is not None:
-        _walk(node, (), lines)
     return data, lines
 
 
@@ -191,6 +193,36 @@ def _walk(node: yaml.Node, path: tuple[Any, ...], lines: LineMap) -> None:
     elif isinstance(node, yaml.SequenceNode):
         for i, item in enumerate(node.value):
             _walk(item, (*path, i), lines)
+
+
+def _walk_tree(root: yaml.Node, path: str | Path, lines: LineMap) -> None:
+    """:func:`_walk`, :func:`_check_duplicate_keys` and :func:`_check_size` in one pass, for a document without
+    anchors (every node reached once)."""
+    count = 0
+    stack: list[tuple[yaml.Node, tuple[Any, ...]]] = [(root, ())]
+    while stack:
+        node, at = stack.pop()
+        count += 1
+        lines.setdefault(at, node.start_mark.line + 1)
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, value_node in node.value:
+                key = key_node.value
+                line = key_node.start_mark.line + 1
+                if isinstance(key_node, yaml.ScalarNode) and key != "<<":
+                    if key in first:
+                        raise ConfigError(
+                            f"duplicate key '{key}' (lines {first[key]} and {line}); a key may appear once per mapping",
+                            file=path,
+                            line=line,
+                        )
+                    first[key] = line
+                lines[(*at, key)] = line
+                stack.append((value_node, (*at, key)))
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend((item, (*at, i)) for i, item in enumerate(node.value))
+        if count > MAX_VALUES:
+            raise ConfigError(f"the document holds more than {MAX_VALUES:,} values; refusing it", file=path)
 
 
 def format_path(path: tuple[Any, ...]) -> str:

@@ -91,6 +91,7 @@ def test_tree_agrees_with_coal(scene):
 
 def test_tree_holds_every_obstacle_once(scene):
     node_low, node_high, node_depth, child, start, count, order = scene._tree
+    assert np.all(node_depth >= 0)
     assert sorted(order.tolist()) == list(range(len(scene.obstacles)))
     leaves = child < 0
     assert count[leaves].sum() == len(scene.obstacles) and count[leaves].max() <= bvh.LEAF

@@ -20,7 +20,10 @@ from scipy.spatial.transform import Rotation
 
 def rpy_to_matrix(rpy) -> np.ndarray:
     """Rotation matrix (…, 3, 3) from roll, pitch, yaw (…, 3) in radians."""
-    return Rotation.from_euler("xyz", np.asarray(rpy, dtype=float)).as_matrix()
+    rpy = np.asarray(rpy, dtype=float)
+    if rpy.shape == (3,) and not rpy.any():  # the usual pose (a scan's voxels): no call into scipy
+        return np.eye(3)
+    return Rotation.from_euler("xyz", rpy).as_matrix()
 
 
 def matrix_to_rpy(rotation) -> np.ndarray:

@@ -1,6 +1,7 @@
 """The scene and its paths as one glTF binary (``scene.glb``) for any glTF viewer.
 
-Obstacles are grey meshes (one node each, or for many obstacles one merged mesh a group: :mod:`.merged`); each path is a coloured tube (visible at any zoom)
+Obstacles are grey meshes (one node each, or for many obstacles one merged mesh a group: :mod:`.merged`);
+each path is a coloured tube (visible at any zoom)
 plus its polyline; starts and goals are small spheres. Coordinates are in
 metres (glTF's unit), z up as in the scene.
 """

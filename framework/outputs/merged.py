@@ -36,6 +36,8 @@ _TRIANGLES = np.array(
     ],
     dtype=np.int64,
 )  # fmt: skip
+#: the same faces as quadrilaterals (corners in outward order): what a figure draws, half the polygons
+_QUADS = np.array([[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]], dtype=np.int64)
 
 
 @dataclass
@@ -47,6 +49,9 @@ class DrawnMesh:
     vertices: np.ndarray
     faces: np.ndarray
     kind: str
+    #: the boxes' faces as quadrilaterals (vertex indices, (q, 4)); the first ``quad_triangles`` faces are theirs
+    quads: np.ndarray | None = None
+    quad_triangles: int = 0
 
 
 def box_triangles(boxes: list[Box]) -> tuple[np.ndarray, np.ndarray]:
@@ -92,5 +97,8 @@ def drawn_meshes(obstacles: list[Obstacle]) -> list[DrawnMesh]:
             parts_v.append(np.asarray(mesh.vertices))
             parts_f.append(np.asarray(mesh.faces) + first)
             first += len(mesh.vertices)
-        out.append(DrawnMesh(name, len(members), np.concatenate(parts_v), np.concatenate(parts_f), "merged"))
+        quads = (_QUADS[None] + 8 * np.arange(len(boxes))[:, None, None]).reshape(-1, 4)
+        out.append(
+            DrawnMesh(name, len(members), np.concatenate(parts_v), np.concatenate(parts_f), "merged", quads, len(faces))
+        )
     return out

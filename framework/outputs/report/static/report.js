@@ -746,6 +746,23 @@
     return { x: r.left + ((v.x + 1) / 2) * r.width, y: r.top + ((1 - v.y) / 2) * r.height, inside: Math.abs(v.x) <= 1 && Math.abs(v.y) <= 1 && v.z < 1 };
   };
   S.renderedFrames = () => S.frames;
+  // the time (ms) of each of ``n`` frames drawn as the camera turns about the target, each waited for (a pixel
+  // read back): how interactive the page is with what it draws (benchmarks/bench_scale.py)
+  S.frameTimes = (n) => {
+    const gl = renderer.getContext(), px = new Uint8Array(4), times = [];
+    const offset = camera.position.clone().sub(controls.target);
+    for (let i = 0; i < n; i++) {
+      offset.applyAxisAngle(new THREE.Vector3(0, 0, 1), (2 * Math.PI) / Math.max(n, 1));
+      camera.position.copy(controls.target).add(offset);
+      camera.lookAt(controls.target);
+      const t0 = performance.now();
+      renderer.render(scene, camera);
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      times.push(performance.now() - t0);
+    }
+    requestRender();
+    return times;
+  };
 
   // ------------------------------------------------------------------ render loop
   let liveDirty = false, deferred = false;
