@@ -43,6 +43,7 @@ from readme_blocks.optmis import render_optmis
 from readme_blocks.report import render_report
 from readme_blocks.retraction import render_retraction, render_retraction_speed
 from readme_blocks.safe_prm import render_safe_prm
+from readme_blocks.scale import render_scale
 from readme_blocks.tissue import render_tissue
 
 ROOT = BENCH.parent
@@ -78,6 +79,7 @@ BLOCKS: dict[str, Block] = {
     "guide": Block(render_guide, ("guide",)),
     "assessment": Block(render_assessment, ("assessment",)),
     "cues": Block(render_cues, ("cues",)),
+    "scale": Block(render_scale, ("scale",)),
 }
 
 
