@@ -31,8 +31,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-# README-migration.md is the plan of the pages still to come, kept next to the site but not in it
-exclude_patterns = ["_build", "README-migration.md", "known-gaps.txt"]
+exclude_patterns = ["_build", "known-gaps.txt"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 
@@ -62,6 +61,7 @@ autodoc_preserve_defaults = True
 
 html_theme = "furo"
 html_title = f"surgiplan {release}"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["surgiplan.css"]  # the schema tables fit the page (no horizontal scroll)
 html_show_sourcelink = False
 html_theme_options = {"navigation_with_keys": True}
