@@ -55,7 +55,12 @@ def render_scale(results: Path) -> str:
         ],
     )
     base = next(r for r in by_obstacles if r["obstacles"] == 10_000)
-    whole, browser, peers, targets = summary["whole_run"], summary["browser"], summary["broad_phase"], summary["targets"]
+    whole, browser, peers, targets = (
+        summary["whole_run"],
+        summary["browser"],
+        summary["broad_phase"],
+        summary["targets"],
+    )
     outputs = max(base["figure_s"], base["glb_s"], base["report_s"])
     load_before, load_after = prov.get("load_before", [0])[0], prov.get("load_after", [0])[0]
     head = (
