@@ -175,7 +175,7 @@ def browser_frames(out: Path, loads: int = 3, frames: int = 30) -> dict:
 
 def broad_phase_peers(tmp: Path) -> dict:
     import coal
-    from helpers import coal_scene_point_distance  # noqa: F401  (the tests' reference, imported for its checks)
+    from helpers import coal_scene_point_distance
     from surgiplan import load_scene
     from surgiplan.geometry import compiled
 
@@ -216,10 +216,15 @@ def broad_phase_peers(tmp: Path) -> dict:
             out[i] = callback.data.result.min_distance + 1e-12
         return out
 
-    coal_s, reference = timed(coal_points)
+    coal_s, managed = timed(coal_points)
+    # the independent answer: coal's pairwise distance to every box (the tests' reference), on a sample
+    sample = points[:100]
+    reference = coal_scene_point_distance(scene, sample)
     outside = reference > 0
-    agreement = float(np.max(np.abs(ours[outside] - reference[outside])))
-    assert agreement < 1e-8, f"coal's broad phase and ours disagree by {agreement} m"
+    agreement = float(np.max(np.abs(ours[:100][outside] - reference[outside])))
+    assert agreement < 1e-8, f"coal's pairwise distances and ours disagree by {agreement} m"
+    # coal's manager, as called here, may answer a farther box than the nearest: recorded, not hidden
+    manager_diff = np.abs(managed - ours)[ours > 0]
     brute = 200
     brute_s, (brute_d, _) = timed(lambda: compiled.distances(scene._packed, a[:brute], b[:brute], 0.001), repeat=1)
     tree_d = scene.segment_distance(a[:brute], b[:brute], 0.001)[0]
@@ -228,7 +233,10 @@ def broad_phase_peers(tmp: Path) -> dict:
         "obstacles": len(scene.obstacles),
         "tree_point_us": 1e6 * ours_point_s / len(points),
         "coal_manager_point_us": 1e6 * coal_s / len(points),
-        "coal_max_abs_diff_m": agreement,
+        "coal_pairwise_max_abs_diff_m": agreement,
+        "coal_manager_max_abs_diff_m": float(manager_diff.max()),
+        "coal_manager_points_differing": int(np.count_nonzero(manager_diff > 1e-9)),
+        "points": len(points),
         "tree_segment_us": 1e6 * ours_segment_s / len(a),
         "brute_force_segment_us": 1e6 * brute_s / brute,
     }

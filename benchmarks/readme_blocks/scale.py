@@ -92,8 +92,11 @@ def render_scale(results: Path) -> str:
         f"(median of {browser['frames']}, 90th percentile {browser['frame_ms_p90']:.0f} ms).{cap}\n\n"
         f"The broad phase on the {peers['obstacles']:,} boxes: a point's distance in "
         f"{sig(peers['tree_point_us'])} µs through the tree against {sig(peers['coal_manager_point_us'])} µs "
-        f"through coal's `DynamicAABBTreeCollisionManager` (the same distances, to "
-        f"{peers['coal_max_abs_diff_m']:.0e} m); an edge's certified check in {sig(peers['tree_segment_us'])} µs "
+        f"through coal's `DynamicAABBTreeCollisionManager` (ours equal coal's pairwise distances to "
+        f"{peers['coal_pairwise_max_abs_diff_m']:.0e} m; the manager, called with `DistanceCallBackDefault` and a "
+        f"tiny sphere, answered a farther box for {peers['coal_manager_points_differing']:,} of "
+        f"{peers['points']:,} points, by up to {1e3 * peers['coal_manager_max_abs_diff_m']:.2f} mm, not "
+        f"investigated further); an edge's certified check in {sig(peers['tree_segment_us'])} µs "
         f"against {sig(peers['brute_force_segment_us'])} µs for the all-obstacle brute force it replaces."
     )
     return section(head, body, tail)
