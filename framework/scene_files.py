@@ -26,7 +26,7 @@ from .yamlio import LineMap, format_path, line_of, load_yaml
 
 def build_obstacles(model, base_dir: Path, unit: str, location: str, file: Path | None) -> list[Obstacle]:
     """The obstacles of a validated :class:`~surgiplan.config.ObstacleModel`: one, or an occupancy grid's boxes
-    (named ``<name>#<k>``, greedy meshing: :mod:`surgiplan.geometry.occupancy`)."""
+    (named ``<name>#<k>``, greedy meshing: ``surgiplan.geometry.occupancy``)."""
     if model.occupancy_grid is None:
         return [build_obstacle(model, base_dir, unit, location, file)]
     from .geometry import occupancy
