@@ -79,7 +79,7 @@ def render_scale(results: Path) -> str:
     )
     tail = (
         f"On the 10,000-box scene with 5,000 milestones: validate {secs(base['validate_s'])} s"
-        + (f" ({secs(base['validate_cpu_s'])} s of CPU)" if "validate_cpu_s" in base else "")
+        + (f", {secs(base['validate_cpu_s'])} s of CPU" if "validate_cpu_s" in base else "")
         + " (target "
         f"{targets['validate_s']:g} s: {met(base['validate_s'] <= targets['validate_s'])}), build "
         f"{secs(base['build_s'])} s ({targets['build_s']:g} s: {met(base['build_s'] <= targets['build_s'])}), query "
@@ -88,7 +88,7 @@ def render_scale(results: Path) -> str:
         f"report.html {base['report_MB']:.1f} MB ({targets['report_MB']:g} MB: "
         f"{met(base['report_MB'] <= targets['report_MB'])}). The whole `surgiplan run` as a process, imports "
         f"included: {sig(whole['wall_s'])} s"
-        + (f" ({sig(whole['cpu_s'])} s of CPU)" if "cpu_s" in whole else "")
+        + (f", {sig(whole['cpu_s'])} s of CPU" if "cpu_s" in whole else "")
         + f" ({targets['run_s']:g} s: {met(whole['wall_s'] <= targets['run_s'])}), "
         f"peak memory {whole['peak_MB']:.0f} MB. In headless Chromium (SwiftShader, no GPU) the report draws the "
         f"{browser['obstacles_drawn']:,} boxes as one merged mesh: first frame after "
