@@ -21,7 +21,7 @@ changes the sentence, not only the figure. Every block opens with the commit its
 
 Each section's blocks are rendered by a module of ``readme_blocks`` (``report``, ``safe_prm``,
 ``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``assist``, ``devices``, ``canopen``,
-``live_delay``, ``cli``), with the
+``live_delay``, ``cli``, ``scale``), with the
 formatting they share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the pages and
 rewrites or checks them.
 """
@@ -48,6 +48,7 @@ from readme_blocks.optmis import render_optmis
 from readme_blocks.report import render_report
 from readme_blocks.retraction import render_retraction, render_retraction_speed
 from readme_blocks.safe_prm import render_safe_prm
+from readme_blocks.scale import render_scale
 from readme_blocks.tissue import render_tissue
 
 ROOT = BENCH.parent
@@ -85,6 +86,7 @@ BLOCKS: dict[str, Block] = {
     "assist": Block(render_assist, ("assist",)),
     "live_delay": Block(render_live_delay, ("live_delay",)),
     "cli": Block(render_cli, ("cli",)),
+    "scale": Block(render_scale, ("scale",)),
 }
 
 

@@ -21,7 +21,36 @@ from .geometry.transforms import Pose
 from .scene import Scene
 from .units import LENGTH_UNITS
 from .validation import declared_unit, sorted_errors, validate_model, validation_context
-from .yamlio import LineMap, format_path, load_yaml
+from .yamlio import LineMap, format_path, line_of, load_yaml
+
+
+def build_obstacles(model, base_dir: Path, unit: str, location: str, file: Path | None) -> list[Obstacle]:
+    """The obstacles of a validated :class:`~surgiplan.config.ObstacleModel`: one, or an occupancy grid's boxes
+    (named ``<name>#<k>``, greedy meshing: ``surgiplan.geometry.occupancy``)."""
+    if model.occupancy_grid is None:
+        return [build_obstacle(model, base_dir, unit, location, file)]
+    from .geometry import occupancy
+
+    grid = model.occupancy_grid
+    where = f"{location}.occupancy_grid"
+    voxel, origin = np.asarray(grid.voxel_size), np.asarray(grid.origin)
+    try:
+        if grid.file is not None:
+            occupied = occupancy.read_grid((base_dir / grid.file).resolve(), grid.key, grid.threshold, where)
+        else:
+            points = occupancy.read_points((base_dir / grid.points).resolve(), LENGTH_UNITS[grid.unit or unit], where)
+            occupied = occupancy.voxelise(points, voxel, origin, where)
+        if not occupied.any():
+            raise SceneError("the occupancy grid has no occupied voxel (is 'threshold' right?)", location=where)
+    except SceneError as exc:
+        exc.file = file
+        raise
+    centres, sizes = occupancy.boxes_in_space(occupancy.greedy_boxes(occupied), voxel, origin)
+    pose = model.pose.to_pose()
+    return [
+        Box(f"{model.name}#{k}", pose.compose(Pose(np.eye(3), c)), size=tuple(s))
+        for k, (c, s) in enumerate(zip(centres, sizes, strict=True))
+    ]
 
 
 def build_obstacle(model, base_dir: Path, unit: str, location: str, file: Path | None) -> Obstacle:
@@ -77,7 +106,7 @@ def _build_scene_collecting(
     for i, o in zip(indices, model.obstacles, strict=True):
         location = f"{prefix}.obstacles[{i}]" if prefix else f"obstacles[{i}]"
         try:
-            obstacles.append(build_obstacle(o, base_dir, unit, location, file))
+            obstacles.extend(build_obstacles(o, base_dir, unit, location, file))
         except SurgiplanError as exc:
             if not isinstance(exc, ConfigError):
                 exc = ConfigError(exc.message, file=exc.file or file, location=exc.location, line=exc.line)
@@ -122,7 +151,15 @@ def scene_with_errors(
         except ValidationError:
             return None, errors
     scene, build_errors = _build_scene_collecting(model, indices, base_dir, unit, file, label)
+    for error in build_errors:  # a file the scene names (a mesh, a grid): the line of the key that names it
+        if error.line is None and error.location:
+            error.line = line_of(lines, location_path(error.location))
     return scene, errors + build_errors
+
+
+def location_path(location: str) -> tuple[Any, ...]:
+    """``scene.obstacles[3].mesh`` -> ``("scene", "obstacles", 3, "mesh")`` (the inverse of ``format_path``)."""
+    return tuple(int(p) if p.isdigit() else p for p in re.findall(r"[^.\[\]]+", location))
 
 
 def load_scene(path: str | Path) -> Scene:

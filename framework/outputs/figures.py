@@ -28,6 +28,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from ..scene import Scene
 from ..storage import atomic_write
+from .merged import MAX_SEPARATE, drawn_meshes, group_of
 
 SAFE_COLOUR = "#1f6fb4"
 LOW_COLOUR = "#d62728"
@@ -72,12 +73,48 @@ class PathView:
         return c < limit if limit > 0 else c <= 0
 
 
+#: stretches over obstacles labelled in the top view at most (more are dashed only)
+_MAX_OVER_LABELS = 6
+_ELEVATION, _AZIMUTH = 28.0, -60.0
+#: from the scene towards the 3D view's camera (matplotlib's elevation and azimuth, in degrees)
+_VIEW_TOWARDS_CAMERA = np.array(
+    [
+        np.cos(np.radians(_ELEVATION)) * np.cos(np.radians(_AZIMUTH)),
+        np.cos(np.radians(_ELEVATION)) * np.sin(np.radians(_AZIMUTH)),
+        np.sin(np.radians(_ELEVATION)),
+    ]
+)
+
+
 def _scale(unit_scale: float) -> float:
     return 1.0 / unit_scale
 
 
 def _obstacle_meshes(scene: Scene):
-    return [(o.name, o.to_trimesh()) for o in scene.obstacles]
+    """(name, obstacles held, trimesh) of what is drawn: one an obstacle, or one merged mesh a group (merged.py);
+    a merged mesh's boxes are drawn as quadrilaterals (``_polygons``)."""
+    import trimesh
+
+    out = []
+    for d in drawn_meshes(scene.obstacles):
+        mesh = trimesh.Trimesh(d.vertices, d.faces, process=False)
+        mesh.metadata["quads"], mesh.metadata["quad_triangles"] = d.quads, d.quad_triangles
+        out.append((d.name, d.count, mesh))
+    return out
+
+
+def _polygons(mesh, keep) -> list[np.ndarray]:
+    """A merged mesh's faces as polygons (m), those whose outward normal ``keep`` accepts: its boxes' quadrilaterals
+    (one polygon a box face instead of two triangles: the same pixels) and its other shapes' triangles."""
+    quads = mesh.metadata.get("quads")
+    first = mesh.metadata.get("quad_triangles", 0)
+    faces = mesh.faces[first:]
+    out = [mesh.vertices[faces[keep(mesh.face_normals[first:])]]]
+    if quads is not None and len(quads):
+        corners = mesh.vertices[quads]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        out.insert(0, corners[keep(normals)])
+    return out
 
 
 def _oval(points: np.ndarray, k: float, pad: float, n: int = 72) -> np.ndarray:
@@ -114,7 +151,15 @@ def _inside(mesh, lo: np.ndarray, hi: np.ndarray):
 
 
 def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, meshes) -> None:
-    for _, whole in meshes:
+    for _, count, whole in meshes:
+        if count > 1 and np.all(whole.vertices >= scene.bounds_min) and np.all(whole.vertices <= scene.bounds_max):
+            # a merged mesh of many obstacles: the faces turned away from the camera are left out (half of them;
+            # what they add is a darker tint behind the front faces, not a shape)
+            for polygons in _polygons(whole, lambda n: n @ _VIEW_TOWARDS_CAMERA > 0):
+                if len(polygons):
+                    collection = Poly3DCollection(polygons * k, facecolor=OBSTACLE_COLOUR, edgecolor="none", alpha=0.35)
+                    ax.add_collection3d(collection)
+            continue
         mesh = _inside(whole, scene.bounds_min, scene.bounds_max)
         if mesh is None:
             continue
@@ -155,7 +200,7 @@ def _draw_3d(ax, scene: Scene, views: Sequence[PathView], unit: str, k: float, m
     ax.set_xlabel(f"x ({unit}){stretch[0]}")
     ax.set_ylabel(f"y ({unit}){stretch[1]}")
     ax.set_zlabel(f"z ({unit}){stretch[2]}", labelpad=2)
-    ax.view_init(elev=28, azim=-60)
+    ax.view_init(elev=_ELEVATION, azim=_AZIMUTH)
 
 
 def _over_obstacles(scene: Scene, tips: np.ndarray) -> list[tuple[int, int, str, float]]:
@@ -172,22 +217,33 @@ def _over_obstacles(scene: Scene, tips: np.ndarray) -> list[tuple[int, int, str,
     distance, index = scene.signed_distance(column.reshape(-1, 3))
     inside = (distance < 0).reshape(len(tips), -1)
     owner = np.where(inside, index.reshape(len(tips), -1), -1).max(axis=1)
+    # many obstacles are drawn merged (merged.py): a stretch is named by the group it passes over
+    name = (lambda o: o.name) if len(scene.obstacles) <= MAX_SEPARATE else group_of
+    names = [None if o < 0 else name(scene.obstacles[int(o)]) for o in owner]
     out = []
     i = 0
     while i < len(tips):
-        if owner[i] < 0:
+        if names[i] is None:
             i += 1
             continue
         j = i
-        while j + 1 < len(tips) and owner[j + 1] == owner[i]:
+        while j + 1 < len(tips) and names[j + 1] == names[i]:
             j += 1
-        out.append((i, j, scene.obstacles[int(owner[i])].name, float(tips[i : j + 1, 2].mean())))
+        out.append((i, j, names[i], float(tips[i : j + 1, 2].mean())))
         i = j + 1
     return out
 
 
 def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> None:
-    for _, mesh in meshes:
+    for _, count, mesh in meshes:
+        if count > 1:
+            # a closed surface's footprint is its upward faces' (a vertical line enters through a downward face
+            # and leaves through an upward one): a box's top face instead of its 12 triangles, the same pixels
+            for polygons in _polygons(mesh, lambda n: n[:, 2] > 1e-12):
+                ax.add_collection(
+                    PolyCollection(polygons[:, :, :2] * k, facecolor=OBSTACLE_COLOUR, edgecolor="none", alpha=0.8)
+                )
+            continue
         triangles = mesh.vertices[mesh.faces][:, :, :2] * k
         ax.add_collection(PolyCollection(triangles, facecolor=OBSTACLE_COLOUR, edgecolor="none", alpha=0.8))
     lo, hi = scene.bounds_min * k, scene.bounds_max * k
@@ -205,13 +261,18 @@ def _draw_top(ax, scene: Scene, view: PathView, unit: str, k: float, meshes) -> 
     for points in view.detours:
         ring = _oval(np.asarray(points), k, _pad(scene))
         ax.plot(ring[:, 0], ring[:, 1], color=DETOUR_COLOUR, linewidth=1.4, linestyle="--")
-    for name, mesh in meshes:
+    for name, count, mesh in meshes:
+        if count > 1:
+            continue  # a merged group: its name is in the legend, not on thousands of boxes
         centre = mesh.vertices.mean(axis=0)[:2] * k
         ax.annotate(name, centre, ha="center", va="center", fontsize=7, color="#333333")
     # the top view hides height: mark where the path passes over an obstacle, and how high
-    for i0, i1, name, z in _over_obstacles(scene, view.tips):
+    over = _over_obstacles(scene, view.tips)
+    for i0, i1, name, z in over:
         stretch = tips[i0 : i1 + 1]
         ax.plot(stretch[:, 0], stretch[:, 1], color="white", linewidth=1.0, linestyle=(0, (2, 2)))
+        if len(over) > _MAX_OVER_LABELS:
+            continue  # a path across a field of voxels: the dashes (and the legend) say it, labels would pile up
         middle = stretch[len(stretch) // 2]
         ax.annotate(
             f"over {name}, z {z * k:.3g} {unit}",

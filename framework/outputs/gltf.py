@@ -1,6 +1,7 @@
 """The scene and its paths as one glTF binary (``scene.glb``) for any glTF viewer.
 
-Obstacles are grey meshes; each path is a coloured tube (visible at any zoom)
+Obstacles are grey meshes (one node each, or for many obstacles one merged mesh a group: :mod:`.merged`);
+each path is a coloured tube (visible at any zoom)
 plus its polyline; starts and goals are small spheres. Coordinates are in
 metres (glTF's unit), z up as in the scene.
 """
@@ -16,6 +17,7 @@ import trimesh
 
 from ..scene import Scene
 from ..storage import write_bytes_atomic
+from .merged import drawn_meshes
 
 PALETTE = [
     (31, 111, 180),
@@ -45,10 +47,10 @@ def write_scene_glb(
 ) -> None:
     """Write ``scene.glb``: obstacles, ``paths`` [(name, tip points (n, 3))], ``endpoints``."""
     out = trimesh.Scene()
-    for obstacle in scene.obstacles:
-        mesh = obstacle.to_trimesh()
+    for drawn in drawn_meshes(scene.obstacles):  # one node an obstacle, or one a group of many (merged.py)
+        mesh = trimesh.Trimesh(drawn.vertices, drawn.faces, process=False)
         mesh.visual.face_colors = np.array([160, 160, 160, 200], dtype=np.uint8)
-        out.add_geometry(mesh, node_name=f"obstacle:{obstacle.name}", geom_name=f"obstacle:{obstacle.name}")
+        out.add_geometry(mesh, node_name=f"obstacle:{drawn.name}", geom_name=f"obstacle:{drawn.name}")
     radius = float(np.min(scene.extent)) * 0.006
     for i, (name, tips) in enumerate(paths):
         tips = np.asarray(tips, dtype=float)

@@ -30,6 +30,7 @@ import numpy as np
 from ...kinds import ReportInput
 from ...registry import default_registry
 from ...units import LENGTH_UNITS
+from ..merged import drawn_meshes
 from .meshes import states_mesh
 from .packing import Notes, inside, pack
 from .paths import plan_report
@@ -44,14 +45,14 @@ PALETTE = ["#1f6fb4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#17becf", "#e
 def scene_data(scene) -> dict[str, Any]:
     """Bounds, obstacles (as triangle meshes, by name) and named points of a :class:`~surgiplan.scene.Scene`."""
     obstacles = []
-    for obstacle in scene.obstacles:
-        mesh = obstacle.to_trimesh()
+    for drawn in drawn_meshes(scene.obstacles):  # one an obstacle, or one merged mesh a group of many
         obstacles.append(
             {
-                "name": obstacle.name,
-                "kind": type(obstacle).__name__.lower(),
-                "vertices": pack(np.asarray(mesh.vertices, dtype=float)),
-                "faces": pack(np.asarray(mesh.faces, dtype=np.int64), "u4"),
+                "name": drawn.name,
+                "kind": drawn.kind,
+                "count": drawn.count,
+                "vertices": pack(np.asarray(drawn.vertices, dtype=float)),
+                "faces": pack(np.asarray(drawn.faces, dtype=np.int64), "u4"),
             }
         )
     return {

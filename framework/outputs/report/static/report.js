@@ -248,7 +248,8 @@
       g = g.toNonIndexed();
       g.computeVertexNormals();
       const mesh = new THREE.Mesh(g, material);
-      mesh.userData = { kind: "obstacle", name: o.name, label: `obstacle ${o.name} (${o.kind})` };
+      const many = (o.count || 1) > 1; // a merged mesh of many obstacles (outputs/merged.py)
+      mesh.userData = { kind: "obstacle", name: o.name, count: o.count || 1, label: many ? `${o.name}: ${o.count} obstacles, merged` : `obstacle ${o.name} (${o.kind})` };
       mesh.renderOrder = 2;
       obstacleGroup.add(mesh);
       pickable.push(mesh);
@@ -705,7 +706,7 @@
     const c = { obstacles: 0, paths: 0, points: 0, critical_regions: 0, roadmaps: 0, roadmap_edges: 0, path_sets: 0, stored_paths: 0, meshes: 0, mesh_triangles: 0, timelines: 0, ghosts: 0, zones: 0 };
     world.traverse((o) => {
       const u = o.userData;
-      if (u.kind === "obstacle") c.obstacles++;
+      if (u.kind === "obstacle") c.obstacles += u.count || 1;
       else if (u.kind === "path") c.paths++;
       else if (u.kind === "point") c.points++;
       else if (u.kind === "critical") c.critical_regions++;
@@ -745,6 +746,23 @@
     return { x: r.left + ((v.x + 1) / 2) * r.width, y: r.top + ((1 - v.y) / 2) * r.height, inside: Math.abs(v.x) <= 1 && Math.abs(v.y) <= 1 && v.z < 1 };
   };
   S.renderedFrames = () => S.frames;
+  // the time (ms) of each of ``n`` frames drawn as the camera turns about the target, each waited for (a pixel
+  // read back): how interactive the page is with what it draws (benchmarks/bench_scale.py)
+  S.frameTimes = (n) => {
+    const gl = renderer.getContext(), px = new Uint8Array(4), times = [];
+    const offset = camera.position.clone().sub(controls.target);
+    for (let i = 0; i < n; i++) {
+      offset.applyAxisAngle(new THREE.Vector3(0, 0, 1), (2 * Math.PI) / Math.max(n, 1));
+      camera.position.copy(controls.target).add(offset);
+      camera.lookAt(controls.target);
+      const t0 = performance.now();
+      renderer.render(scene, camera);
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+      times.push(performance.now() - t0);
+    }
+    requestRender();
+    return times;
+  };
 
   // ------------------------------------------------------------------ render loop
   let liveDirty = false, deferred = false;
