@@ -8,7 +8,7 @@ from __future__ import annotations
 
 
 def markdown(rows: list[dict]) -> str:
-    """The README's tables, from this run's rows (the README copies them; tests/test_mavlink_readme.py checks)."""
+    """The MAVLink page's tables, from this run's rows (docs/howto/mavlink.md quotes them; a test checks)."""
     out = []
     hall = [r for r in rows if r["benchmark"] == "hall"]
     if hall:

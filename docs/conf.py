@@ -31,8 +31,7 @@ extensions = [
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
 root_doc = "index"
-# README-migration.md is the plan of the pages still to come, kept next to the site but not in it
-exclude_patterns = ["_build", "README-migration.md", "known-gaps.txt"]
+exclude_patterns = ["_build", "known-gaps.txt"]
 myst_enable_extensions = ["colon_fence", "deflist"]
 myst_heading_anchors = 3
 

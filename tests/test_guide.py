@@ -497,3 +497,21 @@ def test_the_next_recommended_path_adapts_to_the_recorded_trainee(attempt, tmp_p
     path.write_text(yaml.safe_dump(data))
     code, _, err = cli("validate", path)
     assert code == 2 and "pipeline[0].settings.proficiency" in err and "no trainee 'bob'" in err
+
+
+def test_the_synthetic_hand_stays_inside_the_trainer_box():
+    """A recommended path along the box's lid: the drift would carry half of the beginner's samples through it
+    (a run of bench_cues ended invalid_result, a sample 0.1 mm above the lid); the box's walls stop the tip."""
+    from surgiplan.guidance import TraineeModel, synthetic_attempt
+
+    lo, hi = np.zeros(3), np.array([0.15, 0.10, 0.04])
+    tips = np.array([[0.01, 0.05, 0.04], [0.14, 0.05, 0.04]])
+    model = TraineeModel(level="beginner", seed=3)
+    _, free = synthetic_attempt(tips, model)
+    times, held = synthetic_attempt(tips, model, (lo, hi))
+    assert (free[:, 2] > hi[2] + 1e-4).mean() > 0.2, "without the walls the drift leaves the box"
+    assert np.all(held >= lo) and np.all(held <= hi)
+    inside = np.all((free >= lo) & (free <= hi), axis=1)
+    np.testing.assert_array_equal(held[inside], free[inside])  # the walls change nothing inside the box
+    np.testing.assert_allclose(held[:, 2], np.minimum(free[:, 2], hi[2]))
+    assert len(times) == len(held)

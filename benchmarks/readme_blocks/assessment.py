@@ -93,7 +93,7 @@ def render_assessment(results: Path) -> str:
     gate += (
         f", and the CUSUM (p0 {c['p0']:g}, p1 {c['p1']:g}) called {words(len(acceptable))} of them acceptable; "
         f"their curves: `benchmarks/results/assessment_scores.png`, `assessment_cusum.png` "
-        f"([docs/assessment.md](docs/assessment.md))."
+        f"([the assessment reference](../assessment.md))."
     )
     return section(head, body, gate)
 

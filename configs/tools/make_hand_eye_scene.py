@@ -62,8 +62,10 @@ def main() -> None:
     for name, (x0, y0, x1, y1, h) in BLOCKS.items():
         lines.append(f"  - {{name: {name}, box: {{min: [{x0}, {y0}, 0], max: [{x1}, {y1}, {h}]}}}}")
     px, py = POST["xy"]
-    lines.append(f"  - {{name: {POST['name']}, cylinder: {{radius: {POST['radius']}, length: {POST['height']}}}, "
-                 f"pose: {{xyz: [{px}, {py}, {POST['height'] / 2}]}}}}")
+    lines.append(
+        f"  - {{name: {POST['name']}, cylinder: {{radius: {POST['radius']}, length: {POST['height']}}}, "
+        f"pose: {{xyz: [{px}, {py}, {POST['height'] / 2}]}}}}"
+    )
     lines.append("points:")
     for name, p in points().items():
         lines.append(f"  {name}: [{p[0]}, {p[1]}, {p[2]}]")

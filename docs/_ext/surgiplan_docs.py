@@ -146,7 +146,7 @@ def _skip_foreign(app, what, name, obj, skip, options):
 def known_gaps(path) -> tuple[set[str], list[tuple[str, str]]]:
     """The documentation debt recorded in ``known-gaps.txt``: undocumented names and unresolved references
     that the code had when the site was introduced. The build lets these through and nothing new; the list
-    only shrinks (docs/README-migration.md)."""
+    only shrinks."""
     undocumented, references = set(), []
     for line in path.read_text().splitlines():
         line = line.split("#", 1)[0].strip()

@@ -63,8 +63,14 @@ class TraineeModel(StrictModel):
         return float(LEVELS[self.level][name] if value is None else value)
 
 
-def synthetic_attempt(tips: np.ndarray, model: TraineeModel) -> tuple[np.ndarray, np.ndarray]:
-    """Times (s) and tip positions (n, 3) of a synthetic trainee following the tip path ``tips`` (m)."""
+def synthetic_attempt(
+    tips: np.ndarray, model: TraineeModel, bounds: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Times (s) and tip positions (n, 3) of a synthetic trainee following the tip path ``tips`` (m).
+
+    ``bounds`` (the scene's workspace, min and max corners in m) are the walls of the trainer box: the drifting
+    hand cannot take the tip through them, so a tip the drift would carry outside stops at the wall (a
+    recommended path along the box's lid otherwise has half of its drift outside the scene)."""
     rng = np.random.default_rng(model.seed)
     tips = np.asarray(tips, float)
     steps = np.linalg.norm(np.diff(tips, axis=0), axis=1)
@@ -114,13 +120,16 @@ def synthetic_attempt(tips: np.ndarray, model: TraineeModel) -> tuple[np.ndarray
         if t >= paused_until:
             s = min(length, s + speed * max(0.1, 1.0 + factor) * dt)
         t += dt
-    return np.asarray(times), np.asarray(points)
+    points = np.asarray(points)
+    if bounds is not None:
+        points = np.clip(points, np.asarray(bounds[0], float), np.asarray(bounds[1], float))
+    return np.asarray(times), points
 
 
 def follow(guide: Guide, model: TraineeModel) -> Guide:
     """A synthetic trainee's attempt measured by ``guide`` sample by sample (tip positions), as fast as it runs;
     returns the guide, its events finished."""
-    times, tips = synthetic_attempt(guide.tips, model)
+    times, tips = synthetic_attempt(guide.tips, model, (guide.scene.bounds_min, guide.scene.bounds_max))
     for t, tip in zip(times, tips, strict=True):
         guide.measure(PoseSample(float(t), tip=tip))
     guide.finish()

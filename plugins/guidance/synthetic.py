@@ -29,7 +29,8 @@ class SyntheticTrainee(PoseSource):
 
     def open(self, context) -> None:
         self.context = context
-        self.times, self.tips = synthetic_attempt(context.tips, self.settings)
+        scene = context.scene
+        self.times, self.tips = synthetic_attempt(context.tips, self.settings, (scene.bounds_min, scene.bounds_max))
 
     def samples(self):
         space = self.context.space

@@ -144,7 +144,7 @@ class CastGimbalObserver(PoseSource):
         hand = self.settings.hand or HandModel()
         recorded = hand._recorded
         if recorded is None:
-            times, tips = synthetic_attempt(context.tips, hand)
+            times, tips = synthetic_attempt(context.tips, hand, (context.scene.bounds_min, context.scene.bounds_max))
             kind, values = "tip", tips
         else:
             times, values, kind = recorded

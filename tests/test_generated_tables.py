@@ -1,10 +1,10 @@
-"""The README's measured numbers come from the benchmarks' result files, through benchmarks/readme_tables.py.
+"""The documentation's measured numbers come from the benchmarks' result files, through benchmarks/readme_tables.py.
 
 A number typed by hand drifts (issue 21: the hall flight's door clearances in the README were not what
-the shipped config flies). Every benchmark figure the README quotes sits in a generated block; these
-tests check that each block is what its results render to, that a hand edit or a changed result is
-caught, that the sentences' judgements (a target met or not) follow the data, and that a benchmark
-figure is not also quoted outside its block.
+the shipped config flies). Every benchmark figure README.md or a page under docs/ quotes sits in a generated
+block, each block in exactly one page; these tests check that each block is what its results render to, that
+a hand edit or a changed result is caught, that the sentences' judgements (a target met or not) follow the
+data, and that a benchmark figure is not also quoted outside its block in its page.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import readme_tables as rt  # noqa: E402
 
-README = ROOT / "README.md"
+PAGES = rt.pages(ROOT)
 
 
 @pytest.fixture()
@@ -48,22 +48,42 @@ def block(text: str, name: str) -> str:
     return text[start:end]
 
 
+def page_of(name: str) -> Path:
+    return rt.locate(ROOT)[name]
+
+
 def test_every_generated_block_is_what_its_results_render_to():
-    text = README.read_text()
-    assert set(rt.spans(text)) == set(rt.BLOCKS), "each block appears in the README once"
-    _, changed = rt.regenerate(text)
-    assert changed == [], f"run python benchmarks/readme_tables.py: stale blocks {changed}"
+    located = rt.locate(ROOT)
+    assert set(located) == set(rt.BLOCKS), "each block appears in exactly one page"
+    assert ROOT / "docs" / "howto" / "planners" / "safe-prm.md" == located["safe_prm"], "blocks live with their topic"
+    for page, _, changed in rt.regenerate_all(ROOT):
+        assert changed == [], f"run python benchmarks/readme_tables.py: stale blocks {changed} in {page}"
 
 
-def test_every_results_file_the_readme_cites_is_rendered_by_a_block():
-    cited = set(re.findall(r"benchmarks/results/(\w+)\.json", README.read_text()))
+def test_every_results_file_a_page_cites_is_rendered_by_a_block():
+    cited = set()
+    for page in PAGES:
+        cited |= set(re.findall(r"benchmarks/results/(\w+)\.json", page.read_text()))
     rendered = {source for b in rt.BLOCKS.values() for source in b.sources}
-    assert cited, "the README cites its results files"
+    assert cited, "the pages cite their results files"
     assert cited <= rendered, f"quoted but not generated: {sorted(cited - rendered)}"
 
 
+def test_a_block_in_two_pages_or_in_none_is_named(tmp_path: Path, capsys):
+    root = tmp_path / "repo"
+    (root / "docs").mkdir(parents=True)
+    guide = page_of("guide").read_text()
+    (root / "README.md").write_text(guide)
+    (root / "docs" / "a.md").write_text(guide)
+    assert rt.main(["--check", "--root", str(root)]) == 2
+    assert "docs/a.md: block 'guide' is also in README.md" in capsys.readouterr().err
+    (root / "docs" / "a.md").write_text("no blocks here\n")
+    assert rt.main(["--check", "--root", str(root)]) == 2
+    assert "no generated block for " in capsys.readouterr().err
+
+
 def test_a_hand_edited_number_is_caught_and_named():
-    text = README.read_text()
+    text = page_of("safe_prm").read_text()
     original = block(text, "safe_prm")
     row = next(line for line in original.splitlines() if line.startswith("| 5,000 |"))
     number = re.search(r"\d+\.\d+[x×]", row).group(0)
@@ -71,7 +91,7 @@ def test_a_hand_edited_number_is_caught_and_named():
     _, changed = rt.regenerate(edited)
     assert changed == ["safe_prm"]
     fixed, _ = rt.regenerate(edited)
-    assert fixed == text, "rewriting restores the README exactly"
+    assert fixed == text, "rewriting restores the page exactly"
 
 
 def test_a_changed_result_changes_the_table(results: Path):
@@ -185,32 +205,46 @@ def test_the_sentences_judge_the_targets_from_the_data(results: Path):
 def test_malformed_markers_are_named_with_their_line(tmp_path: Path, readme: str, message: str, capsys):
     path = tmp_path / "README.md"
     path.write_text("intro\n" + readme)
-    assert rt.main(["--readme", str(path)]) == 2
+    assert rt.main(["--root", str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert message in err and str(path) in err
+    assert message in err and ("README.md" in err), err
     assert path.read_text() == "intro\n" + readme, "nothing written"
 
 
+def copy_pages(root: Path) -> list[Path]:
+    """README.md and the docs pages copied under ``root``, as the repository has them."""
+    copies = []
+    for page in PAGES:
+        copy = root / page.relative_to(ROOT)
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        copy.write_text(page.read_text())
+        copies.append(copy)
+    return copies
+
+
 def test_check_and_rewrite_from_the_command_line(tmp_path: Path, results: Path, capsys):
-    path = tmp_path / "README.md"
-    path.write_text(README.read_text())
-    assert rt.main(["--check", "--readme", str(path), "--results", str(results)]) == 0
+    root = tmp_path / "repo"
+    copy_pages(root)
+    guide = root / page_of("guide").relative_to(ROOT)
+    original = guide.read_text()
+    assert rt.main(["--check", "--root", str(root), "--results", str(results)]) == 0
 
     edit_json(results / "guide.json", lambda d: d["rows"][0].update(analysis_median_ms=0.0777))
-    assert rt.main(["--check", "--readme", str(path), "--results", str(results)]) == 1
-    assert "out of date with benchmarks/results: guide" in capsys.readouterr().err
-    assert path.read_text() == README.read_text(), "--check writes nothing"
+    assert rt.main(["--check", "--root", str(root), "--results", str(results)]) == 1
+    assert "docs/howto/guidance.md: out of date with benchmarks/results: guide" in capsys.readouterr().err
+    assert guide.read_text() == original, "--check writes nothing"
 
-    assert rt.main(["--readme", str(path), "--results", str(results)]) == 0
-    assert "| 0.078 / " in block(path.read_text(), "guide")
-    assert rt.main(["--check", "--readme", str(path), "--results", str(results)]) == 0
+    assert rt.main(["--root", str(root), "--results", str(results)]) == 0
+    assert "| 0.078 / " in block(guide.read_text(), "guide")
+    assert rt.main(["--check", "--root", str(root), "--results", str(results)]) == 0
 
     (results / "optmis.json").unlink()
-    before = path.read_text()
-    assert rt.main(["--readme", str(path), "--results", str(results)]) == 2
+    before = {p: p.read_text() for p in root.rglob("*.md")}
+    edit_json(results / "guide.json", lambda d: d["rows"][0].update(analysis_median_ms=0.0888))
+    assert rt.main(["--root", str(root), "--results", str(results)]) == 2
     err = capsys.readouterr().err
     assert "optmis.json: missing" in err
-    assert path.read_text() == before, "a failed rendering leaves the README as it was"
+    assert {p: p.read_text() for p in root.rglob("*.md")} == before, "a failed rendering writes no page at all"
 
 
 #: figures that a block quotes and the prose uses for another meaning (a protocol timeout, a vehicle's
@@ -218,8 +252,9 @@ def test_check_and_rewrite_from_the_command_line(tmp_path: Path, results: Path, 
 COINCIDENCES = {"0.25 s", "0.1 mm", "67.6 s", "0.3 ms", "0.25 m", "0.5 m"}
 
 
-def test_no_benchmark_figure_is_also_typed_outside_its_block():
-    text = README.read_text()
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_no_benchmark_figure_is_also_typed_outside_its_block(page: Path):
+    text = page.read_text()
     found = rt.spans(text)
     outside = text
     for start, end in sorted(found.values(), reverse=True):
