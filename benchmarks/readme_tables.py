@@ -36,6 +36,7 @@ from pathlib import Path
 
 from readme_blocks.assessment import render_assessment, render_cues
 from readme_blocks.canopen import render_canopen_conformance
+from readme_blocks.crash_walk import render_crash_walk
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
 from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
@@ -78,6 +79,7 @@ BLOCKS: dict[str, Block] = {
     "guide": Block(render_guide, ("guide",)),
     "assessment": Block(render_assessment, ("assessment",)),
     "cues": Block(render_cues, ("cues",)),
+    "crash_walk": Block(render_crash_walk, ("crash_walk",)),
 }
 
 

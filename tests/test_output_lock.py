@@ -103,6 +103,7 @@ def test_the_lock_of_a_killed_run_is_taken_over_with_a_message(cli, tmp_path, ca
     assert not (out / ".surgiplan.lock").exists()
 
 
+@pytest.mark.slow
 def test_two_real_runs_at_once_one_is_refused(tmp_path):
     """Two `surgiplan run` processes started together into one directory: exactly one runs, the other is
     refused with exit status 2 naming it (a slow guide attempt, pace 1, keeps the first one busy)."""
