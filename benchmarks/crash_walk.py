@@ -11,11 +11,17 @@ crashes exercised, what each file was found to be, temporaries left, problems, t
 
     python benchmarks/crash_walk.py                # every point; the retraction walk every 3rd
     python benchmarks/crash_walk.py --stride 4     # quicker
+    python benchmarks/crash_walk.py guide          # one kind: its row replaces the kind's row in the file
+
+Each kind's row is saved as soon as its walk ends (the file's other kinds kept), so a long walk keeps what
+it finished, and kinds can be walked by separate processes.
 """
 
 from __future__ import annotations
 
 import argparse
+import fcntl
+import json
 import shutil
 import sys
 import tempfile
@@ -25,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "tests"))
 
-from common import save  # noqa: E402
+from common import RESULTS, save  # noqa: E402
 from crash_walk_support import KINDS, walk  # noqa: E402
 
 
@@ -55,6 +61,7 @@ def main(argv: list[str] | None = None) -> int:
             shutil.rmtree(base, ignore_errors=True)
         report.pop("outcomes")
         rows.append(report)
+        _save(report, args)
         print(
             f"{name}: {report['points']} points {report['points_by_kind']}, exercised {report['exercised']}, "
             f"files {report['states']}, {len(report['problems'])} problems, {report['seconds']} s",
@@ -62,12 +69,25 @@ def main(argv: list[str] | None = None) -> int:
         )
         for problem in report["problems"]:
             print("  ", problem)
-    notes = (
-        f"stride {args.stride} (retraction {args.retraction_stride}); kill at every chosen point, an I/O error "
-        "(EIO) at every third; each run a forked child of one process that imported surgiplan once"
-    )
-    save("crash_walk", rows, notes)
     return 0 if not any(r["problems"] for r in rows) else 1
+
+
+def _save(report: dict, args) -> None:
+    """Replace ``report``'s kind in ``results/crash_walk.json`` (other kinds kept), under a lock: kinds may be
+    walked by processes of their own."""
+    with open(RESULTS / ".crash_walk.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            rows = json.loads((RESULTS / "crash_walk.json").read_text())["rows"]
+        except (OSError, ValueError, KeyError):
+            rows = []
+        rows = [r for r in rows if r["kind"] != report["kind"]] + [report]
+        rows.sort(key=lambda r: list(KINDS).index(r["kind"]) if r["kind"] in KINDS else 99)
+        notes = (
+            "kill at every chosen point (stride per kind in its row; each kind of point's first and last always), "
+            "an I/O error (EIO) at every third; each run a forked child of one process that imported surgiplan once"
+        )
+        save("crash_walk", rows, notes)
 
 
 if __name__ == "__main__":

@@ -43,7 +43,7 @@ from .pipeline import Pipeline
 from .progress import NullProgress, Progress, StageProgress
 from .results import StageContext, StageResult
 from .status import RunOutcomeStatus, RunStatus
-from .storage import prepare_output_dir, to_jsonable, write_json_atomic
+from .storage import prepare_output_dir, remove_temporaries, to_jsonable, write_json_atomic
 from .units import LENGTH_UNITS
 
 log = logging.getLogger(__name__)
@@ -74,6 +74,9 @@ def begin_run(out: Path, pipeline_file: Path) -> Path:
     _write_marker(marker, pipeline_file, [])
     for stale in ("result.json", "report.html"):
         (out / stale).unlink(missing_ok=True)
+    left = remove_temporaries(out)  # a killed run's half-written temporary files: never read, now removed
+    if left:
+        log.info("removed %d temporary files a previous run left in %s", len(left), out)
     return marker
 
 

@@ -17,6 +17,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import tempfile
 import zipfile
 from collections.abc import Iterator, Mapping
@@ -181,6 +182,21 @@ def load_bundle(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"metadata is not valid JSON ({exc})") from None
     return arrays, meta
+
+
+_TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp$")
+
+
+def remove_temporaries(directory: Path) -> list[Path]:
+    """Remove the temporary files (``.NAME.XXXXXXXX.tmp``, :func:`atomic_write`'s) a killed run left in
+    ``directory`` and below; only for a directory this process holds (its run's lock). Returns them."""
+    removed = []
+    for path in directory.rglob(".*.tmp"):
+        if _TEMPORARY.match(path.name) and path.is_file() and not path.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(path)
+    return removed
 
 
 def prepare_output_dir(path: Path) -> Path:

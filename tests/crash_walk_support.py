@@ -378,13 +378,14 @@ def _write_pipelines(kind: RunKind, base: Path) -> tuple[Path, Path]:
 
 
 def chosen_points(points, stride: int) -> list[int]:
-    """Every ``stride``-th point, and each kind of point's first and last (so every kind is exercised)."""
-    chosen = {seq for seq, *_ in points[::stride]}
+    """Every ``stride``-th point, and each kind of point's first and last (so every kind is exercised); stride
+    0: only each kind of point's last (the quickest walk that still crashes at every kind of point)."""
+    chosen = {seq for seq, *_ in points[::stride]} if stride else set()
     by_kind: dict[str, list[int]] = {}
     for seq, point, _, _ in points:
         by_kind.setdefault(point, []).append(seq)
     for seqs in by_kind.values():
-        chosen.update((seqs[0], seqs[-1]))
+        chosen.update((seqs[0], seqs[-1]) if stride else (seqs[-1],))
     return sorted(chosen)
 
 
@@ -413,7 +414,7 @@ def walk(kind: RunKind, base: Path, stride: int = 1, actions: tuple[str, ...] = 
 
     outcomes: list[Outcome] = []
     for action in actions:
-        for n in chosen_points(points, stride if action == "kill" else max(stride, 1) * 3):
+        for n in chosen_points(points, stride if action == "kill" else stride * 3):
             _, point, _, _ = points[n - 1]
             work = base / f"{action}-{n}"
             shutil.copytree(pristine, work, symlinks=True)
@@ -496,6 +497,9 @@ def _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, ou
         outcome.problems.append(f"the rerun redid committed work: {sorted(done & again)}")
     if (done | again) != all_work:
         outcome.problems.append(f"work never done: {sorted(all_work - done - again)}")
+    left = [t for t in temporaries(work) if t.startswith("out/") and t.endswith(".tmp")]
+    if left:
+        outcome.problems.append(f"the rerun left the crashed run's temporary files: {left}")
     result = json.loads((work / "out" / "result.json").read_text())
     if result["status"] != "succeeded":
         outcome.problems.append(f"the rerun's result.json says {result['status']}")
