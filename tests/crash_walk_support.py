@@ -389,8 +389,25 @@ def chosen_points(points, stride: int) -> list[int]:
     return sorted(chosen)
 
 
-def walk(kind: RunKind, base: Path, stride: int = 1, actions: tuple[str, ...] = ("kill",)) -> dict[str, Any]:
-    """Walk ``kind``'s points (see the module) in ``base``; returns the counts and every problem found."""
+#: where the quickest walk (stride 0) injects I/O errors: the last of these kinds of point
+FAIL_POINTS = ("write", "commit")
+
+
+def after_first_work(kind: RunKind, points) -> list[int]:
+    """The point just after the first work file's rename: a crash there has committed work a rerun must keep."""
+    for seq, point, _, target in points:
+        if point == "rename" and _work_renames(kind, Path("."), [(seq, point, 0, target)]):
+            return [seq + 1]
+    return []
+
+
+def walk(
+    kind: RunKind, base: Path, stride: int = 1, actions: tuple[str, ...] = ("kill",), select: str = "stride"
+) -> dict[str, Any]:
+    """Walk ``kind``'s points (see the module) in ``base``; returns the counts and every problem found.
+
+    ``select``: ``stride`` (every ``stride``-th point, see :func:`chosen_points`), or ``work`` (one point: just
+    after the first work file is committed; the quickest check that a rerun keeps committed work)."""
     started = time.monotonic()
     old_yaml, new_yaml = _write_pipelines(kind, base)
     pristine = base / "pristine"
@@ -414,7 +431,13 @@ def walk(kind: RunKind, base: Path, stride: int = 1, actions: tuple[str, ...] = 
 
     outcomes: list[Outcome] = []
     for action in actions:
-        for n in chosen_points(points, stride if action == "kill" else stride * 3):
+        if select == "work":
+            chosen = after_first_work(kind, points)
+        elif action == "fail" and not stride:  # the quickest walk: an I/O error in a file's write, and in a commit
+            chosen = [max(seq for seq, point, *_ in points if point == p) for p in FAIL_POINTS if p in counts]
+        else:
+            chosen = chosen_points(points, stride if action == "kill" else stride * 3)
+        for n in chosen:
             _, point, _, _ = points[n - 1]
             work = base / f"{action}-{n}"
             shutil.copytree(pristine, work, symlinks=True)
@@ -513,7 +536,9 @@ def _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, ou
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("kinds", nargs="*", default=list(KINDS))
+    parser.add_argument(
+        "kinds", nargs="*", default=list(KINDS), help="KIND or KIND:work (one crash, after its first committed work)"
+    )
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--fail", action="store_true", help="also inject I/O errors (every 3rd chosen stride)")
     parser.add_argument("--json", action="store_true")
@@ -524,10 +549,12 @@ def main(argv: list[str] | None = None) -> int:
 
     default_registry()  # every plugin imported once, too
     reports = []
-    for name in args.kinds:
+    for spec in args.kinds:
+        name, _, select = spec.partition(":")
         base = Path(tempfile.mkdtemp(prefix=f"walk-{name}-", dir=args.keep))
         try:
-            reports.append(walk(KINDS[name], base, args.stride, ("kill", "fail") if args.fail else ("kill",)))
+            actions = ("kill", "fail") if args.fail and select != "work" else ("kill",)
+            reports.append(walk(KINDS[name], base, args.stride, actions, select or "stride"))
         finally:
             if args.keep is None:
                 shutil.rmtree(base, ignore_errors=True)
