@@ -24,6 +24,7 @@ import socket
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from .errors import OutputError
 
@@ -65,6 +66,18 @@ def describe(holder: dict) -> str:
     )
 
 
+def _alive(pid: Any) -> bool:
+    if not isinstance(pid, int) or pid <= 0:
+        return True  # unknown: assume it is
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def _read(fd: int) -> dict:
     os.lseek(fd, 0, os.SEEK_SET)
     raw = os.read(fd, 1 << 16)
@@ -92,9 +105,12 @@ def claim(directory: Path, pipeline_file: str | Path = "", wait_s: float = 2.0) 
             if not holder and time.monotonic() < deadline:
                 time.sleep(0.05)  # the holder has the lock and is writing who it is
                 continue
+            orphan = ""
+            if holder.get("host") == socket.gethostname() and not _alive(holder.get("pid")):
+                orphan = "; that process has ended, but a process it started (a worker?) still holds the lock"
             raise OutputError(
                 f"another surgiplan run is writing to {directory}: {describe(holder) if holder else 'unknown run'} "
-                f"(it holds {path}); wait for it to end or choose another --out",
+                f"(it holds {path}{orphan}); wait for it to end or choose another --out",
                 location="output.dir",
             ) from None
         try:
