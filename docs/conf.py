@@ -61,6 +61,7 @@ autodoc_preserve_defaults = True
 
 html_theme = "furo"
 html_title = f"surgiplan {release}"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["surgiplan.css"]  # the schema tables fit the page (no horizontal scroll)
 html_show_sourcelink = False
 html_theme_options = {"navigation_with_keys": True}

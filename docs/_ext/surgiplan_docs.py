@@ -45,7 +45,8 @@ def _literal(text: str) -> str:
 
 def table(model, prefix: str = "") -> list[str]:
     """A ``list-table`` of every key of ``model`` (nested keys flattened)."""
-    lines = [".. list-table::", "   :header-rows: 1", "   :width: 100%", "   :widths: 24 20 14 10 32", ""]
+    lines = [".. list-table::", "   :header-rows: 1", "   :width: 100%", "   :widths: 26 18 12 10 34"]
+    lines += ["   :class: schema-table", ""]
     lines += ["   * - key", "     - type", "     - default", "     - unit", "     - description"]
     for row in rows(model, prefix):
         lines += [f"   * - {_literal(row.key)}", f"     - {escape(row.type)}", f"     - {_literal(row.default)}"]
