@@ -38,10 +38,11 @@ def render_crash_walk(results: Path) -> str:
     total = sum(r["exercised"].get("kill", 0) + r["exercised"].get("fail", 0) for r in data["rows"])
     problems = sum(len(r["problems"]) for r in data["rows"])
     strides = {r["kind"]: r.get("stride", 1) for r in data["rows"]}
-    every = "every point" + "".join(
-        f" ({LABELS.get(k, k)}: every {s}th, and each kind of point's first and last)"
-        for k, s in strides.items()
-        if s != 1
+    full = [LABELS.get(k, k) for k, n in strides.items() if n == 1]
+    partial = [f"{LABELS.get(k, k)} at every {_ordinal(n)}" for k, n in strides.items() if n != 1]
+    every = "; ".join(
+        ([f"{', '.join(full)} at every point"] if full else [])
+        + ([", ".join(partial) + " (and always each kind of point's first and last)"] if partial else [])
     )
     verdict = (
         "no file was ever found partial or missing, no record failed its integrity check or lost a committed "
@@ -50,8 +51,9 @@ def render_crash_walk(results: Path) -> str:
         else f"**{problems} problems** (listed in `benchmarks/results/crash_walk.json`)"
     )
     head = (
-        f"`benchmarks/crash_walk.py` crashed each run kind at {every} ({total} crashes in all: a kill at each, an "
-        f"I/O error at every third) and then checked every file, the record and a rerun: {verdict}."
+        f"`benchmarks/crash_walk.py` crashed the {every}: {total} crashes in all, a kill at each chosen point "
+        f"and an I/O error at every third; after each it checked every file and the record, and (after a kill) a "
+        f"rerun: {verdict}."
     )
     body = table(
         [
@@ -66,3 +68,7 @@ def render_crash_walk(results: Path) -> str:
         rows,
     )
     return head + "\n\n" + body
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')} point"
