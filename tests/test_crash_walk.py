@@ -54,7 +54,8 @@ def test_a_crash_at_any_kind_of_write_point_loses_nothing_and_a_rerun_redoes_not
         assert fails == ({"write", "commit"} if kind == "guide" else {"write"})
     else:
         assert [o["action"] for o in report["outcomes"]] == ["kill"]
-    assert report["states"].get("old", 0) > 0
+    if kind != "plan":  # the plan run's last points come after every file is rewritten: no old one is left
+        assert report["states"].get("old", 0) > 0
     assert report["states"].get("new", 0) + report["states"].get("complete", 0) > 0
     assert report["states"].get("partial", 0) == 0
     if kind != "guide":
