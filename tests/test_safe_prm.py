@@ -337,8 +337,12 @@ def _path_cost(points, nodes):
 def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
     """Milestone to milestone, and between virtual start/goal points linked into the graph (with a direct motion)."""
     from scipy.sparse import bmat, csr_matrix
-    from scipy.sparse.csgraph import dijkstra
+    from scipy.sparse.csgraph import connected_components, dijkstra
     from surgiplan.plugins.planners.safe_prm.astar import shortest_path
+    from surgiplan.plugins.planners.safe_prm.landmarks import landmark_distances
+
+    def rows(graph):
+        return graph.indptr.astype(np.int32), graph.indices.astype(np.int32), graph.data.astype(float)
 
     rng = np.random.default_rng(7)
     for case in range(4):
@@ -347,8 +351,11 @@ def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
         distance, predecessors = dijkstra(graph, directed=False, return_predecessors=True)
         # the last graph with buckets so narrow that keys overflow the window and are re-bucketed as it moves
         delta = 1e-5 if case == 3 else None
+        # the landmarks' bounds (ALT) on two graphs, the straight line alone on two
+        far = landmark_distances(*rows(graph), points, connected_components(graph)[1].astype(np.int64), 4, 0.01)
+        far = far if case % 2 else None
         for source, target in rng.integers(0, n, size=(60, 2)):
-            nodes, cost, settled = shortest_path(graph, points, int(source), int(target), delta=delta)
+            nodes, cost, settled = shortest_path(graph, points, int(source), int(target), delta=delta, far=far)
             if not np.isfinite(distance[source, target]):
                 assert len(nodes) == 0 and cost == np.inf
                 continue
@@ -384,6 +391,7 @@ def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
                 target_links=(links[1], link_cost[1], ends[1]),
                 direct_cost=direct,
                 delta=delta,
+                far=far,
             )
             if not np.isfinite(d[n + 1]):
                 assert len(nodes) == 0
@@ -462,10 +470,20 @@ def _reference_query(roadmap, start, goal):
     return out
 
 
+def query_as_the_reference(roadmap, start, goal):
+    """The compiled query's outcome, checked to be :func:`_reference_query`'s path milestone for milestone."""
+    from surgiplan.plugins.planners.safe_prm import query as prm_query
+
+    outcome = prm_query.query(roadmap, start, goal)
+    nodes = np.concatenate([roadmap.milestones, start[None], goal[None]])[_reference_query(roadmap, start, goal)]
+    assert outcome.found
+    np.testing.assert_array_equal(outcome.path, nodes)
+    return outcome
+
+
 @pytest.mark.parametrize("level", ["expert", "intermediate", "beginner"])
 def test_query_and_repair_match_a_plain_scipy_implementation(block_world, level):
     """The compiled search, batched links and labelled repair give Algorithms 2-4's exact answer."""
-    from surgiplan.plugins.planners.safe_prm import query as prm_query
 
     space = R3Space(block_world)
     rng = np.random.default_rng(3)
@@ -481,11 +499,7 @@ def test_query_and_repair_match_a_plain_scipy_implementation(block_world, level)
             if np.all(space.clearance(q) >= roadmap.d_thresh):  # the reference does not project
                 pairs.append((q[0], q[1]))
         for start, goal in pairs:
-            outcome = prm_query.query(roadmap, start, goal)
-            expected = _reference_query(roadmap, start, goal)
-            nodes = np.concatenate([roadmap.milestones, start[None], goal[None]])[expected]
-            assert outcome.found
-            np.testing.assert_array_equal(outcome.path, nodes)
+            query_as_the_reference(roadmap, start, goal)
 
 
 @pytest.mark.parametrize("tip_radius", [0.0, 0.5 * MM])

@@ -6,14 +6,16 @@ touching the graph: the *start* n (its links are the source's out-edges)
 and the *goal* n+1 (a milestone linked to it ends a path there at the
 link's cost), plus an optional direct start-goal motion.
 
-The heuristic is the space's distance to the target, ``|w * (x - x_t)|``
-(the edge costs are that same weighted Euclidean distance), scaled down by
-one part in 10^12 so that round-off can never make it exceed a true
-remaining cost: it is admissible, so the search returns a shortest path
-(Hart, Nilsson & Raphael 1968) while expanding only the nodes whose cost
-plus heuristic is below the answer, not the whole roadmap as a Dijkstra
-search from the source does. ``tests/test_safe_prm.py`` checks the paths and
-costs against scipy's Dijkstra.
+The heuristic is the larger of two lower bounds on the cost to go: the
+space's distance to the target, ``|w * (x - x_t)|`` (the edge costs are that
+same weighted Euclidean distance), scaled down by one part in 10^12 so that
+round-off can never make it exceed a true remaining cost, and the bound of
+the roadmap's landmarks (:mod:`.landmarks`, loosened by a tolerance), which
+follows the roadmap around obstacles. Both are admissible, so the search
+returns a shortest path (Hart, Nilsson & Raphael 1968) while expanding only
+the nodes whose cost plus heuristic is below the answer, not the whole
+roadmap as a Dijkstra search from the source does. ``tests/test_safe_prm.py``
+checks the paths and costs against scipy's Dijkstra.
 
 The open set is a bucket queue, not a heap: entries go to buckets of width
 ``delta`` by their key (cost plus heuristic) and come out bucket by bucket,
@@ -76,6 +78,7 @@ class Workspace:
         self.entry_next = np.empty(entries, dtype=np.int64)
 
     def arrays(self) -> tuple:
+        """The arrays in the order :func:`search` takes them."""
         return (
             self.node,
             self.parent,
@@ -90,12 +93,54 @@ class Workspace:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _heuristic(scaled, v, goal_at):
+def _heuristic(scaled, v, goal_at, far, low, high):
+    """The larger of the straight-line bound and the landmarks' (see :mod:`.landmarks`) on v's cost to go."""
     total = 0.0
     for d in range(scaled.shape[1]):
         diff = scaled[v, d] - goal_at[d]
         total += diff * diff
-    return np.sqrt(total) * _SHRINK
+    best = np.sqrt(total) * _SHRINK
+    for j in range(low.shape[0]):
+        to_landmark = far[v, j]
+        if to_landmark < np.inf:  # v in the landmark's component
+            best = max(best, low[j] - to_landmark, to_landmark - high[j])
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _landmark_bounds(far, tolerance, target, goal_node, target_links, target_costs, target_use, low, high):
+    """Per landmark L, the bounds that make ``max(low - d(v, L), d(v, L) - high)`` a lower bound on v's cost to
+    the target: d(t, L) both for a milestone t; for the virtual goal, reached through its links (t_k, c_k),
+    ``min(d(t_k, L) + c_k)`` and ``max(d(t_k, L) - c_k)`` over the links in L's component (none: the landmark is
+    left out, ``low`` -inf and ``high`` inf). Loosened by ``tolerance`` against round-off."""
+    for j in range(low.shape[0]):
+        low[j] = np.inf
+        high[j] = -np.inf
+        if target != goal_node:
+            low[j] = high[j] = far[target, j]
+        else:
+            for k in range(target_links.shape[0]):
+                to_landmark = far[target_links[k], j]
+                if target_use[k] and to_landmark < np.inf:
+                    low[j] = min(low[j], to_landmark + target_costs[k])
+                    high[j] = max(high[j], to_landmark - target_costs[k])
+        if low[j] == np.inf:
+            low[j] = -np.inf
+            high[j] = np.inf
+        else:
+            low[j] -= tolerance
+            high[j] += tolerance
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _file(e, bucket, window, head, entry_next, overflow):
+    """Entry e into its bucket when the window holds it, else onto the overflow list; returns the list's head."""
+    if bucket - window < head.shape[0]:
+        entry_next[e] = head[bucket - window]
+        head[bucket - window] = e
+        return overflow
+    entry_next[e] = overflow
+    return e
 
 
 @njit(cache=True, nogil=True)
@@ -104,6 +149,8 @@ def search(
     indices,
     data,
     scaled,
+    far,
+    tolerance,
     delta,
     source,
     source_targets,
@@ -133,7 +180,9 @@ def search(
     ``source_costs``, position ``source_point``), ``target`` n+1 the virtual goal (reached from
     ``target_links[target_use]`` at ``target_costs``, position ``target_point``); ``direct_cost`` a motion from
     the virtual start straight to the virtual goal (``inf``: none). ``scaled``: milestone coordinates times the
-    space's weights; ``delta`` the buckets' width. The remaining arguments are a :class:`Workspace`'s arrays.
+    space's weights; ``far``: every milestone's roadmap distance to each landmark (:mod:`.landmarks`; no
+    columns: the straight-line bound alone), ``tolerance`` the round-off allowed in them; ``delta`` the buckets'
+    width. The remaining arguments are a :class:`Workspace`'s arrays.
     """
     n = scaled.shape[0]
     start_node = n
@@ -142,6 +191,9 @@ def search(
     generation[0] += 1.0
     gen = generation[0]
     goal_at = target_point if target == goal_node else scaled[target]
+    low = np.empty(far.shape[1])
+    high = np.empty(far.shape[1])
+    _landmark_bounds(far, tolerance, target, goal_node, target_links, target_costs, target_use, low, high)
     if target == goal_node:
         for k in range(target_links.shape[0]):
             if target_use[k]:
@@ -167,7 +219,7 @@ def search(
             t = source_targets[k]
             if node[t, _STAMP] != gen:
                 node[t, _STAMP] = gen
-                node[t, _HEURISTIC] = _heuristic(scaled, t, goal_at)
+                node[t, _HEURISTIC] = _heuristic(scaled, t, goal_at, far, low, high)
             elif source_costs[k] >= node[t, _COST]:
                 continue
             node[t, _COST] = source_costs[k]
@@ -189,7 +241,7 @@ def search(
     else:
         node[source, _STAMP] = gen
         node[source, _COST] = 0.0
-        node[source, _HEURISTIC] = _heuristic(scaled, source, goal_at)
+        node[source, _HEURISTIC] = _heuristic(scaled, source, goal_at, far, low, high)
         parent[source] = -1
         entry_node[0] = source
         entry_key[0] = node[source, _HEURISTIC]
@@ -201,13 +253,7 @@ def search(
         base = min(base, entry_key[e])
     overflow = -1
     for e in range(used):
-        slot = int((entry_key[e] - base) / delta)
-        if slot < window_size:
-            entry_next[e] = head[slot]
-            head[slot] = e
-        else:
-            entry_next[e] = overflow
-            overflow = e
+        overflow = _file(e, int((entry_key[e] - base) / delta), 0, head, entry_next, overflow)
     pending = used
     current = 0  # the bucket being emptied (counted from base)
     window = 0  # the bucket at the window's first slot
@@ -222,13 +268,7 @@ def search(
             overflow = -1
             while e >= 0:
                 following = entry_next[e]
-                bucket = max(int((entry_key[e] - base) / delta), window)
-                if bucket - window < window_size:
-                    entry_next[e] = head[bucket - window]
-                    head[bucket - window] = e
-                else:
-                    entry_next[e] = overflow
-                    overflow = e
+                overflow = _file(e, max(int((entry_key[e] - base) / delta), window), window, head, entry_next, overflow)
                 e = following
         e = head[current - window]
         if e < 0:
@@ -254,7 +294,7 @@ def search(
             c = g + data[k]
             if node[w, _STAMP] != gen:
                 node[w, _STAMP] = gen
-                node[w, _HEURISTIC] = _heuristic(scaled, w, goal_at)
+                node[w, _HEURISTIC] = _heuristic(scaled, w, goal_at, far, low, high)
             elif c >= node[w, _COST]:
                 continue
             node[w, _COST] = c
@@ -267,15 +307,9 @@ def search(
                 continue
             if used == capacity:
                 return -1, np.inf, expanded
-            bucket = max(int((key - base) / delta), current)
             entry_node[used] = w
             entry_key[used] = key
-            if bucket - window < window_size:
-                entry_next[used] = head[bucket - window]
-                head[bucket - window] = used
-            else:
-                entry_next[used] = overflow
-                overflow = used
+            overflow = _file(used, max(int((key - base) / delta), current), window, head, entry_next, overflow)
             used += 1
             pending += 1
 
@@ -299,6 +333,13 @@ def bucket_width(edge_cost: np.ndarray) -> float:
     return max(mean * BUCKET_FRACTION, 1e-12)
 
 
+def landmark_tolerance(far: np.ndarray) -> float:
+    """The round-off allowed in the landmark bounds: a billionth of the longest finite distance (a distance
+    summed over a path of up to thousands of edges is off by far less)."""
+    finite = far[np.isfinite(far)]
+    return 1e-9 * float(finite.max()) if finite.size else 0.0
+
+
 def shortest_path(
     graph,
     scaled: np.ndarray,
@@ -309,9 +350,11 @@ def shortest_path(
     target_links: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     direct_cost: float = np.inf,
     delta: float | None = None,
+    far: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, int]:
     """:func:`search` on a scipy CSR matrix; ``*_links`` = (milestones, costs, scaled position) of a virtual end;
-    ``delta``: the buckets' width (default :func:`bucket_width` of the graph's costs).
+    ``delta``: the buckets' width (default :func:`bucket_width` of the graph's costs); ``far``: the nodes'
+    distances to landmarks that bound the cost to go besides the straight line (:mod:`.landmarks`).
 
     Returns (nodes, cost, expanded): the nodes -1 for the virtual start and -2 for the virtual goal, empty when
     the target cannot be reached.
@@ -321,11 +364,17 @@ def shortest_path(
     empty_i, empty_f, nowhere = np.empty(0, np.int64), np.empty(0), np.zeros(scaled.shape[1])
     st, sc, sp = source_links if source_links is not None else (empty_i, empty_f, nowhere)
     tt, tc, tp = target_links if target_links is not None else (empty_i, empty_f, nowhere)
-    arguments = (
+    rows = (
         np.ascontiguousarray(graph.indptr, np.int32),
         np.ascontiguousarray(graph.indices, np.int32),
         np.ascontiguousarray(graph.data, np.float64),
+    )
+    far = np.empty((n, 0)) if far is None else np.ascontiguousarray(far, np.float64)
+    arguments = (
+        *rows,
         np.ascontiguousarray(scaled, np.float64),
+        far,
+        landmark_tolerance(far),
         float(delta) if delta is not None else bucket_width(graph.data),
         n if source_links is not None else int(source),
         np.ascontiguousarray(st, np.int64),

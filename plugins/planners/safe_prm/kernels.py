@@ -65,6 +65,20 @@ def grid_build(points, cell):
     return origin, dims, counts, order, ordered
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _insert(total, p, count, k, out_index, out_distance):
+    """Point p at squared distance ``total`` into the ``count`` nearest so far (sorted, at most ``k``: the farthest
+    drops out when full); returns how many there are now."""
+    slot = count if count < k else k - 1
+    while slot > 0 and out_distance[slot - 1] > total:
+        out_distance[slot] = out_distance[slot - 1]
+        out_index[slot] = out_index[slot - 1]
+        slot -= 1
+    out_distance[slot] = total
+    out_index[slot] = p
+    return min(count + 1, k)
+
+
 @njit(**_FLAGS)
 def _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
     """The at most ``k`` nearest points to ``x`` strictly within ``s`` (point ``skip`` excluded), nearest first,
@@ -114,15 +128,7 @@ def _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, ou
                     p = order[e]
                     if p == skip:
                         continue
-                    slot = count if count < k else k - 1
-                    while slot > 0 and out_distance[slot - 1] > total:
-                        out_distance[slot] = out_distance[slot - 1]
-                        out_index[slot] = out_index[slot - 1]
-                        slot -= 1
-                    out_distance[slot] = total
-                    out_index[slot] = p
-                    if count < k:
-                        count += 1
+                    count = _insert(total, p, count, k, out_index, out_distance)
                     if count == k:
                         worst = out_distance[k - 1]
             # the next cell of the block (odometer over the clipped ranges)
@@ -181,15 +187,7 @@ def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, order, k, s
                             p = order[e]
                             if p == skip:
                                 continue
-                            slot = count if count < k else k - 1
-                            while slot > 0 and out_distance[slot - 1] > total:
-                                out_distance[slot] = out_distance[slot - 1]
-                                out_index[slot] = out_index[slot - 1]
-                                slot -= 1
-                            out_distance[slot] = total
-                            out_index[slot] = p
-                            if count < k:
-                                count += 1
+                            count = _insert(total, p, count, k, out_index, out_distance)
                             if count == k:
                                 worst = out_distance[k - 1]
                     iz += step
@@ -273,15 +271,7 @@ def _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, di
                         total = a0 * a0 + a1 * a1 + a2 * a2
                         if total >= worst or ids[b] == i:
                             continue
-                        slot = count if count < k else k - 1
-                        while slot > 0 and best[slot - 1] > total:
-                            best[slot] = best[slot - 1]
-                            out[slot] = out[slot - 1]
-                            slot -= 1
-                        best[slot] = total
-                        out[slot] = ids[b]
-                        if count < k:
-                            count += 1
+                        count = _insert(total, ids[b], count, k, out, best)
                         if count == k:
                             worst = best[k - 1]
                     bound = min(

@@ -94,7 +94,7 @@ def _link_ends(
     out = []
     for i in range(len(ends)):
         mine = free & (owner == i)
-        out.append(Links(targets[mine], cost[mine], safe[mine]))
+        out.append(Links(roadmap.rank[targets[mine]], cost[mine], safe[mine]))
     return out
 
 
@@ -105,7 +105,7 @@ def _link_euclidean(
     exact check decides only what the covering balls leave open."""
     space = roadmap.space
     grid = roadmap.grid
-    targets, owner, cost, free, keeps, direct, direct_free, direct_keeps = link_ends(
+    targets, owner, cost, free, keeps, direct, direct_free, direct_keeps, split, undecided = link_ends(
         ends,
         ends_slack,
         ends_safe,
@@ -115,21 +115,28 @@ def _link_euclidean(
         grid.dims,
         grid.cell,
         grid.first,
-        grid.order,
+        roadmap.search_identity,
         roadmap.k,
         roadmap.s,
-        roadmap.slack,
-        roadmap.safe_flags,
+        roadmap.search_slack,
+        roadmap.search_safe,
     )
+    if not undecided:  # the covering balls decided every link (the common case): the entries are the links
+        safe_ok = keeps == 1
+        start = Links(targets[:split], cost[:split], safe_ok[:split])
+        goal = Links(targets[split:], cost[split:], safe_ok[split:])
+        return start, goal, (direct if direct_free else np.inf), bool(direct_free and direct_keeps)
     free_ok = free == 1
     open_free = free == 2
     if open_free.any():
-        free_ok[open_free] = space.motion_is_clear(ends[owner[open_free]], roadmap.milestones[targets[open_free]], 0.0)
+        free_ok[open_free] = space.motion_is_clear(
+            ends[owner[open_free]], roadmap.search_milestones[targets[open_free]], 0.0
+        )
     safe_ok = keeps == 1
     open_safe = (keeps == 2) & free_ok
     if open_safe.any():
         safe_ok[open_safe] = space.motion_is_clear(
-            ends[owner[open_safe]], roadmap.milestones[targets[open_safe]], d_thresh
+            ends[owner[open_safe]], roadmap.search_milestones[targets[open_safe]], d_thresh
         )
     safe_ok &= free_ok
     if direct_free == 2:
@@ -144,7 +151,8 @@ def _link_euclidean(
 
 
 def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: float) -> tuple[int, float] | None:
-    """The nearest safe milestone reachable from q by a collision-free motion (incremental spheres)."""
+    """The nearest safe milestone reachable from q by a collision-free motion (incremental spheres): its search
+    node and the motion's cost."""
     space = roadmap.space
     safe_index = np.flatnonzero(roadmap.safe)
     if not safe_index.size:
@@ -161,7 +169,7 @@ def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: f
             ok, _ = certify_edges(space, here, targets, np.full(len(inside), min(clearance, workspace)), slack, 0.0)
             if np.any(ok):
                 best = inside[int(np.argmax(ok))]  # nearest first
-                return best, float(space.distance(q, roadmap.milestones[best]))
+                return int(roadmap.rank[best]), float(space.distance(q, roadmap.milestones[best]))
             tried.update(inside)
         if radius > largest:
             return None
@@ -221,8 +229,9 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     timings["link_s"] = time.perf_counter() - started
 
     started = time.perf_counter()
-    scaled = roadmap.scaled(ends)
-    with roadmap.search_workspace() as work:
+    scaled = ends * space.coordinate_weights  # the frame of the search (RoadmapPair.scaled, for both at once)
+    work = roadmap.search_workspace
+    with work.lock:
         while True:
             status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
                 *roadmap.kernel_arrays,
@@ -239,7 +248,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
                 direct_safe,
                 source,
                 target,
-                *work.arrays(),
+                work.arrays(),
             )
             if status != 3:
                 break
@@ -257,7 +266,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
         return QueryOutcome(False, message="no path in R", timings=timings, settled=int(settled))
 
     def configurations(nodes: np.ndarray) -> np.ndarray:
-        out = roadmap.milestones[np.minimum(nodes, n - 1)]
+        out = roadmap.search_milestones[np.minimum(nodes, n - 1)]
         out[nodes == n] = start
         out[nodes == n + 1] = goal
         return out

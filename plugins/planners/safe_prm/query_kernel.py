@@ -107,19 +107,9 @@ def _kinds(
     risky = 0
     for k in range(count - 1):
         ok = _is_safe(
-            path[k],
-            path[k + 1],
-            n,
-            safe,
-            ends_safe,
-            safe_indptr,
-            safe_indices,
-            start_targets,
-            start_safe,
-            goal_targets,
-            goal_safe,
-            direct_safe,
-        )
+            path[k], path[k + 1], n, safe, ends_safe, safe_indptr, safe_indices, start_targets, start_safe,
+            goal_targets, goal_safe, direct_safe,
+        )  # fmt: skip
         kinds[k] = SAFE_EDGE if ok else RISK_EDGE
         risky += not ok
     return risky
@@ -134,6 +124,9 @@ def search_and_repair(
     safe_indices,
     safe_data,
     scaled,
+    free_far,
+    safe_far,
+    tolerance,
     delta,
     safe,
     free_labels,
@@ -153,22 +146,16 @@ def search_and_repair(
     direct_safe,
     source,
     target,
-    node,
-    parent,
-    end,
-    head,
-    entry_node,
-    entry_key,
-    entry_next,
-    generation,
-    path,
+    work,
 ):
     """Algorithms 2-4 from ``source`` to ``target`` (the start n / goal n+1, or a milestone a risky end was
     projected to). Returns (status, nodes, edge kinds, repairs, settled, avoided nodes, avoided offsets):
     status 0 found, 1 start and goal in different components of R, 2 no path in R, 3 the workspace ran out of
     entries (grow it and ask again); the nodes of each risky stretch a repair replaced are
-    ``avoided[offsets[i]:offsets[i + 1]]``. ``delta`` and the arrays after ``target``: :func:`.astar.search`'s."""
+    ``avoided[offsets[i]:offsets[i + 1]]``. ``delta``: :func:`.astar.search`'s; ``work``: a
+    :class:`.astar.Workspace`'s arrays (:meth:`~.astar.Workspace.arrays`)."""
     n = scaled.shape[0]
+    path = work[-1]
     every_start = np.ones(start_targets.shape[0], dtype=np.bool_)
     every_goal = np.ones(goal_targets.shape[0], dtype=np.bool_)
     direct = direct_cost < np.inf
@@ -184,6 +171,8 @@ def search_and_repair(
         free_indices,
         free_data,
         scaled,
+        free_far,
+        tolerance,
         delta,
         source,
         start_targets,
@@ -196,15 +185,7 @@ def search_and_repair(
         every_goal,
         goal_point,
         direct_cost,
-        node,
-        parent,
-        end,
-        head,
-        entry_node,
-        entry_key,
-        entry_next,
-        generation,
-        path,
+        *work,
     )
     if count < 0:
         return 3, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
@@ -212,21 +193,9 @@ def search_and_repair(
         return 2, empty, nothing, 0, settled, empty, np.zeros(1, dtype=np.int64)
     core = path[:count].copy()
     kinds = np.empty(max(count - 1, 0), dtype=np.uint8)
-    risky = _kinds(
-        core,
-        count,
-        kinds,
-        n,
-        safe,
-        ends_safe,
-        safe_indptr,
-        safe_indices,
-        start_targets,
-        start_safe,
-        goal_targets,
-        goal_safe,
-        direct_safe,
-    )
+    # what deciding an edge's kind takes (:func:`_is_safe`)
+    safety = (n, safe, ends_safe, safe_indptr, safe_indices, start_targets, start_safe, goal_targets, goal_safe)
+    risky = _kinds(core, count, kinds, *safety, direct_safe)
     offsets = np.zeros(1, dtype=np.int64)
     if risky == 0:  # Algorithm 3: a path already safe is returned as it is
         return 0, core, kinds, 0, settled, empty, offsets
@@ -276,6 +245,8 @@ def search_and_repair(
                 safe_indices,
                 safe_data,
                 scaled,
+                safe_far,
+                tolerance,
                 delta,
                 core[l],
                 start_targets,
@@ -288,15 +259,7 @@ def search_and_repair(
                 goal_safe,
                 goal_point,
                 no_direct,
-                node,
-                parent,
-                end,
-                head,
-                entry_node,
-                entry_key,
-                entry_next,
-                generation,
-                path,
+                *work,
             )
             settled += more
             if sub < 0:
@@ -319,21 +282,7 @@ def search_and_repair(
         l = m  # p_m is the last of its component on the path: the next round appends it and moves on
     result = out[:size].copy()
     result_kinds = np.empty(max(size - 1, 0), dtype=np.uint8)
-    _kinds(
-        result,
-        size,
-        result_kinds,
-        n,
-        safe,
-        ends_safe,
-        safe_indptr,
-        safe_indices,
-        start_targets,
-        start_safe,
-        goal_targets,
-        goal_safe,
-        direct_safe,
-    )
+    _kinds(result, size, result_kinds, *safety, direct_safe)
     return 0, result, result_kinds, repaired, settled, avoided[:avoided_size].copy(), offsets[: stretches + 1].copy()
 
 
@@ -355,9 +304,10 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
     Euclidean (``Space.euclidean_motions``: the neighbour distance is the link's cost and speed bound).
 
     ``ends`` (2, d); ``ends_slack`` and ``slack`` (per milestone): the clearance, at most the workspace slack.
-    Returns (targets, owner, cost, free, keeps d_thresh, direct cost, direct free, direct keeps d_thresh): the
-    decisions as :func:`_covered` gives them (1, 0, or 2: ask the space), the direct start-goal motion only when
-    within ``s`` (else its cost is inf)."""
+    Returns (targets, owner, cost, free, keeps d_thresh, direct cost, direct free, direct keeps d_thresh, how
+    many of the entries are the start's, whether any decision is left to the space): the decisions as
+    :func:`_covered` gives them (1, 0, or 2: ask the space), the neighbours a motion cannot reach (0) left out,
+    the start's entries first; the direct start-goal motion only when within ``s`` (else its cost is inf)."""
     kk = max(k, 1)
     index = np.empty((2, kk), dtype=np.int64)
     distance = np.empty((2, kk))
@@ -371,13 +321,19 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
     free = np.empty(m, dtype=np.int8)
     keeps = np.zeros(m, dtype=np.int8)
     at = 0
+    split = 0
     for i in range(2):
+        if i == 1:
+            split = at
         for slot in range(counts[i]):
             t = index[i, slot]
             reach = distance[i, slot]
             targets[at], owner[at], cost[at] = t, i, reach
             free[at] = _covered(ends_slack[i], slack[t], reach, 0.0)
-            if free[at] != 0 and ends_safe[i] and safe[t]:
+            if free[at] == 0:
+                continue  # never a link
+            keeps[at] = 0
+            if ends_safe[i] and safe[t]:
                 keeps[at] = (
                     free[at]
                     if d_thresh <= 0
@@ -400,7 +356,21 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
             )
     else:
         direct = np.inf
-    return targets, owner, cost, free, keeps, direct, direct_free, direct_keeps
+    undecided = direct_free == 2 or direct_keeps == 2
+    for e in range(at):
+        undecided = undecided or free[e] == 2 or keeps[e] == 2
+    return (
+        targets[:at],
+        owner[:at],
+        cost[:at],
+        free[:at],
+        keeps[:at],
+        direct,
+        direct_free,
+        direct_keeps,
+        split,
+        undecided,
+    )
 
 
 def _compile() -> None:
@@ -417,7 +387,7 @@ def _compile() -> None:
     safe = np.ones(2, dtype=np.bool_)
     origin, dims, first, order, ordered = grid_build(points, 1.0)
     ends = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.0]])
-    targets, owner, cost, free, _, direct, _, _ = link_ends(
+    targets, owner, cost, free, _, direct, _, _, _, _ = link_ends(
         ends, np.ones(2), safe, 0.0, ordered, origin, dims, 1.0, first, order, 2, 2.0, np.ones(2), safe
     )
     work = Workspace(2, 16)
@@ -426,6 +396,9 @@ def _compile() -> None:
             *rows,
             *rows,
             points,
+            np.zeros((2, 1)),
+            np.zeros((2, 1)),
+            1e-9,
             0.1,
             safe,
             labels,
@@ -445,7 +418,7 @@ def _compile() -> None:
             True,
             source,
             target,
-            *work.arrays(),
+            work.arrays(),
         )
 
 
