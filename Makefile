@@ -28,14 +28,15 @@ $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(B
 
 # The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client
 # (never `playwright install`, which downloads a browser build). Quick when it is there; installed with
-# apt where we may (CI runs as root); elsewhere those tests skip and say why.
+# apt where we may (CI runs as root); elsewhere those tests skip and say why (with CI set they fail instead,
+# tests/ci_skips.py: CI cannot pass with its browser or interop peers missing).
 browser:
 	@command -v chromium >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing chromium (apt) for the browser tests"; \
 	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1 || \
 	    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null; } || \
-	    echo "warning: could not install chromium: the browser tests will skip"; \
+	    echo "warning: could not install chromium: the browser tests will skip (fail with CI set)"; \
 	  else echo "warning: no chromium and no root to install it (apt-get install chromium): the browser tests will skip"; fi; }
 
 run: $(VENV)/.run-deps

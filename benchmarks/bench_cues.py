@@ -35,7 +35,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, start_live_view, wait_for  # noqa: E402
+from browser_support import Browser, feed_url, start_live_view, wait_for  # noqa: E402
 from common import save, table  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
@@ -82,7 +82,7 @@ def page_run(browser: Browser, attempt: Path) -> tuple[list[float], list[float]]
     process, url = viewer()
     try:
         page = browser.page(url + "#latency", ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
-        run(attempt, "--live", url.replace("http://", "ws://").rstrip("/") + "/feed")
+        run(attempt, "--live", feed_url(url))
         wait_for(page, "surgiplan.live.status !== null && surgiplan.live.pending.length === 0", 60_000)
         latencies = page.evaluate("surgiplan.live.cueLatency")
         arrivals = page.evaluate("surgiplan.live.arrivalLatency")
@@ -101,11 +101,10 @@ def transport_run(attempt: Path) -> list[float]:
     from websockets.sync.client import connect
 
     process, url = viewer()
-    port = url.split(":")[2].split("/")[0]
     latencies: list[float] = []
 
     def watch() -> None:
-        with connect(f"ws://127.0.0.1:{port}/watch", origin=f"http://127.0.0.1:{port}") as socket:
+        with connect(feed_url(url, "/watch"), origin=url.split("/?")[0]) as socket:
             for _ in range(1_000_000):  # bounded; ends at the stage's status
                 message = json.loads(socket.recv(timeout=60))
                 now = time.time()
@@ -119,7 +118,7 @@ def transport_run(attempt: Path) -> list[float]:
         thread = threading.Thread(target=watch, daemon=True)
         thread.start()
         time.sleep(1.0)
-        run(attempt, "--live", f"ws://127.0.0.1:{port}/feed")
+        run(attempt, "--live", feed_url(url))
         thread.join(60)
         return latencies
     finally:

@@ -260,7 +260,7 @@ def publish_cost(tmp: Path) -> dict:
     )
     thread.start()
     ready.wait(10)
-    feed = WebSocketFeed(f"ws://127.0.0.1:{viewer.bound}/feed")
+    feed = WebSocketFeed(viewer.feed_url, token=viewer.token)
     costs = []
     for i in range(20_000):
         sample = {"t": i / 200, "tip": [0.01, 0.05, 0.02], "commanded": [0.01, 0.05, 0.02], "clearance": 0.003}

@@ -20,7 +20,8 @@ changes the sentence, not only the figure. Every block opens with the commit its
 (and the load average before and after), from the results file's provenance.
 
 Each section's blocks are rendered by a module of ``readme_blocks`` (``report``, ``safe_prm``,
-``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``devices``, ``canopen``), with the
+``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``devices``, ``canopen``,
+``live_delay``), with the
 formatting they share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the pages and
 rewrites or checks them.
 """
@@ -35,12 +36,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from readme_blocks.assessment import render_assessment, render_cues
+from readme_blocks.assist import render_assist
 from readme_blocks.canopen import render_canopen_conformance
 from readme_blocks.crash_walk import render_crash_walk
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
 from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
 from readme_blocks.guide import render_guide
+from readme_blocks.live_delay import render_live_delay
 from readme_blocks.optmis import render_optmis
 from readme_blocks.report import render_report
 from readme_blocks.retraction import render_retraction, render_retraction_speed
@@ -79,6 +82,8 @@ BLOCKS: dict[str, Block] = {
     "guide": Block(render_guide, ("guide",)),
     "assessment": Block(render_assessment, ("assessment",)),
     "cues": Block(render_cues, ("cues",)),
+    "assist": Block(render_assist, ("assist",)),
+    "live_delay": Block(render_live_delay, ("live_delay",)),
     "crash_walk": Block(render_crash_walk, ("crash_walk",)),
 }
 

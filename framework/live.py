@@ -18,7 +18,9 @@ Channels and payloads (JSON values, SI units):
 * ``stage``: ``{"name", "kind", "plugin", "path_from"?, "recommended"?: [[x, y, z], ...]}`` when a stage starts;
 * ``tip``: ``{"t", "tip": [x, y, z], "commanded"?: [x, y, z], "clearance"?, "deviation"?}``;
 * ``event``: ``{"t", "kind", "message"}``;
-* ``status``: ``{"status", "message"?}`` when the stage ends.
+* ``status``: ``{"status", "message"?}`` when the stage ends;
+* ``drops``: ``{"feed": n}`` samples the feed dropped so far (sent by :class:`WebSocketFeed` when it grows; the
+  viewer adds ``{"page": n}``, what it dropped for one page), shown in the page.
 """
 
 from __future__ import annotations
@@ -46,8 +48,22 @@ class LiveFeed:
 DEFAULT_PORT = 8765
 DEFAULT_URL = f"ws://127.0.0.1:{DEFAULT_PORT}/feed"
 
+#: the largest message a feed sends, in characters (a batch above it is split; the viewer takes up to 4 MiB)
+MAX_MESSAGE = 2**20
+
 #: channels whose latest payload is sent again first whenever the feed (re)connects
 STICKY = ("run", "scene", "stage")
+
+#: the environment variable ``surgiplan run --live`` takes the live viewer's token from when its URL has no
+#: ``?token=`` (an environment is private to its user; a command line is in every local user's process list)
+TOKEN_ENV = "SURGIPLAN_LIVE_TOKEN"
+
+
+def redact(url: str) -> str:
+    """``url`` with its ``token=`` hidden (for logs and messages)."""
+    import re
+
+    return re.sub(r"([?&]token=)[^&#]*", r"\1…", url)
 
 
 def loopback_url(url: str) -> tuple[str, int, str]:
@@ -91,18 +107,29 @@ class WebSocketFeed(LiveFeed):
     active = True
 
     def __init__(
-        self, url: str = DEFAULT_URL, *, queue_size: int = 50_000, retry_for: float = 30.0, open_timeout: float = 2.0
+        self,
+        url: str = DEFAULT_URL,
+        *,
+        queue_size: int = 50_000,
+        retry_for: float = 30.0,
+        open_timeout: float = 2.0,
+        token: str | None = None,
     ) -> None:
         import collections
+        import os
         import threading
 
         loopback_url(url)
         self.url = url
+        token = token or os.environ.get(TOKEN_ENV)
+        self._headers = [("Authorization", f"token {token}")] if token and "token=" not in url else []
         self.retry_for = float(retry_for)
         self.open_timeout = float(open_timeout)
         self.sent = 0
         self.dropped = 0
         self.connected = False
+        #: the viewer refused the token (403): the feed stopped trying
+        self.refused = False
         self._queue: collections.deque = collections.deque(maxlen=queue_size)
         self._sticky: dict[str, Any] = {}
         self._wake = threading.Event()
@@ -135,24 +162,51 @@ class WebSocketFeed(LiveFeed):
 
         return json.dumps([{"channel": c, "payload": p} for c, p in items], default=_json_default, allow_nan=False)
 
+    def _send(self, socket, batch: list) -> None:
+        """Send ``batch`` as one message, or halves of it while its text exceeds :data:`MAX_MESSAGE`."""
+        text = self._encode(batch)
+        if len(text) > MAX_MESSAGE and len(batch) > 1:
+            half = len(batch) // 2
+            self._send(socket, batch[:half])
+            self._send(socket, batch[half:])
+        else:
+            socket.send(text)
+
     def _run(self) -> None:
         import logging
         import time
 
-        from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+        from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus, InvalidURI
         from websockets.sync.client import connect
 
         log = logging.getLogger(__name__)
         give_up = time.monotonic() + self.retry_for
         warned = reconnect = False
+        reported = 0
         while True:
             try:
-                socket = connect(self.url, open_timeout=self.open_timeout, close_timeout=1.0, max_size=2**20)
+                socket = connect(
+                    self.url,
+                    open_timeout=self.open_timeout,
+                    close_timeout=1.0,
+                    max_size=2**20,
+                    additional_headers=self._headers,
+                )
             except (OSError, TimeoutError, InvalidHandshake, InvalidURI) as exc:
+                if isinstance(exc, InvalidStatus) and exc.response.status_code == 403:
+                    # a wrong or missing token: trying again will not help
+                    log.error(
+                        "the live viewer at %s refused the feed (403): give the token `surgiplan view --live` "
+                        "printed (%s=... or ?token=...)",
+                        redact(self.url),
+                        TOKEN_ENV,
+                    )
+                    self.refused = True
+                    break
                 if not warned:
                     log.warning(
                         "no live viewer at %s (%s): start `surgiplan view --live`; trying for %.0f s",
-                        self.url,
+                        redact(self.url),
                         exc,
                         max(0.0, give_up - time.monotonic()),
                     )
@@ -162,7 +216,7 @@ class WebSocketFeed(LiveFeed):
                 self._closing.wait(1.0)
                 continue
             self.connected = True
-            log.info("live feed connected to %s", self.url)
+            log.info("live feed connected to %s", redact(self.url))
             try:
                 with socket:
                     sticky = list(self._sticky.items())
@@ -174,13 +228,16 @@ class WebSocketFeed(LiveFeed):
                         batch = []
                         while self._queue and len(batch) < 5000:
                             batch.append(self._queue.popleft())
+                        if self.dropped != reported:  # the page shows what the feed dropped
+                            reported = self.dropped
+                            socket.send(self._encode([("drops", {"feed": reported})]))
                         if batch:
-                            socket.send(self._encode(batch))
+                            self._send(socket, batch)
                             self.sent += len(batch)
                         elif self._closing.is_set():
                             break
             except (ConnectionClosed, OSError, TimeoutError, ValueError) as exc:
-                log.warning("live viewer at %s went away (%s)", self.url, exc)
+                log.warning("live viewer at %s went away (%s)", redact(self.url), exc)
             finally:
                 self.connected = False
             if self._closing.is_set():

@@ -130,7 +130,8 @@ def red_pixels(pixels: np.ndarray) -> int:
 
 
 def start_view(args: list[str], exit_after: float = 120.0, env=None):
-    """``surgiplan view ARGS --no-browser`` (it exits after ``exit_after`` s): (the process, the URL it prints)."""
+    """``surgiplan view ARGS --no-browser`` (it exits after ``exit_after`` s): (the process, the URL it prints,
+    with its token)."""
     import re
     import subprocess
     import sys
@@ -150,6 +151,45 @@ def start_view(args: list[str], exit_after: float = 120.0, env=None):
     raise AssertionError(f"surgiplan view {' '.join(args)} did not start: {process.stderr.read()}")
 
 
+def feed_url(page_url: str, path: str = "/feed") -> str:
+    """The websocket address of the live viewer whose page is ``page_url``, with the page's token."""
+    from urllib.parse import parse_qs, urlsplit
+
+    parts = urlsplit(page_url)
+    return f"ws://{parts.netloc}{path}?token={parse_qs(parts.query)['token'][0]}"
+
+
 def start_live_view(exit_after: float = 120.0):
-    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL)."""
+    """``surgiplan view --live`` on a free port of 127.0.0.1: (the process, the page's URL, with its token;
+    :func:`feed_url` gives the feed's)."""
     return start_view(["--live", "--port", "0"], exit_after)
+
+
+def stalled_client(page_url: str, receive_buffer: int = 4096):
+    """A websocket client of the live viewer whose page is ``page_url`` that upgrades to ``/watch`` (with the
+    page's token and origin) and then never reads: a socket whose receive buffer is ``receive_buffer`` bytes."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(page_url)
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer)
+    s.settimeout(10)
+    s.connect((parts.hostname, parts.port))
+    s.sendall(
+        (
+            f"GET /watch?{parts.query} HTTP/1.1\r\n"
+            f"Host: {parts.netloc}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n"
+            f"Origin: http://{parts.netloc}\r\n\r\n"
+        ).encode()
+    )
+    head = b""
+    for _ in range(1000):  # the 101 answer, and not a byte more
+        head += s.recv(1)
+        if head.endswith(b"\r\n\r\n"):
+            break
+    if not head.startswith(b"HTTP/1.1 101"):
+        s.close()
+        raise AssertionError(f"the viewer did not upgrade the stalled client: {head!r}")
+    return s

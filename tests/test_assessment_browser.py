@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from browser_support import Browser, canvas_pixels, offsite, start_live_view, wait_for
+from browser_support import Browser, canvas_pixels, feed_url, offsite, start_live_view, wait_for
 
 GHOST = (0x17, 0xBE, 0xCF)
 CUES = {
@@ -100,7 +100,7 @@ def test_the_live_view_shows_the_cues_a_trainee_needs_in_pixels(browser, live_vi
     from surgiplan.outputs.report import scene_data
 
     page = browser.page(live_view + "#latency", ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
-    feed = WebSocketFeed(live_view.replace("http://", "ws://").rstrip("/") + "/feed", retry_for=10)
+    feed = WebSocketFeed(feed_url(live_view), retry_for=10)
     path = [[0.010, 0.050, 0.020], [0.140, 0.050, 0.020]]
     feed.publish("run", {"name": "cues", "length_unit": "mm", "unit_scale": 1e-3})
     feed.publish("scene", scene_data(block_world))

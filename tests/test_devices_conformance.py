@@ -269,7 +269,7 @@ def test_the_shipped_eds_files_are_the_dictionaries_the_simulator_serves(tmp_pat
     loaded = canopen.import_od(str(path), 3)
     assert loaded[0x1800][1].default == 0x40000183 and loaded[0x1018][4].default == 3
     assert loaded[0x607D][2].default == 300_000  # 300 mm at 1 um per count
-    assert loaded[0x6502].default == 0x0185 and loaded[0x6060].data_type == canopen.objectdictionary.INTEGER8
+    assert loaded[0x6502].default == 0x0385 and loaded[0x6060].data_type == canopen.objectdictionary.INTEGER8
 
 
 # ----------------------------------------------------------------------------- what the CTT families cannot see

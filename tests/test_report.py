@@ -366,13 +366,14 @@ def test_the_viewer_relays_a_feed_to_a_page_in_order_and_refuses_strangers():
     assert done.wait(10)
     base = f"127.0.0.1:{viewer.bound}"
     origin = f"http://{base}"
-    with pytest.raises(InvalidStatus):  # another site's page may not watch
-        connect(f"ws://{base}/watch", origin="http://evil.example", open_timeout=5)
+    token = f"?token={viewer.token}"
+    with pytest.raises(InvalidStatus):  # another site's page may not watch, even with the token
+        connect(f"ws://{base}/watch{token}", origin="http://evil.example", open_timeout=5)
     with pytest.raises(InvalidStatus):  # nor pose as a stage
-        connect(f"ws://{base}/feed", origin=origin, open_timeout=5)
-    with connect(f"ws://{base}/watch", origin=origin, open_timeout=5) as watcher:
+        connect(f"ws://{base}/feed{token}", origin=origin, open_timeout=5)
+    with connect(f"ws://{base}/watch{token}", origin=origin, open_timeout=5) as watcher:
         assert json.loads(watcher.recv(timeout=5)) == []  # nothing yet
-        feed = WebSocketFeed(f"ws://{base}/feed")
+        feed = WebSocketFeed(f"ws://{base}/feed", token=viewer.token)
         feed.publish("stage", {"name": "s", "kind": "execute", "recommended": [[0, 0, 0], [1, 0, 0]]})
         for i in range(300):
             feed.publish("tip", {"t": i / 200, "tip": [i / 300, 0.0, 0.0]})
@@ -385,7 +386,7 @@ def test_the_viewer_relays_a_feed_to_a_page_in_order_and_refuses_strangers():
     assert got[0]["channel"] == "stage" and tips == [i / 200 for i in range(300)]
     assert feed.sent == 302 and feed.dropped == 0
     # a page that connects late gets the running stage and what it did so far
-    with connect(f"ws://{base}/watch", origin=origin, open_timeout=5) as late:
+    with connect(f"ws://{base}/watch{token}", origin=origin, open_timeout=5) as late:
         snapshot = json.loads(late.recv(timeout=5))
     assert [m["channel"] for m in snapshot][:2] == ["stage", "tip"] and len(snapshot) == 302
     viewer.stop()

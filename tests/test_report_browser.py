@@ -18,7 +18,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from browser_support import Browser, canvas_pixels, drawn_fraction, offsite, red_pixels, start_view, wait_for
+from browser_support import (
+    Browser,
+    canvas_pixels,
+    drawn_fraction,
+    feed_url,
+    offsite,
+    red_pixels,
+    start_view,
+    wait_for,
+)
 from conftest import CONFIGS
 from surgiplan import registry
 
@@ -330,7 +339,7 @@ def test_view_serves_the_report_on_loopback(browser, main_job):
     out, _ = main_job
     process, url = _start([str(out), "--port", "0"])
     try:
-        assert url.endswith("/report.html")
+        assert "/report.html?token=" in url
         page = browser.page(url)
         assert page.problems == []
         assert offsite(page.requests, allowed=("http://127.0.0.1:",)) == []
@@ -345,7 +354,7 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
     process, url = _start(["--live", "--port", "0"])
     try:
         page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
-        feed = url.replace("http://", "ws://").rstrip("/") + "/feed"
+        feed = feed_url(url)
         path = robot_pipeline(tmp_path, "live", realtime=True, speed=60.0)  # about 2.4 s of motion
         run = subprocess.Popen(
             [*SURGIPLAN, "run", str(path), "--quiet", "--live", feed],
@@ -365,7 +374,8 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
         live = page.evaluate(
             "({tips: surgiplan.live.tips, last: surgiplan.live.last, status: surgiplan.live.status,"
             " events: surgiplan.live.events, stage: surgiplan.live.stage, updates: surgiplan.live.updates,"
-            " obstacles: surgiplan.counts.obstacles})"
+            " obstacles: surgiplan.counts.obstacles, drops: surgiplan.live.drops,"
+            " dropsShown: document.getElementById('live-drops').textContent})"
         )
         assert page.problems == [] and page.evaluate("surgiplan.errors") == []
         assert offsite(page.requests) == []
@@ -386,4 +396,35 @@ def test_the_live_view_receives_a_device_in_the_loop_run_as_it_happens(browser, 
     np.testing.assert_allclose(live["last"]["tip"], timeline["tip"][-1], atol=1e-12)
     assert [e["kind"] for e in live["events"]] == [e["kind"] for e in timeline["events"]]
     assert live["updates"] > 10  # the scene was redrawn as samples arrived
+    assert live["drops"] == {"feed": 0, "page": 0} and live["dropsShown"] == "samples dropped: 0"
     registry.reset_default_registry()
+
+
+def test_the_live_page_shows_the_samples_the_feed_dropped(browser):
+    """A feed whose queue overflows before it connects: the page says how many samples it will never see."""
+    from surgiplan.live import WebSocketFeed
+
+    process, url = _start(["--live", "--port", "0"])
+    try:
+        page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
+        feed = WebSocketFeed(feed_url(url), queue_size=50, retry_for=10)
+        feed.publish("stage", {"name": "s", "kind": "execute", "recommended": [[0, 0, 0], [0.1, 0, 0]]})
+        for i in range(500):  # faster than any connection: the oldest are dropped
+            feed.publish("tip", {"t": i / 100, "tip": [i / 5000, 0.0, 0.0]})
+        feed.publish("status", {"status": "completed"})  # the newest: kept (the oldest go first)
+        feed.close()
+        dropped = feed.dropped
+        wait_for(page, "surgiplan.live.status !== null", 30_000)
+        got = page.evaluate(
+            "({drops: surgiplan.live.drops, tips: surgiplan.live.tips,"
+            " shown: document.getElementById('live-drops').textContent})"
+        )
+        assert page.problems == [] and page.evaluate("surgiplan.errors") == []
+        page.close()
+    finally:
+        process.terminate()
+        process.wait(10)
+    assert dropped >= 400
+    assert got["drops"] == {"feed": dropped, "page": 0}
+    assert 500 - dropped <= got["tips"] <= 501 - dropped  # the page got every sample that was not dropped
+    assert got["shown"] == f"samples dropped: {dropped} (by the run's feed {dropped}, by the viewer for this page 0)"

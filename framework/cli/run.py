@@ -22,7 +22,8 @@ def add_parsers(sub) -> None:
         const="ws://127.0.0.1:8765/feed",
         default=None,
         metavar="URL",
-        help="feed what running stages do to `surgiplan view --live` (default ws://127.0.0.1:8765/feed)",
+        help="feed what running stages do to `surgiplan view --live` (default ws://127.0.0.1:8765/feed; its token "
+        "from SURGIPLAN_LIVE_TOKEN or the URL's ?token=)",
     )
     run.set_defaults(handler=_cmd_run)
     validate = sub.add_parser("validate", help="check a pipeline (or scene) file without running it")

@@ -11,7 +11,9 @@ def add_parsers(sub) -> None:
         "view",
         help="show a run's report.html (served on 127.0.0.1), or with --live what a running stage does",
         description="Serve OUT_DIR's report.html on 127.0.0.1 and open it in the browser (Ctrl-C stops); "
-        "with --live, the live viewer that `surgiplan run --live` feeds.",
+        "with --live, the live viewer that `surgiplan run --live` feeds. Only the holder of the random token "
+        "in the printed address is served (403 otherwise); a run feeds the live viewer with that token in "
+        "SURGIPLAN_LIVE_TOKEN (or the feed URL's ?token=).",
     )
     view.add_argument("out_dir", nargs="?", type=Path, metavar="OUT_DIR", help="a run's output directory")
     view.add_argument("--live", action="store_true", help="the live viewer: watch a running execute or guide stage")

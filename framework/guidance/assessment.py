@@ -52,9 +52,11 @@ def record_attempt(
     stage: str = "",
     source: str = "",
     output_dir: str = "",
+    assistance: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Store the attempt (``trainee``: its name, task and level) and return where it went and the trainee's
-    standing at the task's gate (None without a benchmark)."""
+    """Store the attempt (``trainee``: its name, task and level; ``assistance``: how a haptic source assisted, kept
+    in the attempt's assessment JSON) and return where it went and the trainee's standing at the task's gate (None
+    without a benchmark)."""
     with TraineeRecord(path) as record:
         attempt_id = record.add_attempt(
             trainee.name,
@@ -64,7 +66,11 @@ def record_attempt(
             guide.samples(),
             status=status,
             level=trainee.level,
-            assessment={"schema": 2, **guide.assessment.model_dump(mode="json")},
+            assessment={
+                "schema": 2,
+                **guide.assessment.model_dump(mode="json"),
+                **({"assistance": assistance} if assistance is not None else {}),
+            },
             pipeline=pipeline,
             stage=stage,
             source=source,

@@ -20,6 +20,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -72,6 +73,10 @@ class GuideContext:
     #: the recommended path's critical regions (:class:`~surgiplan.clearance.CriticalRegion`: where it passes
     #: below ``threshold`` because no detour exists), as the plan stage measured them
     critical_regions: list[CriticalRegion] = field(default_factory=list)
+    #: whose attempt it is, at which task, and the trainee record it goes to (None: not recorded)
+    trainee: str | None = None
+    task: str | None = None
+    record: Path | None = None
 
 
 class PoseSource(ABC):
@@ -89,6 +94,15 @@ class PoseSource(ABC):
         #: files the source wrote in the output directory (relative names), e.g. a bus trace; the guide stage
         #: lists those that exist once the source is closed
         self.recordings: list[str] = []
+        #: how the source assisted the trainee (a haptic device's mode and assistance level), set by the time it
+        #: is closed; the guide stage keeps it in the attempt's metrics and record (None: no assistance)
+        self.assistance: dict | None = None
+
+    @classmethod
+    def check_plan(cls, settings: BaseModel, plan) -> tuple[str, tuple[str, ...]] | None:
+        """At validation: why these settings cannot follow the plan stage ``plan`` (its spec), and the settings
+        keys at fault; None: they can."""
+        return None
 
     def open(self, context: GuideContext) -> None:
         """Start: connect to the instrument, load the file, start the trainee model."""

@@ -208,6 +208,12 @@ class GuideKind(StageKind):
 
     def check(self, spec: GuideSpec, files: FileContext) -> None:
         resolve_path_from(spec, files, "whose path it recommends")
+        plan = next((s for s in files.earlier if s.name == spec.path_from), None)
+        check_plan = getattr(spec.plugin.cls, "check_plan", None)
+        refused = check_plan(spec.settings, plan) if plan is not None and check_plan is not None else None
+        if refused is not None:
+            message, keys = refused
+            raise files.error(message, "pipeline", spec.index, "settings", *keys)
         port = spec.assessment.port
         if isinstance(port, str):
             if files.scene is None:
@@ -285,6 +291,9 @@ class GuideKind(StageKind):
             critical,
             settings.silence_timeout,
             critical_regions=regions,
+            trainee=spec.trainee.name if spec.trainee is not None else None,
+            task=spec.trainee.task if spec.trainee is not None else None,
+            record=Path(run.state.record) if spec.trainee is not None else None,
         )
         live = context.live
         live.publish(
@@ -401,6 +410,9 @@ class GuideKind(StageKind):
         files.append(png_name)
         warnings: list[str] = []
         files += run.recordings(source, warnings)  # e.g. the bus trace of a device the source ran
+        assistance = getattr(source, "assistance", None)
+        if assistance is not None:
+            metrics["assistance"] = assistance
         if spec.trainee is not None:
             metrics["record"] = record_attempt(
                 run.state.record,
@@ -413,6 +425,7 @@ class GuideKind(StageKind):
                 stage=spec.name,
                 source=spec.plugin.name,
                 output_dir=str(out),
+                assistance=assistance,
             )
             gate = metrics["record"].pop("gate")
             if gate is not None:

@@ -33,8 +33,9 @@ pytestmark = pytest.mark.slow
 
 DEVICE_TYPE = 0x00020192
 #: objects whose value is the drive's live state, not a parameter (not compared with the EDS defaults)
-LIVE = {0x1001, 0x1003, 0x603F, 0x6041, 0x6061, 0x6062, 0x6064, 0x606C, 0x60F4}
+LIVE = {0x1001, 0x1003, 0x603F, 0x6041, 0x6061, 0x6062, 0x6064, 0x606C, 0x60F4, 0x6077}
 CSP, PP, PV = "CYCLIC SYNCHRONOUS POSITION", "PROFILED POSITION", "PROFILED VELOCITY"
+CST = "CYCLIC SYNCHRONOUS TORQUE"
 
 
 @pytest.fixture(scope="module")
@@ -158,12 +159,12 @@ def test_a_stopped_node_answers_no_sdo(network):
 def test_modes_of_operation_through_base_node_402_and_an_unsupported_mode_is_aborted(network):
     node = fresh(network, 3)
     node.setup_402_state_machine()
-    for mode in (PP, PV, "CYCLIC SYNCHRONOUS VELOCITY", CSP):
+    for mode in (PP, PV, "CYCLIC SYNCHRONOUS VELOCITY", CST, CSP):
         node.op_mode = mode
         assert node.op_mode == mode
     with pytest.raises(TypeError, match="not suppported"):  # canopen reads 0x6502 and refuses it itself
         node.op_mode = "HOMING"
-    for code in (2, 4, 6, 7, 10, -1):  # velocity, torque, homing, interpolated, cyclic torque, vendor
+    for code in (2, 4, 6, 7, -1):  # velocity, profile torque, homing, interpolated, vendor
         with pytest.raises(SdoAbortedError) as info:
             node.sdo[0x6060].raw = code
         assert info.value.code == 0x06090030  # value range of parameter exceeded
@@ -184,6 +185,55 @@ def test_enable_and_cyclic_synchronous_position_motion(network):
     assert node.statusword & 0x1000  # CSP: the drive follows the target
     node.state = "SWITCH ON DISABLED"
     node.rpdo[2].stop()
+
+
+def test_cyclic_synchronous_torque_through_base_node_402(network):
+    """Mode 10 selected with canopen's op_mode, the target torque 0x6071 by RPDO at SYNC: the axis accelerates
+    the way the torque says, 0x6077 reports it, and the max torque 0x6072 caps it."""
+    node = fresh(network, 2)  # pitch: 0.1 N·m rated through 10:1, 0.004 kg·m²
+    node.tpdo.read()
+    node.rpdo.read()
+    layout = [
+        (node.tpdo, 1, (0x6041, 0x6064), 1),
+        (node.tpdo, 2, (0x6077, 0x606C), 1),
+        (node.rpdo, 1, (0x6040,), 255),
+        (node.rpdo, 2, (0x6071,), 1),
+    ]
+    for maps, number, objects, trans in layout:
+        pdo = maps[number]
+        pdo.clear()
+        for index in objects:
+            pdo.add_variable(index)
+        pdo.trans_type = trans
+        pdo.enabled = True
+    node.tpdo.save()
+    node.rpdo.save()
+    node.setup_402_state_machine(read_pdos=False)
+    assert node.sdo[0x6502].raw & 0x0200  # bit 9: cyclic synchronous torque
+    assert node.sdo[0x6076].raw == 100  # the rated torque, mN·m (the EDS's)
+    node.nmt.state = "OPERATIONAL"
+    network.sync.start(0.01)
+    node.rpdo[2][0x6071].raw = 0
+    node.rpdo[2].start(0.01)
+    try:
+        node.op_mode = CST
+        assert node.op_mode == CST
+        node.state = "OPERATION ENABLED"
+        assert node.state == "OPERATION ENABLED"
+        start = node.sdo[0x6064].raw
+        node.rpdo[2][0x6071].raw = 200  # 0.2 of 0.1 N·m rated, times 10: 0.2 N·m at the joint
+        assert wait_for(lambda: node.tpdo_values.get(0x6077) == 200, timeout=3.0)
+        assert wait_for(lambda: node.sdo[0x6064].raw - start > 2000, timeout=5.0)  # it turns forward
+        node.sdo[0x6072].raw = 50  # max torque below the target: the drive caps it
+        assert wait_for(lambda: node.tpdo_values.get(0x6077) == 50, timeout=3.0)
+        with pytest.raises(SdoAbortedError):
+            node.sdo[0x6072].raw = 4000  # above the peak torque the EDS states
+        node.rpdo[2][0x6071].raw = 0
+    finally:
+        node.state = "SWITCH ON DISABLED"
+        node.rpdo[2].stop()
+        network.sync.stop()
+    assert node.sdo[0x6077].raw == 0  # torque off
 
 
 def test_profile_position_motion(network):

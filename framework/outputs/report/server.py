@@ -7,9 +7,11 @@
   ``/feed`` (``surgiplan run --live``, :class:`surgiplan.live.WebSocketFeed`)
   and relays it to every page watching at ``/watch``. A page that connects
   late first gets the scene, the running stage and what it did so far. The
-  relay never waits for a slow page (``websockets.broadcast`` skips a
-  connection whose buffer is full), so no page can slow the feed, and the
-  feed never waits for the viewer (see ``WebSocketFeed``).
+  relay never waits for a page: each page has its own bounded queue
+  (drop-oldest, the drops counted and shown in the page) and a page that
+  stops reading is disconnected (:mod:`.relay`), so no page can slow the
+  feed or grow the viewer's memory, and the feed never waits for the
+  viewer (see ``WebSocketFeed``).
 
 Bounds: at most :data:`MAX_WATCHERS` pages and :data:`MAX_FEEDS` feeds at
 once, messages of at most 4 MiB from a feed and 64 KiB from a page, pings
@@ -22,10 +24,10 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
-import functools
 import http.server
 import json
 import logging
+import mimetypes
 import threading
 import webbrowser
 from collections.abc import Callable
@@ -34,7 +36,8 @@ from typing import Any
 
 from ...errors import OutputError
 from ...live import DEFAULT_PORT
-from . import page
+from . import access, page
+from .relay import Watcher
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +47,9 @@ MAX_FEEDS = 4
 #: what a page that connects late is sent of the running stage: its latest samples and events
 HISTORY = 20_000
 EVENTS = 1_000
-CHANNELS = ("run", "scene", "stage", "tip", "event", "status", "run_end")
+#: what a request without the token gets (with a 403), whatever it asked for
+FORBIDDEN = "403: open the URL `surgiplan view` printed: it carries this viewer's token\n"
+CHANNELS = ("run", "scene", "stage", "tip", "event", "status", "run_end", "drops")
 
 
 def _open(url: str, open_browser: bool, announce: Callable[[str], None]) -> None:
@@ -59,16 +64,66 @@ def _open(url: str, open_browser: bool, announce: Callable[[str], None]) -> None
 # ----------------------------------------------------------------------------- a run's report
 
 
-class _Handler(http.server.SimpleHTTPRequestHandler):
+class _Handler(http.server.BaseHTTPRequestHandler):
+    """GET and HEAD of the files of one run's output directory, for the holder of its token (see :mod:`.access`)."""
+
     timeout = 10  # a client that stalls is dropped
+    root: Path
+    token: str
 
     def log_message(self, format, *args):
         log.debug("view: " + format, *args)
 
-    def do_POST(self):
-        self.send_error(405)
+    def do_GET(self):
+        self._serve(body=True)
 
-    do_PUT = do_DELETE = do_PATCH = do_POST
+    def do_HEAD(self):
+        self._serve(body=False)
+
+    def do_POST(self):
+        query = self.path.partition("?")[2]
+        if not access.authorised(self.token, query, self.headers, self.server.server_address[1]):
+            self._reply(403, FORBIDDEN)
+        else:
+            self._reply(405, "read-only\n")
+
+    do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_POST
+
+    def _reply(self, status: int, message: str, *, body: bool = True) -> None:
+        data = message.encode()
+        self.send_response(status)
+        self.send_header("Content-Type", "text/plain; charset=utf-8")
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        if body:
+            self.wfile.write(data)
+
+    def _serve(self, body: bool) -> None:
+        raw, _, query = self.path.partition("?")
+        port = self.server.server_address[1]
+        if not access.authorised(self.token, query, self.headers, port):
+            self._reply(403, FORBIDDEN, body=body)
+            return
+        status, file, message = access.resolve(self.root, raw)
+        if file is None:
+            self._reply(status, message, body=body)
+            return
+        try:
+            data = file.read_bytes()
+        except OSError:
+            self._reply(404, "not found\n", body=body)
+            return
+        self.send_response(200)
+        self.send_header("Content-Type", mimetypes.guess_type(file.name)[0] or "application/octet-stream")
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        if access.token_from_query(query) is not None:  # the page's own requests (figures) carry the cookie
+            self.send_header("Set-Cookie", access.set_cookie(port, self.token))
+        self.end_headers()
+        if body:
+            self.wfile.write(data)
 
 
 def serve_directory(
@@ -78,9 +133,12 @@ def serve_directory(
     open_browser: bool = True,
     exit_after: float | None = None,
     announce: Callable[[str], None] = print,
+    token: str | None = None,
 ) -> None:
-    """Serve ``out`` read-only on 127.0.0.1:``port`` (0: a free port) and open its report.html."""
-    handler = functools.partial(_Handler, directory=str(out))
+    """Serve ``out`` read-only on 127.0.0.1:``port`` (0: a free port) to the holder of ``token`` (None: a new
+    one) and open its report.html; the URL announced carries the token."""
+    token = token or access.new_token()
+    handler = type("Handler", (_Handler,), {"root": Path(out), "token": token})
     try:
         server = http.server.ThreadingHTTPServer((HOST, port), handler)
     except OSError as exc:
@@ -89,7 +147,7 @@ def serve_directory(
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True)
     thread.start()
     try:
-        _open(f"http://{HOST}:{server.server_address[1]}/report.html", open_browser, announce)
+        _open(f"http://{HOST}:{server.server_address[1]}/report.html?token={token}", open_browser, announce)
         threading.Event().wait(exit_after)  # until Ctrl-C, or exit_after seconds
     finally:
         server.shutdown()
@@ -102,8 +160,12 @@ def serve_directory(
 class LiveViewer:
     """The live viewer's state and its websocket server (see the module docstring)."""
 
-    def __init__(self, port: int = DEFAULT_PORT) -> None:
+    def __init__(self, port: int = DEFAULT_PORT, *, token: str | None = None, **relay: Any) -> None:
         self.port = port
+        #: each page's relay bounds (:class:`.relay.Watcher`'s keywords; its defaults when empty)
+        self.relay = relay
+        #: what every request must present (see :mod:`.access`); printed in the URLs :meth:`serve` announces
+        self.token = token or access.new_token()
         self.watchers: set = set()
         self.feeds = 0
         self.received = 0
@@ -129,16 +191,21 @@ class LiveViewer:
         from websockets.datastructures import Headers
         from websockets.http11 import Response
 
-        path = request.path.split("?", 1)[0]
+        path, _, query = request.path.partition("?")
 
-        def respond(status: int, reason: str, body: bytes, kind: str = "text/plain; charset=utf-8"):
+        def respond(status: int, reason: str, body: bytes, kind: str = "text/plain; charset=utf-8", cookie=False):
             headers = Headers(
                 [("Content-Type", kind), ("Content-Length", str(len(body))), ("Cache-Control", "no-store")]
             )
+            if cookie:  # the page's websocket to /watch carries the token in this cookie
+                headers["Set-Cookie"] = access.set_cookie(self.bound, self.token)
             return Response(status, reason, headers, body)
 
+        if not access.authorised(self.token, query, request.headers, self.bound):
+            return respond(403, "Forbidden", FORBIDDEN.encode())
         if path in ("/", "/index.html"):
-            return respond(200, "OK", self.page.encode(), "text/html; charset=utf-8")
+            cookie = access.token_from_query(query) is not None
+            return respond(200, "OK", self.page.encode(), "text/html; charset=utf-8", cookie=cookie)
         origin = request.headers.get("Origin")
         if path == "/feed":
             if origin is not None:  # a web page may not pose as a running stage
@@ -167,23 +234,24 @@ class LiveViewer:
         items = [{"channel": c, "payload": self.sticky[c]} for c in ("run", "scene", "stage") if c in self.sticky]
         items += [{"channel": "tip", "payload": p} for p in self.tips]
         items += [{"channel": "event", "payload": p} for p in self.events]
-        items += [{"channel": c, "payload": self.sticky[c]} for c in ("status", "run_end") if c in self.sticky]
+        items += [{"channel": c, "payload": self.sticky[c]} for c in ("status", "run_end", "drops") if c in self.sticky]
         return json.dumps(items)
 
     async def _watch(self, connection) -> None:
-        self.watchers.add(connection)
+        watcher = Watcher(connection, **self.relay)
+        self.watchers.add(watcher)  # from now on what the feed sends waits in its queue
         try:
-            await connection.send(self._snapshot())
+            await asyncio.wait_for(connection.send(self._snapshot()), watcher.stall_after)
+            watcher.start()
             async for _ in connection:  # a page sends nothing; this waits for it to close
                 pass
         except Exception as exc:
             log.debug("view: a page went away: %s", exc)
         finally:
-            self.watchers.discard(connection)
+            self.watchers.discard(watcher)
+            await watcher.stop()
 
     async def _feed(self, connection) -> None:
-        from websockets.asyncio.server import broadcast
-
         self.feeds += 1
         try:
             async for message in connection:
@@ -216,7 +284,9 @@ class LiveViewer:
                             self.sticky.pop("run_end", None)
                         self.sticky[channel] = payload
                 self.received += len(items)
-                broadcast(self.watchers, json.dumps(items))
+                message = json.dumps(items)
+                for watcher in list(self.watchers):  # never waits: each page's own bounded queue
+                    watcher.offer(message, len(items))
         except Exception as exc:
             log.debug("view: a feed went away: %s", exc)
         finally:
@@ -248,10 +318,22 @@ class LiveViewer:
         self._stop = asyncio.Event()
         async with server:
             self.bound = next(iter(server.sockets)).getsockname()[1]
-            _open(f"http://{HOST}:{self.bound}/", open_browser, announce)
-            announce(f"feed a run into it: surgiplan run PIPELINE --live ws://{HOST}:{self.bound}/feed")
+            _open(self.url, open_browser, announce)
+            announce(
+                f"feed a run into it: {access.TOKEN_ENV}={self.token} surgiplan run PIPELINE --live {self.feed_url}"
+            )
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._stop.wait(), exit_after)
+
+    @property
+    def url(self) -> str:
+        """The viewer page's URL, with the token."""
+        return f"http://{HOST}:{self.bound}/?token={self.token}"
+
+    @property
+    def feed_url(self) -> str:
+        """Where ``surgiplan run --live`` sends (the token goes in ``SURGIPLAN_LIVE_TOKEN``, or ``?token=``)."""
+        return f"ws://{HOST}:{self.bound}/feed"
 
     def stop(self) -> None:
         """End :meth:`serve` (from any thread)."""
@@ -265,8 +347,10 @@ def serve_live(
     open_browser: bool = True,
     exit_after: float | None = None,
     announce: Callable[[str], None] = print,
+    token: str | None = None,
 ) -> LiveViewer:
-    """Run the live viewer on 127.0.0.1:``port`` until Ctrl-C (or ``exit_after`` seconds)."""
-    viewer = LiveViewer(port)
+    """Run the live viewer on 127.0.0.1:``port`` until Ctrl-C (or ``exit_after`` seconds), for the holder of
+    ``token`` (None: a new one)."""
+    viewer = LiveViewer(port, token=token)
     asyncio.run(viewer.serve(open_browser=open_browser, exit_after=exit_after, announce=announce))
     return viewer

@@ -16,8 +16,10 @@ four RPDOs and four TPDOs (the predefined connection set's COB-IDs: RPDO n at
 0x100 + 0x100 n + node, TPDO n at 0x080 + 0x100 n + node, bit 30 set: not
 served by RTR). Profile (CiA 402): controlword, statusword, modes of operation and
 display, supported drive modes (0x6502: profile position 1, profile velocity
-3, cyclic synchronous position 8 and velocity 9), position, velocity and
-following-error objects, software position limits, profile velocity,
+3, cyclic synchronous position 8, velocity 9 and torque 10), position, velocity and
+following-error objects, the torque objects (target torque 0x6071, max torque
+0x6072 and torque actual value 0x6077 in thousandths of the motor rated torque
+0x6076, mN·m), software position limits, profile velocity,
 acceleration and deceleration, quick stop, the interpolation period, the
 abort connection and quick stop option codes. Manufacturer-specific: 0x2000,
 the SYNC watchdog time (ms) of the cyclic synchronous modes.
@@ -86,12 +88,15 @@ PP = OperationMode.PROFILED_POSITION  # 1
 PV = OperationMode.PROFILED_VELOCITY  # 3
 CSP = OperationMode.CYCLIC_SYNCHRONOUS_POSITION  # 8
 CSV = OperationMode.CYCLIC_SYNCHRONOUS_VELOCITY  # 9
-SUPPORTED_MODES = (PP, PV, CSP, CSV)
-#: 0x6502: bit 0 pp, bit 2 pv, bit 7 csp, bit 8 csv (CiA 402-2 §6.2.2)
-SUPPORTED_DRIVE_MODES = 0x0001 | 0x0004 | 0x0080 | 0x0100
+CST = OperationMode.CYCLIC_SYNCHRONOUS_TORQUE  # 10
+SUPPORTED_MODES = (PP, PV, CSP, CSV, CST)
+#: 0x6502: bit 0 pp, bit 2 pv, bit 7 csp, bit 8 csv, bit 9 cst (CiA 402-2 §6.2.2)
+SUPPORTED_DRIVE_MODES = 0x0001 | 0x0004 | 0x0080 | 0x0100 | 0x0200
 POSITION_MODES = (PP, CSP)
 VELOCITY_MODES = (PV, CSV)
-CYCLIC_MODES = (CSP, CSV)
+CYCLIC_MODES = (CSP, CSV, CST)
+#: torques (0x6071, 0x6072, 0x6077) are in thousandths of the motor's rated torque 0x6076 (mN·m)
+PER_MILLE = 1000.0
 #: 0x6007 abort connection option codes the drive implements
 ABORT_CONNECTION_OPTIONS = (0, 1, 2, 3)
 #: 0x605A quick stop option codes: 0 disable drive; 1/2 slow-down/quick-stop ramp then SWITCH ON
@@ -290,6 +295,10 @@ class DriveDefaults:
     #: the drive's serial number (0x1018:4): a property of the unit, whatever node-ID it is given; None: the
     #: node-ID (``$NODEID`` in the EDS)
     serial_number: int | None = None
+    #: the motor's rated torque 0x6076 (N·m at the motor; a linear motor's rated force in N)
+    rated_torque: float = 0.1
+    #: max torque 0x6072 at power-up: the drive's peak torque, in thousandths of the rated torque
+    peak_torque: int = 3000
 
     def counts(self, value: float | None, fallback: int) -> int:
         return fallback if value is None else round(value * self.counts_per_unit)
@@ -479,6 +488,12 @@ def drive_object_dictionary(node_id: int, defaults: DriveDefaults | None = None)
     add(_record("Interpolation time period", 0x60C2, period, limits={1: (1, 255), 2: (-6, 0)}))
     add(_variable("Following error actual value", 0x60F4, data_type=I32, access="ro", mappable=True))
     add(_variable("Target velocity", 0x60FF, data_type=I32, access="rww", mappable=True))
+    # torque (cyclic synchronous torque): thousandths of the rated torque; the max torque is at most the peak
+    add(_variable("Target torque", 0x6071, data_type=I16, access="rww", mappable=True))
+    add(_variable("Max torque", 0x6072, data_type=U16, access="rww", default=d.peak_torque, mappable=True,
+                  limits=(0, d.peak_torque)))  # fmt: skip
+    add(_variable("Motor rated torque", 0x6076, default=max(1, round(d.rated_torque * 1000)), access="ro"))
+    add(_variable("Torque actual value", 0x6077, data_type=I16, access="ro", mappable=True))
     add(_variable("Supported drive modes", 0x6502, access="ro", default=SUPPORTED_DRIVE_MODES))
     return dictionary
 

@@ -112,6 +112,8 @@ class Cia402Device(Device):
     Settings = Cia402DeviceSettings
     #: defaults per device, overridden by subclasses
     default_acceleration: tuple[float, ...] = ()
+    #: each joint's motor by default (:class:`.settings.MotorSettings` names -> one value per joint)
+    default_motors: ClassVar[dict[str, tuple]] = {}
     urdf_name: str = ""
     tip_frame: str = ""
     #: what the per-sample clearance of :meth:`clearance_along` is the clearance of (figure label)
@@ -138,6 +140,9 @@ class Cia402Device(Device):
         self.channel = ""
         #: wall-clock time (s since the epoch) of the clock's zero: a trace's time stamps are ``epoch + clock``
         self.epoch = 0.0
+        #: torque mode (the haptic assist of :mod:`surgiplan.plugins.devices.cast_gimbal.assist`): each drive's
+        #: max torque 0x6072 (thousandths of its rated torque), set before configuring; None: position mode
+        self.max_torque: list[int] | None = None
 
     # ------------------------------------------------------------------ for subclasses
     def build_model(self, base=None) -> KinematicModel:
@@ -172,7 +177,7 @@ class Cia402Device(Device):
 
     def joints(self) -> Joints:
         """The settings per joint, checked against the model (raises ConfigError): :mod:`.joints`."""
-        return resolve_joints(self.settings, self.model, self.default_acceleration)
+        return resolve_joints(self.settings, self.model, self.default_acceleration, self.default_motors)
 
     def can_nodes(self) -> list[tuple[int, str, Path]]:
         """(node-id, joint name, EDS file) of each drive as the settings give them (the model is loaded if it is
@@ -287,6 +292,7 @@ class Cia402Device(Device):
                 master_node_id=s.master_node_id,
                 boot_timeout=s.boot_timeout,
                 priority=s.realtime_priority if realtime else None,
+                max_torque=self.max_torque,
             )
             self.master.start()
             self.controller = Controller(

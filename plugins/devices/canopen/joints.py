@@ -19,7 +19,7 @@ from surgiplan.plugins.devices.kinematics.model import KinematicModel
 
 from .bus import worst_case_bits
 from .master import AxisConfig
-from .settings import PRISMATIC_COUNTS, REVOLUTE_COUNTS, Cia402DeviceSettings
+from .settings import GENERIC_MOTOR, PRISMATIC_COUNTS, REVOLUTE_COUNTS, Cia402DeviceSettings
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,8 @@ class Joints:
     acceleration: np.ndarray
     #: where the simulated axes stand at power-up: ``simulation.initial``, else the model's neutral configuration
     start: np.ndarray
+    #: each joint's motor (:class:`.settings.MotorSettings`): name -> one value per joint
+    motors: dict[str, np.ndarray] | None = None
 
 
 def per_joint(model: KinematicModel, values, default, what: str) -> np.ndarray:
@@ -53,7 +55,18 @@ def joint_limits(s: Cia402DeviceSettings, model: KinematicModel, default_acceler
     return velocity, acceleration
 
 
-def resolve_joints(s: Cia402DeviceSettings, model: KinematicModel, default_acceleration) -> Joints:
+def resolve_motors(s: Cia402DeviceSettings, model: KinematicModel, defaults=None) -> dict[str, np.ndarray]:
+    """Each joint's motor: ``motors`` settings, else the device's ``defaults`` (name -> per joint), else
+    :data:`.settings.GENERIC_MOTOR`."""
+    defaults = defaults or {}
+    out = {}
+    for name, generic in GENERIC_MOTOR.items():
+        default = defaults.get(name, [generic] * model.nq)
+        out[name] = per_joint(model, getattr(s.motors, name), default, f"motors.{name}")
+    return out
+
+
+def resolve_joints(s: Cia402DeviceSettings, model: KinematicModel, default_acceleration, default_motors=None) -> Joints:
     """The per-joint values of settings ``s`` on ``model`` (raises ConfigError)."""
     nq = model.nq
     ids = s.node_ids or list(range(1, nq + 1))
@@ -74,7 +87,7 @@ def resolve_joints(s: Cia402DeviceSettings, model: KinematicModel, default_accel
         if not model.within_limits(initial[None])[0]:
             raise ConfigError(f"simulation.initial {list(initial)} is outside the joint limits")
     start = initial if initial is not None else model.neutral()
-    return Joints(ids, cpu, window, velocity, acceleration, start)
+    return Joints(ids, cpu, window, velocity, acceleration, start, resolve_motors(s, model, default_motors))
 
 
 def axis_configs(s: Cia402DeviceSettings, model: KinematicModel, joints: Joints) -> list[AxisConfig]:

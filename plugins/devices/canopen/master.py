@@ -9,7 +9,8 @@ everything before any motion:
    message; a node that sends none within ``boot_timeout`` is a
    :class:`~.bus.BusError` naming it and its joint;
 3. per node, by SDO: device type 0x1000 (a CiA 402 drive?) and identity
-   0x1018 against the EDS; supported drive modes 0x6502 (CSP?); then the
+   0x1018 against the EDS; supported drive modes 0x6502 (CSP? in torque
+   mode: CST?); then the
    configuration, written as a DCF would (the EDS's variables with their
    values set, downloaded in order): heartbeat producer 0x1017 and consumer
    0x1016, communication cycle period 0x1006, abort connection option 0x6007
@@ -19,7 +20,9 @@ everything before any motion:
    limits 0x607D; a value the drive refuses is an error naming node, object
    and abort code;
 4. PDO mapping with CiA 301's procedure (canopen's ``PdoMap.save``): RPDO1
-   controlword + target position, TPDO1 statusword + position actual value,
+   controlword + target position (torque mode: 0x6060 = CST, max torque
+   0x6072 written, rated torque 0x6076 read, RPDO1 controlword + target
+   torque), TPDO1 statusword + position actual value,
    both synchronous; the node's other PDOs invalidated;
 5. NMT start (OPERATIONAL); enabling through the 402 state machine is the
    controller's (:meth:`.control.Controller.enable`).
@@ -53,6 +56,8 @@ from .network import PumpedNetwork, SimulationLink
 #: RPDO1 (controlword, target position) and TPDO1 (statusword, position actual value)
 _RPDO1 = struct.Struct("<Hl")
 _TPDO1 = struct.Struct("<Hl")
+#: RPDO1 in torque mode: controlword, target torque (thousandths of the rated torque)
+_RPDO_TORQUE = struct.Struct("<Hh")
 #: NMT command specifiers (CiA 301)
 NMT_START, NMT_RESET_COMMUNICATION = 0x01, 0x82
 
@@ -116,8 +121,15 @@ class DriveMaster:
         master_node_id: int = 127,
         boot_timeout: float = 1.0,
         priority: int | None = None,
+        max_torque: list[int] | None = None,
     ) -> None:
         self.bus = bus
+        #: torque mode (cyclic synchronous torque, the haptic assist): each axis' max torque 0x6072 (thousandths
+        #: of its rated torque), RPDO1 carries the target torque 0x6071; None: position mode (CSP)
+        self.max_torque = None if max_torque is None else np.asarray(max_torque, dtype=np.int64)
+        self._rpdo = _RPDO_TORQUE if max_torque is not None else _RPDO1
+        #: each axis' rated torque 0x6076 (N·m, read at start-up in torque mode)
+        self.rated_torque = np.full(len(axes), np.nan)
         self.axes = axes
         self.clock = clock
         self.period = period
@@ -299,10 +311,10 @@ class DriveMaster:
                     )
         if 0x6502 in od:
             modes = self._sdo(i, "reading the supported drive modes 0x6502", lambda: node.sdo[0x6502].raw)
-            if not modes & (1 << (cia402.CSP - 1)):
-                raise BusError(
-                    f"{self._where(i)} does not support cyclic synchronous position (0x6502 = 0x{modes:08X})"
-                )
+            mode = cia402.CST if self.max_torque is not None else cia402.CSP
+            if not modes & (1 << (mode - 1)):
+                what = "torque" if self.max_torque is not None else "position"
+                raise BusError(f"{self._where(i)} does not support cyclic synchronous {what} (0x6502 = 0x{modes:08X})")
         cpu = axis.counts_per_unit
         value, index = cia402.interpolation_period(self.period)
         heartbeat = round(self.heartbeat_period * 1000)
@@ -312,7 +324,7 @@ class DriveMaster:
             (0x1016, 1, (self.master_node_id << 16) | min(0xFFFF, round(1.5 * heartbeat)), False),
             (0x1006, None, round(self.period * 1e6), False),
             (0x6007, None, 3, False),
-            (0x6060, None, cia402.CSP, True),
+            (0x6060, None, cia402.CST if self.max_torque is not None else cia402.CSP, True),
             (0x60C2, 1, value, True),
             (0x60C2, 2, index, True),
             (0x6065, None, max(1, round(axis.following_error_window * cpu)), True),
@@ -323,6 +335,10 @@ class DriveMaster:
             (0x607D, 1, int(np.floor(axis.lower * cpu)), True),
             (0x607D, 2, int(np.ceil(axis.upper * cpu)), True),
         ]
+        if self.max_torque is not None:
+            writes.append((0x6072, None, int(self.max_torque[i]), True))
+            rated = self._sdo(i, "reading the motor rated torque 0x6076", lambda: node.sdo[0x6076].raw)
+            self.rated_torque[i] = rated / 1000.0  # mN·m
         for index_, sub, raw, required in writes:
             where = f"0x{index_:04X}" + (f":{sub}" if sub is not None else "")
             try:
@@ -340,7 +356,8 @@ class DriveMaster:
 
     def _map_pdos(self, i: int, node: canopen.RemoteNode) -> None:
         """RPDO1 controlword + target position, TPDO1 statusword + position, synchronous; the others invalid."""
-        for maps, number, entries in ((node.rpdo, 1, (0x6040, 0x607A)), (node.tpdo, 1, (0x6041, 0x6064))):
+        target = 0x6071 if self.max_torque is not None else 0x607A
+        for maps, number, entries in ((node.rpdo, 1, (0x6040, target)), (node.tpdo, 1, (0x6041, 0x6064))):
             pdo = maps[number]
             pdo.read()
             pdo.clear()
@@ -424,7 +441,11 @@ class DriveMaster:
         )
 
     def exchange(self, controlwords, targets) -> None:
-        """SYNC, then each axis' RPDO (controlword, target counts). Raises ``can.CanError`` on a bus error."""
+        """SYNC, then each axis' RPDO (controlword, target counts; torque mode: target torque, thousandths of the
+        rated torque, clipped to each axis' max torque whatever the caller asks). Raises ``can.CanError`` on a bus
+        error."""
+        if self.max_torque is not None:
+            targets = np.clip(np.rint(np.asarray(targets, dtype=float)), -self.max_torque, self.max_torque)
         with self._lock:
             # counted before sending: in real time the answers may arrive before transmit returns
             self.syncs_sent += 1
@@ -434,15 +455,15 @@ class DriveMaster:
             # messages are made once and their data rewritten in place every cycle
             if len(self._cycle_messages) != 1 + len(self._rpdo_ids):
                 self._cycle_messages = [self._sync] + [
-                    can.Message(arbitration_id=cob, data=bytearray(_RPDO1.size), is_extended_id=False)
+                    can.Message(arbitration_id=cob, data=bytearray(self._rpdo.size), is_extended_id=False)
                     for cob in self._rpdo_ids
                 ]
-            pack_into = _RPDO1.pack_into
+            pack_into = self._rpdo.pack_into
             for i in range(len(self._rpdo_ids)):
                 pack_into(self._cycle_messages[i + 1].data, 0, int(controlwords[i]), int(targets[i]))
             send_batch(self._cycle_messages)
             return
-        pack = _RPDO1.pack
+        pack = self._rpdo.pack
         self.network.send_message(0x080, b"")
         for cob, cw, tp in zip(self._rpdo_ids, controlwords, targets, strict=True):
             self.network.send_message(cob, pack(int(cw), int(tp)))

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, PositiveFloat, PositiveInt
+from pydantic import Field, NonNegativeFloat, PositiveFloat, PositiveInt
 from surgiplan.models import StrictModel
 from surgiplan.units import Length, PositiveLength
 
@@ -35,6 +35,40 @@ class SimulationSettings(StrictModel):
     velocity_factor: float = Field(default=1.5, ge=1.0)
     #: an enabled drive without SYNC for this long quick-stops by itself (s)
     sync_timeout: PositiveFloat = 0.05
+
+
+#: the motor of a joint whose device gives none (:class:`MotorSettings`): rated torque (N·m at the motor), peak
+#: torque (thousandths of the rated), gear ratio, inertia (kg·m² or kg), viscous (N·m·s/rad or N·s/m) and Coulomb
+#: friction (N·m or N) at the joint
+GENERIC_MOTOR = {
+    "rated_torque": 0.1,
+    "peak_torque": 3000,
+    "gear_ratio": 10.0,
+    "inertia": 0.005,
+    "viscous_friction": 0.01,
+    "coulomb_friction": 0.005,
+}
+
+
+class MotorSettings(StrictModel):
+    """Each joint's motor and drive train (cyclic synchronous torque, the haptic ``assist`` mode), one value per
+    joint; None: the device's defaults (``Cia402Device.default_motors``, else :data:`GENERIC_MOTOR`).
+
+    The rated and peak torques are the drive's (0x6076, 0x6072's ceiling); the gear ratio turns a motor torque
+    into a joint torque (N·m per N·m; a linear axis: N per N·m). Inertia and friction are the simulated axis'."""
+
+    #: the motor's rated torque (N·m at the motor): 0x6076 of the simulated drive
+    rated_torque: list[PositiveFloat] | None = None
+    #: the drive's peak torque (thousandths of the rated torque): the highest max torque 0x6072 takes
+    peak_torque: list[PositiveInt] | None = None
+    #: joint torque per motor torque (a linear axis: N per N·m)
+    gear_ratio: list[PositiveFloat] | None = None
+    #: the axis' inertia at the joint (kg·m², a linear axis kg)
+    inertia: list[PositiveFloat] | None = None
+    #: viscous friction at the joint (N·m·s/rad or N·s/m)
+    viscous_friction: list[NonNegativeFloat] | None = None
+    #: Coulomb friction at the joint (N·m or N)
+    coulomb_friction: list[NonNegativeFloat] | None = None
 
 
 class IKSettings(StrictModel):
@@ -99,4 +133,6 @@ class Cia402DeviceSettings(StrictModel):
     #: what else to record: ``can: blf | asc | log`` writes the bus traffic as ``<stage>.can.<format>`` (:mod:`.trace`)
     record: RecordSettings = Field(default_factory=RecordSettings)
     simulation: SimulationSettings = Field(default_factory=SimulationSettings)
+    #: each joint's motor (torque mode): :class:`MotorSettings`
+    motors: MotorSettings = Field(default_factory=MotorSettings)
     ik: IKSettings = Field(default_factory=IKSettings)

@@ -25,6 +25,8 @@ gimbal space plans it; certified to 1e-5 m between samples,
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 from pydantic import Field
 from surgiplan.devices import Trajectory
@@ -54,6 +56,17 @@ class CastGimbalDeviceSettings(Cia402DeviceSettings):
 class CastGimbalDevice(Cia402Device):
     Settings = CastGimbalDeviceSettings
     default_acceleration = (4.0, 4.0, 0.5, 10.0)
+    #: the motors (yaw, pitch, insertion, roll): 0.1 N·m rated motors; yaw and pitch through a 10:1 capstan (1 N·m
+    #: rated, 3 N·m peak at the joint), insertion by a capstan of 1 cm radius (10 N rated), roll 5:1; inertias,
+    #: viscous and Coulomb friction at the joint (a haptic gimbal's order of magnitude)
+    default_motors: ClassVar[dict[str, tuple]] = {
+        "rated_torque": (0.1, 0.1, 0.1, 0.05),
+        "peak_torque": (3000, 3000, 3000, 3000),
+        "gear_ratio": (10.0, 10.0, 100.0, 5.0),
+        "inertia": (0.004, 0.004, 0.25, 2e-4),
+        "viscous_friction": (0.01, 0.01, 0.5, 1e-3),
+        "coulomb_friction": (0.005, 0.005, 0.1, 5e-4),
+    }
     urdf_name = "cast_gimbal"
     tip_frame = "tip"
     clearance_label = "executed shaft clearance"

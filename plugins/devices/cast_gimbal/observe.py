@@ -1,4 +1,4 @@
-"""``cast_gimbal`` as a pose source: observe mode, for a ``guide`` stage (paper 000's training loop).
+"""``cast_gimbal`` as a pose source: observe mode (and ``mode: assist``, :mod:`.assist`), for a ``guide`` stage.
 
 The trainee moves the instrument by hand; the drives are **not commanded**:
 the master runs the standard start-up (reset communication, boot-up, SDO
@@ -28,24 +28,37 @@ injected in simulation (``bus: {faults: [...]}``) are timed from the attempt's s
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
-from pydantic import PositiveFloat, PrivateAttr, ValidationInfo, model_validator
+from pydantic import Field, NonNegativeFloat, PositiveFloat, PrivateAttr, ValidationInfo, model_validator
 from surgiplan.errors import ConfigError, PlanningInputError
 from surgiplan.guidance import PoseSample, PoseSource, SourceStopped, TraineeModel, synthetic_attempt
 from surgiplan.guidance.files import read_attempt_csv
 from surgiplan.units import PositiveLength
 from surgiplan.validation import file_length_scale, input_path
 
+from .assist import AssistLoop, AssistSettings, assistance_level, proficiency_of
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
+
+#: the simulated hand as an impedance on the joints (yaw, pitch, insertion, roll) while the drives push (assist):
+#: about 270 N/m at the tip at 15 cm insertion on yaw and pitch, 300 N/m along the shaft (a relaxed grip, of the
+#: order measured for human arms), near critically damped with the axes' inertia
+HAND_STIFFNESS = (6.0, 6.0, 300.0, 0.05)
+HAND_DAMPING = (0.3, 0.3, 17.0, 0.006)
 
 
 class HandModel(TraineeModel):
     """How the simulated trainee's hand moves the instrument: ``synthetic`` (the default, an intermediate
-    trainee; the fields of :class:`surgiplan.guidance.TraineeModel`) or ``replay`` of a recorded file."""
+    trainee; the fields of :class:`surgiplan.guidance.TraineeModel`) or ``replay`` of a recorded file.
+
+    In observe mode the hand carries the instrument where the trainee intends; in assist mode it is a
+    spring-damper (``stiffness``, ``damping``: per joint, N·m/rad and N/m, N·m·s/rad and N·s/m) pulling toward
+    there, its torques adding to the drives' in the motor model."""
 
     replay: str | None = None
+    stiffness: list[NonNegativeFloat] = Field(default_factory=lambda: list(HAND_STIFFNESS), min_length=4, max_length=4)
+    damping: list[NonNegativeFloat] = Field(default_factory=lambda: list(HAND_DAMPING), min_length=4, max_length=4)
     _recorded: tuple | None = PrivateAttr(default=None)
 
     @model_validator(mode="after")
@@ -66,12 +79,32 @@ class CastGimbalObserveSettings(CastGimbalDeviceSettings):
     #: ... or once the tip has rested this long within goal_tolerance of the path's end
     rest_time: PositiveFloat = 0.5
     goal_tolerance: PositiveLength = 0.003
+    #: ``observe`` (torque off) or ``assist`` (the drives pull toward the recommended path: :mod:`.assist`)
+    mode: Literal["observe", "assist"] = "observe"
+    #: the virtual fixture and its safety limits (mode assist)
+    assist: AssistSettings = Field(default_factory=AssistSettings)
 
     @model_validator(mode="after")
     def _hand_only_in_simulation(self):
         if self.hand is not None and not self.bus.simulated:
             raise ValueError(
                 "hand: moves simulated drives; on real drives (bus.interface other than virtual) a trainee does"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _assist_within_the_drives(self):
+        peak = self.motors.peak_torque or CastGimbalDevice.default_motors["peak_torque"]
+        if self.assist.torque_cap > min(peak):
+            raise ValueError(
+                f"assist.torque_cap {self.assist.torque_cap} (thousandths of the rated torque) is above the drives' "
+                f"peak torque {min(peak)} (motors.peak_torque)"
+            )
+        if self.assist.max_sample_age < 1.0 / self.control_rate:
+            raise ValueError(
+                f"assist.max_sample_age {self.assist.max_sample_age:g} s is shorter than one SYNC period "
+                f"({1.0 / self.control_rate:g} s at control_rate {self.control_rate:g} Hz): every sample would be "
+                "too old"
             )
         return self
 
@@ -85,6 +118,29 @@ class CastGimbalObserver(PoseSource):
         super().__init__(settings)
         self.device: CastGimbalDevice | None = None
         self.hand_end = np.inf
+        #: mode assist: the assistance of this attempt
+        self.assist: AssistLoop | None = None
+        #: SYNC cycles skipped because the loop ran late (real time), and the span of the loop (clock s)
+        self.missed_syncs = 0
+        self.loop_span = (np.nan, np.nan)
+        self.loop_syncs = 0
+
+    @classmethod
+    def check_plan(cls, settings: CastGimbalObserveSettings, plan) -> tuple[str, tuple[str, ...]] | None:
+        """Mode assist pulls toward a recommended path of the gimbal's tip: refuse a plan stage without a goal (no
+        path to a target) or planning in a space whose path is not the tip's (neither cast_gimbal nor r3)."""
+        if settings.mode != "assist":
+            return None
+        space = getattr(getattr(plan, "space", None), "kind", None)
+        if getattr(plan, "goal", 0) is None:
+            why = "has no goal: no recommended path to a target to pull toward"
+        elif space not in (None, "cast_gimbal", "r3"):
+            why = f"plans in {space}: its path is not one of the gimbal's tip (plan in cast_gimbal or r3)"
+        else:
+            return None
+        return f"mode assist needs a recommended path, and plan stage '{plan.name}' {why}; or use mode observe", (
+            "mode",
+        )
 
     # ------------------------------------------------------------------ opening
     def open(self, context) -> None:
@@ -117,8 +173,16 @@ class CastGimbalObserver(PoseSource):
                 warnings.simplefilter("ignore", UserWarning)
                 rpy = Rotation.from_matrix(self.gimbal_space.frame).as_euler("xyz")  # URDF's fixed-axis rpy
             fields["fulcrum"] = {"xyz": self.gimbal_space.fulcrum.tolist(), "rpy": rpy.tolist()}
+        fields.pop("mode", None)
+        fields.pop("assist", None)
         self.device = CastGimbalDevice(CastGimbalDeviceSettings.model_validate(fields))
-        self.device.configure(context.stage)  # the standard start-up; the drives are never enabled
+        assist = s.mode == "assist"
+        if assist:
+            self.device.max_torque = [s.assist.torque_cap] * 4  # torque mode: CST, 0x6072 = the cap
+        self.device.configure(context.stage)  # the standard start-up; observe: the drives are never enabled
+        if assist:
+            level = assistance_level(proficiency_of(context, s.assist), s.assist)
+            self.assist = AssistLoop(self.device, s.assist, context, level, self.gimbal_space)
         self.cpu = np.array([a.counts_per_unit for a in self.device.master.axes], dtype=float)
         self.goal_tip = np.asarray(context.tips[-1], dtype=float)
         if motion is not None:
@@ -130,7 +194,8 @@ class CastGimbalObserver(PoseSource):
                 u = t - start
                 return np.array([np.interp(u, times, joints[:, k]) for k in range(joints.shape[1])])
 
-            self.device.simulator.move_by_hand(hand)
+            hand_model = s.hand or HandModel()
+            self.device.simulator.move_by_hand(hand, hand_model.stiffness, hand_model.damping)
             self.origin = start
         else:
             self.origin = self.device.clock.now()
@@ -164,6 +229,8 @@ class CastGimbalObserver(PoseSource):
         clock, master = device.clock, device.master
         period = 1.0 / s.control_rate
         next_due = clock.now()
+        self.loop_span = (next_due, next_due)
+        self.loop_syncs = 0
         previous_sync = None
         missing = np.zeros(len(self.cpu), dtype=int)
         rest_since = None
@@ -172,6 +239,7 @@ class CastGimbalObserver(PoseSource):
             now = next_due
             next_due += period
             if clock.realtime and clock.now() - now > period:  # descheduled: skip, never burst SYNCs
+                self.missed_syncs += int((clock.now() - now) // period)
                 now = clock.now()
                 next_due = now + period
             feedback = master.feedback()  # the answers to the previous SYNC
@@ -196,16 +264,42 @@ class CastGimbalObserver(PoseSource):
                         return
                     if t >= self.hand_end + s.rest_time:
                         return
-            try:
-                master.sync()
-            except Exception as exc:  # a bus error: the bus is gone
-                raise SourceStopped(f"the CAN bus failed: {exc}") from None
+            # assist: SYNC and the torques (a bus error is SourceStopped); observe, or once the assistance has
+            # ended: SYNC alone
+            if self.assist is None or not self.assist.cycle(now, feedback, previous_sync, period):
+                try:
+                    master.sync()
+                except Exception as exc:  # a bus error: the bus is gone
+                    raise SourceStopped(f"the CAN bus failed: {exc}") from None
             previous_sync = now
+            self.loop_span = (self.loop_span[0], now)
+            self.loop_syncs += 1
 
     def close(self) -> None:
         if self.device is not None:
             try:
+                if self.assist is not None:
+                    self._end_assist()
                 self.device.shutdown()
             finally:
                 self.recordings = list(self.device.recordings)  # the device's trace (record.can) is the source's
                 self.device = None
+
+    def _end_assist(self) -> None:
+        """Leave every drive in SWITCH ON DISABLED: zero torque and DISABLE VOLTAGE, applied at one more SYNC; the
+        assistance's summary goes to the attempt record."""
+        assist = self.assist
+        try:
+            if assist.ended is None or assist.active:
+                assist.stop(self.device.clock.now(), None)
+                self.device.master.sync()
+                if self.device.clock.realtime:
+                    self.device.clock.sleep_until(self.device.clock.now() + 2.0 / self.settings.control_rate)
+        finally:
+            summary = assist.summary()
+            span = self.loop_span[1] - self.loop_span[0]
+            if summary["ended_at_s"] is not None:  # from the attempt's start, as the samples' times
+                summary["ended_at_s"] -= self.origin
+            summary["missed_syncs"] = self.missed_syncs
+            summary["cycle_rate_hz"] = (self.loop_syncs - 1) / span if span > 0 else None
+            self.assistance = summary

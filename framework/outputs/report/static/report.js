@@ -839,6 +839,9 @@
   S.live = {
     messages: 0, tips: 0, updates: 0, updateTimes: [], tipTimes: [], connected: false, stage: null, status: null,
     last: null, events: [], closed: false, cue: null,
+    // samples dropped on the way (never delayed): by the run's feed (its queue full) and by the viewer for this page
+    // (this page not keeping up: its queue in the viewer is bounded, the oldest go first)
+    drops: { feed: 0, page: 0 },
     // cue latency (ms): from each sample's arrival at the stage (its "wall" clock time) to the end of the first frame
     // drawn after the page got it; with #latency in the URL that frame is read back (getImageData), so it is in pixels
     // and (arrivalLatency) to the page's handling of its message, so the page's own share can be told apart
@@ -875,7 +878,8 @@
     const trail = document.getElementById("trail"), tctx = trail.getContext("2d");
     const banner = document.getElementById("cue-banner"), hud = document.getElementById("cue-hud");
     const info = el("div", { class: "message", id: "live-info" }, "waiting for a running stage…");
-    document.getElementById("stages").append(el("details", { class: "stage", open: "" }, el("summary", {}, "live"), info, el("div", { id: "live-events" })));
+    const dropsInfo = el("div", { class: "message", id: "live-drops" }, "samples dropped: 0");
+    document.getElementById("stages").append(el("details", { class: "stage", open: "" }, el("summary", {}, "live"), info, dropsInfo, el("div", { id: "live-events" })));
     timebar.style.display = "block";
     slider.style.display = "none";
     document.getElementById("play").style.display = "none";
@@ -1098,6 +1102,14 @@
         case "run_end":
           header(Object.assign({}, DATA.run, p));
           break;
+        case "drops": {
+          const d = S.live.drops;
+          if (typeof p.feed === "number") d.feed = p.feed;
+          if (typeof p.page === "number") d.page = p.page;
+          dropsInfo.textContent = `samples dropped: ${d.feed + d.page}` + (d.feed + d.page ? ` (by the run's feed ${d.feed}, by the viewer for this page ${d.page})` : "");
+          dropsInfo.style.color = d.feed + d.page ? "#b35900" : "";
+          break;
+        }
       }
       if (!labelPending) { labelPending = true; requestAnimationFrame(refreshLabel); }
     }

@@ -10,7 +10,7 @@ its EDS file states, :mod:`.eds`) on the simulator's bus, and a motor.
   NMT events, heartbeat consumers, SYNC and the PDO exchange, EMCY;
 * :mod:`.statemachine`, :mod:`.modes`, :mod:`.reference` — CiA 402: the
   state machine and statusword, the operating modes (profile position and
-  velocity, cyclic synchronous position and velocity) and the piecewise
+  velocity, cyclic synchronous position, velocity and torque) and the piecewise
   quadratic reference they give the servo loops;
 * :mod:`.motor` — how that reference becomes the axes' actual positions and
   velocities (the drive's servo cascade and the motor);
@@ -80,6 +80,15 @@ class AxisHardware:
     #: of its current limit); the quick stop decelerates at twice the profile acceleration
     profile_velocity: float | None = None
     profile_acceleration: float | None = None
+    #: the motor (cyclic synchronous torque): rated torque at the motor (N·m; 0x6076), peak torque (thousandths
+    #: of the rated: 0x6072's ceiling), gear ratio (joint torque per motor torque: 1/m on a linear axis), and the
+    #: axis' inertia (kg·m² or kg, at the joint), viscous (N·m·s/rad or N·s/m) and Coulomb friction (N·m or N)
+    rated_torque: float = 0.1
+    peak_torque: int = 3000
+    gear_ratio: float = 10.0
+    inertia: float = 0.005
+    viscous_friction: float = 0.01
+    coulomb_friction: float = 0.005
 
     def defaults(self, device: str = "", sync_watchdog: float = 0.05) -> cia402.DriveDefaults:
         """The power-on values of this axis' drive (its object dictionary's defaults, its EDS)."""
@@ -98,6 +107,8 @@ class AxisHardware:
             following_error_window=self.following_error_window,
             sync_watchdog=sync_watchdog,
             serial_number=self.serial,
+            rated_torque=self.rated_torque,
+            peak_torque=self.peak_torque,
         )
 
 
@@ -174,6 +185,17 @@ class DriveSimulator(
         self.velocity_window = np.full(n, 0.0)
         self.velocity_window_time = np.zeros(n)
         self.sync_watchdog = np.full(n, model.sync_timeout)
+        # cyclic synchronous torque: the motors and the torques (thousandths of the rated torque)
+        self.torque_unit = np.array([a.rated_torque * a.gear_ratio / cia402.PER_MILLE for a in axes])  # joint/‰
+        self.inertia = np.array([a.inertia for a in axes], dtype=float)
+        self.viscous = np.array([a.viscous_friction for a in axes], dtype=float)
+        self.coulomb = np.array([a.coulomb_friction for a in axes], dtype=float)
+        self.max_torque = np.array([a.peak_torque for a in axes], dtype=float)
+        self.target_torque = np.zeros(n)
+        self.torque_actual = np.zeros(n)
+        #: the hand as an impedance on axes the drives power in torque mode (joint units: N·m/rad, N·m·s/rad)
+        self.hand_stiffness = np.zeros(n)
+        self.hand_damping = np.zeros(n)
         self.abort_option = np.full(n, 3)
         self.qs_option = np.full(n, 6)
         # state of the modes and monitoring
@@ -283,8 +305,27 @@ class DriveSimulator(
         pos, vel, over_time = self.pos, self.vel, self.over_time
         cpu, vmax, peak, load, window = self.cpu, self.vmax, self.peak, self.load, self.window
         tripped = np.zeros(len(pos), dtype=bool)
+        torque_mode = powered_mask & (mode == cia402.CST)
+        if torque_mode.any():
+            # cyclic synchronous torque: the drive's torque (none while quick-stopping) and the hand's
+            limit = np.minimum(self.max_torque, np.abs(self.target_torque))
+            drive = np.clip(self.target_torque, -limit, limit) * (state == OE) * torque_mode
+            self.torque_actual = drive
+            drive_torque = drive * self.torque_unit
+        else:
+            self.torque_actual = np.zeros(len(pos))
         for k in range(steps):
-            pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
+            if torque_mode.any():
+                external = load * self.inertia
+                if self.hand is not None:
+                    where = np.asarray(self.hand(self.t + dt * k), dtype=float)
+                    external = external + self.hand_stiffness * (where - pos) - self.hand_damping * vel
+                p_t, v_t = m.torque_step(pos, vel, drive_torque + external, self.inertia, self.viscous,
+                                         self.coulomb, dt)  # fmt: skip
+                pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
+                pos, vel = np.where(torque_mode, p_t, pos), np.where(torque_mode, v_t, vel)
+            else:
+                pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
             # following error (position modes): outside the window 0x6065 for longer than 0x6066
             over_time = (over_time + dt) * (monitored & (np.abs(command[k] - pos) > window))
             tripped |= over_time > self.window_time
@@ -321,13 +362,25 @@ class DriveSimulator(
             while (timer := self.scheduler.pop_due(now)) is not None:
                 timer.action()
 
-    def move_by_hand(self, motion: Callable[[float], np.ndarray] | None) -> None:
+    def move_by_hand(self, motion: Callable[[float], np.ndarray] | None, stiffness=None, damping=None) -> None:
         """Simulation only: while an axis is unpowered (its drive not enabled, as when a trainee moves the
         instrument by hand, the observe mode of a guide stage), its position follows ``motion(t)`` (units per
-        axis, ``t`` the clock's time); the encoders, TPDOs and SDO reads report it. None lets go."""
+        axis, ``t`` the clock's time); the encoders, TPDOs and SDO reads report it. None lets go.
+
+        While a drive powers its axis in cyclic synchronous torque, the hand is an impedance instead: a spring
+        (``stiffness`` per axis, N·m/rad or N/m) and damper (``damping``, N·m·s/rad or N·s/m) pulling toward
+        ``motion(t)``, where the trainee intends to be; its torque adds to the drive's in the motor model."""
         with self._lock:
             self._advance_locked(self.clock.now())
             self.hand = motion
+            n = len(self.pos)
+            self.hand_stiffness = np.zeros(n) if stiffness is None else np.broadcast_to(stiffness, (n,)).astype(float)
+            self.hand_damping = np.zeros(n) if damping is None else np.broadcast_to(damping, (n,)).astype(float)
+
+    def torque(self, i: int) -> int:
+        """Torque actual value 0x6077 of axis ``i`` (thousandths of the rated torque): the torque its drive applies
+        in cyclic synchronous torque (within 0x6072), 0 with the power stage off or in another mode."""
+        return round(self.torque_actual[i]) if self.state[i] == OE and self.mode[i] == cia402.CST else 0
 
     def positions(self) -> np.ndarray:
         """True joint positions (units): the simulation's ground truth, for tests."""
@@ -375,6 +428,12 @@ def axis_hardware(device: Cia402Device) -> list[AxisHardware]:
             profile_velocity=float(joints.velocity[j]),
             profile_acceleration=float(joints.acceleration[j]),
             serial=j + 1,
+            rated_torque=float(joints.motors["rated_torque"][j]),
+            peak_torque=int(joints.motors["peak_torque"][j]),
+            gear_ratio=float(joints.motors["gear_ratio"][j]),
+            inertia=float(joints.motors["inertia"][j]),
+            viscous_friction=float(joints.motors["viscous_friction"][j]),
+            coulomb_friction=float(joints.motors["coulomb_friction"][j]),
         )
         for j in range(model.nq)
     ]

@@ -15,6 +15,19 @@ acceleration it allows); the motor (:meth:`MotorModel.move`) is a
 second-order model, inertia with viscous damping and an external load,
 integrated with semi-implicit Euler steps of at most ``substep`` seconds.
 An unpowered axis is held by its brake.
+
+In cyclic synchronous torque (CiA 402 mode 10) there is no servo loop: the
+drive's torque (``0x6071`` within ``0x6072``, thousandths of the motor's rated
+torque ``0x6076``) times the gear ratio is a joint torque (N·m, or N on a
+linear axis), and :meth:`MotorModel.torque_step` integrates the axis under it
+and any external torque (a hand on the instrument):
+
+    J q'' = τ_drive + τ_ext − b q' − c sign(q')
+
+with the joint's inertia ``J`` (the motor's reflected through the gearing and
+the link's), viscous friction ``b`` and Coulomb friction ``c``; Coulomb
+friction never reverses a motion within a step, and holds a still axis whose
+torque is below it (stiction).
 """
 
 from __future__ import annotations
@@ -66,6 +79,15 @@ class MotorModel:
         """One semi-implicit Euler step of the motors under ``torque`` and the external ``load`` (both as
         accelerations); ``powered`` is 0.0 where the holding brake keeps an axis still."""
         vel = (vel + (torque - self.damping * vel + load) * dt) * powered
+        return pos + vel * dt, vel
+
+    @staticmethod
+    def torque_step(pos, vel, torque, inertia, viscous, coulomb, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """One semi-implicit Euler step of axes under the joint ``torque`` (drive and external, N·m or N), with
+        ``inertia`` (kg·m² or kg), viscous (``viscous``) and Coulomb (``coulomb``) friction."""
+        vel = vel + (torque - viscous * vel) / inertia * dt
+        slip = coulomb / inertia * dt  # Coulomb friction: brakes at most to rest within the step
+        vel = np.sign(vel) * np.maximum(np.abs(vel) - slip, 0.0)
         return pos + vel * dt, vel
 
     def step(

@@ -55,6 +55,8 @@ class Drive(Protocol):
 
     def statusword(self, i: int) -> int: ...
 
+    def torque(self, i: int) -> int: ...
+
     def write(self, i: int, index: int, subindex: int, od, data: bytes) -> None: ...
 
     def on_nmt(self, i: int, old: int, new: int) -> None: ...
@@ -156,6 +158,7 @@ _TPDO_GETTERS = {
     0x606C: lambda sim, i: round(sim.vel[i] * sim.cpu[i]),
     0x6061: lambda sim, i: int(sim.mode[i]),
     0x603F: lambda sim, i: next(iter(reversed(sim.errors[i])), 0),
+    0x6077: lambda sim, i: sim.torque(i),
 }
 _FORMATS = {1: "B", 2: "H", 4: "L"}
 

@@ -29,7 +29,7 @@ from .node import DriveNode
 from .statemachine import OE
 
 #: objects whose value is the motor's state: read after integrating the motor up to the moment of reading
-_DYNAMIC = frozenset({0x6041, 0x6064, 0x606C, 0x6062, 0x60F4})
+_DYNAMIC = frozenset({0x6041, 0x6064, 0x606C, 0x6062, 0x60F4, 0x6077})
 
 
 class ObjectDictionary:
@@ -54,6 +54,8 @@ class ObjectDictionary:
             return round(self.reference.at(self.t)[0][i] * self.cpu[i])
         if index == 0x60F4:
             return round((self.reference.at(self.t)[0][i] - self.pos[i]) * self.cpu[i])
+        if index == 0x6077:
+            return self.torque(i)
         if index == 0x603F:
             return next(iter(reversed(self.errors[i])), 0)
         if index == 0x1001:
@@ -108,6 +110,9 @@ class ObjectDictionary:
                 elif self.state[i] == OE and self.mode[i] == cia402.CSV:
                     self._advance_locked(now)
                     self._latch_velocity(i, now)
+            elif index == 0x6071:  # cst: the torque from now on (at SYNC by RPDO), within 0x6072
+                self._advance_locked(now)
+                self.target_torque[i] = value
             elif index == 0x6007:
                 if value not in cia402.ABORT_CONNECTION_OPTIONS:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
@@ -229,6 +234,9 @@ class ObjectDictionary:
             self.velocity_window_time[i] = value / 1000.0
         elif index == 0x2000:
             self.sync_watchdog[i] = value / 1000.0
+        elif index == 0x6072:
+            self._advance_locked(now)
+            self.max_torque[i] = value
         elif index == 0x1016:
             self._consumers(i, subindex, int(value))
 
@@ -238,8 +246,9 @@ class ObjectDictionary:
         now = self.clock.now()
         for index, subindex in [(0x6065, 0), (0x6066, 0), (0x6085, 0), (0x6083, 0), (0x6084, 0), (0x6081, 0),
                                 (0x607F, 0), (0x607D, 1), (0x60C2, 1), (0x6067, 0), (0x6068, 0), (0x606D, 0),
-                                (0x606E, 0), (0x2000, 0)]:  # fmt: skip
+                                (0x606E, 0), (0x2000, 0), (0x6072, 0)]:  # fmt: skip
             self._parameter(i, index, subindex, node.value(index, subindex), now)
+        self.target_torque[i] = node.value(0x6071)
         self.abort_option[i] = node.value(0x6007)
         self.qs_option[i] = node.value(0x605A)
         self.consumers[i] = {}

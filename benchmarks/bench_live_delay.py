@@ -1,0 +1,252 @@
+"""The live view never slows the stage it watches: a paced attempt with a page and a stalled client attached, and
+the same attempt with no viewer.
+
+A guide stage follows a synthetic beginner paced in real time at 100 samples/s (``--seconds``, default 20 s per
+attempt), run in this process with a recording feed: for every sample, the moment the stage is done with it
+(its analysis and its publication) on ``time.perf_counter``. A sample's *lateness* is how far behind its own
+time ``t`` that moment is, less the attempt's smallest such lag (the best any sample did). Two cases, alternated
+``--runs`` times (default 3):
+
+* **no viewer**: the stage publishes as it does when watched (the same payloads), but to nothing;
+* **viewer**: the feed goes to ``surgiplan view --live`` (another process, with its token), watched by one
+  headless chromium page (Debian's, software WebGL) and one *stalled* client: a raw socket that upgrades to
+  ``/watch`` and then never reads (the viewer must drop it, not wait for it).
+
+Counted: samples more than 2 ms late in each case; and paired, sample by sample (the same seed gives the same
+samples), samples the viewer delayed by more than 2 ms over the same sample with no viewer. Target: 0. Also
+recorded: when the stalled client was disconnected (its socket's TCP state, read without reading its data), and
+what the page got and was told it lost. The machine is shared: the load average before and after is recorded.
+
+    python benchmarks/bench_live_delay.py [--runs N] [--seconds S] [--quick]   (--quick: 1 run of 8 s, writes nothing)
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from browser_support import Browser, feed_url, stalled_client, start_live_view, wait_for  # noqa: E402
+from common import save, table  # noqa: E402
+
+PATH_MM = 190.0  # about the beginner's recommended path in the block world
+LATE_MS = 2.0
+TCP_CLOSE, TCP_CLOSE_WAIT = 7, 8
+
+
+class Recording:
+    """A live feed that notes when the stage is done with each sample, and passes everything on (or not)."""
+
+    active = True
+
+    def __init__(self, inner=None) -> None:
+        self.inner = inner
+        self.done: list[tuple[float, float]] = []  # (the sample's t, perf_counter after its publication)
+
+    def publish(self, channel: str, payload) -> None:
+        if self.inner is not None:
+            self.inner.publish(channel, payload)
+        if channel == "tip":
+            self.done.append((float(payload["t"]), time.perf_counter()))
+
+    def close(self) -> None:
+        if self.inner is not None:
+            self.inner.close(timeout=10)
+
+    def lateness_ms(self) -> np.ndarray:
+        t, done = np.asarray(self.done).T
+        lag = done - t
+        return 1000 * (lag - lag.min())
+
+
+def pipeline(tmp: Path, seconds: float) -> Path:
+    data = {
+        "name": "live-delay",
+        "length_unit": "mm",
+        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
+        "pipeline": [
+            {
+                "stage": "plan",
+                "name": "recommended",
+                "plugin": "safe_prm",
+                "settings": {"proficiency": "beginner", "milestones": 2000, "k": 15, "seed": 1},
+                "start": "entry",
+                "goal": "target",
+                "artifact": str(tmp / "roadmap.npz"),
+            },
+            {
+                "stage": "guide",
+                "name": "attempt",
+                "plugin": "synthetic_trainee",
+                "path_from": "recommended",
+                "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
+            },
+        ],
+        "output": {"dir": str(tmp / "out"), "figures": False, "gltf": False},
+    }
+    path = tmp / "live-delay.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def attempt(path: Path, feed: Recording) -> np.ndarray:
+    from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.outputs.report import scene_data
+
+    loaded = load_pipeline(path)
+    feed.publish("run", {"name": loaded.name, "length_unit": "mm", "unit_scale": 1e-3})
+    feed.publish("scene", scene_data(loaded.scene))
+    outcome = run_pipeline(loaded, live=feed)
+    feed.close()
+    status = outcome.results[-1].status
+    if status not in ("completed", "incomplete"):
+        raise SystemExit(f"the attempt ended {status}")
+    return feed.lateness_ms()
+
+
+def tcp_state(sock: socket.socket) -> int:
+    """The socket's TCP state (Linux ``tcp_info.tcpi_state``), read without taking any of its data."""
+    return struct.unpack("B", sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1))[0]
+
+
+def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
+    from surgiplan.live import WebSocketFeed
+
+    process, url = start_live_view(exit_after=600)
+    try:
+        page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
+        stalled = stalled_client(url)
+        started = time.monotonic()
+        cut: list[float] = []
+
+        def watch_stalled() -> None:
+            for _ in range(100_000):  # bounded: 0.05 s apart, far longer than an attempt
+                if tcp_state(stalled) in (TCP_CLOSE, TCP_CLOSE_WAIT):
+                    cut.append(time.monotonic() - started)
+                    return
+                if stop.wait(0.05):
+                    return
+
+        stop = threading.Event()
+        watcher = threading.Thread(target=watch_stalled, daemon=True)
+        watcher.start()
+        lateness = attempt(path, Recording(WebSocketFeed(feed_url(url))))
+        wait_for(page, "surgiplan.live.status !== null", 60_000)
+        got = page.evaluate("({tips: surgiplan.live.tips, drops: surgiplan.live.drops})")
+        problems = page.problems + page.evaluate("surgiplan.errors")
+        page.close()
+        for _ in range(200):  # the viewer drops a stalled page within seconds of its queue filling up
+            if cut:
+                break
+            time.sleep(0.05)
+        stop.set()
+        watcher.join(5)
+        stalled.close()
+        if problems:
+            raise SystemExit(f"the page reported problems: {problems}")
+        return lateness, {
+            "page_samples": got["tips"],
+            "page_drops": got["drops"]["page"],
+            "feed_drops": got["drops"]["feed"],
+            "stalled_cut_after_s": round(cut[0], 2) if cut else None,
+        }
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+def summary(case: str, runs: list[np.ndarray], **extra) -> dict:
+    a = np.concatenate(runs)
+    return {
+        "case": case,
+        "runs": len(runs),
+        "samples": int(a.size),
+        "late_over_2ms": int(np.count_nonzero(a > LATE_MS)),
+        "median_ms": round(float(np.median(a)), 3),
+        "p99_ms": round(float(np.percentile(a, 99)), 3),
+        "max_ms": round(float(a.max()), 3),
+        **extra,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    runs, seconds = (1, 8.0) if args.quick else (args.runs, args.seconds)
+    load = os.getloadavg()
+    alone, watched, paired, viewer_runs = [], [], [], []
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        path = pipeline(tmp, seconds)
+        attempt(path, Recording())  # plans and stores the roadmap; a warm-up
+        browser = Browser()
+        try:
+            for i in range(runs):
+                alone.append(attempt(path, Recording()))
+                lateness, info = watched_attempt(path, browser)
+                watched.append(lateness)
+                n = min(lateness.size, alone[-1].size)
+                paired.append(lateness[:n] - alone[-1][:n])
+                viewer_runs.append({"run": i + 1, "late_over_2ms": int(np.count_nonzero(lateness > LATE_MS)), **info})
+                print(viewer_runs[-1], flush=True)
+        finally:
+            browser.close()
+    delayed = int(sum(np.count_nonzero(p > LATE_MS) for p in paired))
+    rows = [
+        summary("no viewer", alone),
+        summary(
+            "viewer: a page and a stalled client",
+            watched,
+            delayed_by_viewer_over_2ms=delayed,
+            paired_p99_ms=round(float(np.percentile(np.concatenate(paired), 99)), 3),
+            paired_max_ms=round(float(np.concatenate(paired).max()), 3),
+        ),
+    ]
+    print(table(rows, list(rows[1])))
+    print(table(viewer_runs, list(viewer_runs[0])))
+    if args.quick:
+        return
+    after = os.getloadavg()
+    notes = (
+        f"load average before {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f} and after {after[0]:.2f}/{after[1]:.2f}/"
+        f"{after[2]:.2f} (1/5/15 min; 2 cores, shared); 100 samples/s, {seconds:g} s attempts; target: 0 samples "
+        f"delayed by more than {LATE_MS:g} ms by the viewer"
+    )
+    chromium = subprocess.run(["chromium", "--version"], capture_output=True, text=True).stdout.strip()
+    print(
+        "wrote",
+        save(
+            "live_delay",
+            rows,
+            notes,
+            peers={
+                "chromium": {
+                    "version": chromium,
+                    "configuration": "headless, SwiftShader (no GPU), tests/browser_support.py",
+                }
+            },
+            extra={"viewer_runs": viewer_runs, "seconds": seconds, "late_ms": LATE_MS},
+        ),
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""The live view's cost to the stage it watches: a page and a stalled client against no viewer
+(``bench_live_delay.py``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .formatting import find, load, met, section, table
+
+
+def render_live_delay(results: Path) -> str:
+    data = load(results, "live_delay")
+    alone, watched = data["rows"][0], data["rows"][1]
+    late = data["late_ms"]
+    body = table(
+        ["attempt", "runs", "samples", f"later than {late:g} ms", "median", "p99", "max"],
+        [
+            [
+                r["case"],
+                str(r["runs"]),
+                f"{r['samples']:,}",
+                f"{r['late_over_2ms']:,}",
+                f"{r['median_ms']:.2f} ms",
+                f"{r['p99_ms']:.2f} ms",
+                f"{r['max_ms']:.1f} ms",
+            ]
+            for r in (alone, watched)
+        ],
+    )
+    loads = find(r"load average before ([\d./]+) and after ([\d./]+)", data["notes"], "live_delay.json notes")
+    head = (
+        f"`benchmarks/bench_live_delay.py` (`benchmarks/results/live_delay.json`) runs a guide stage following a "
+        f"synthetic beginner paced at 100 samples/s ({data['seconds']:g} s attempts), alternately with no viewer "
+        f"and fed to `surgiplan view --live` watched by a headless chromium page (software WebGL) and a stalled "
+        f"client (a socket that upgrades to `/watch` and never reads). A sample's lateness: how far behind its "
+        f"own time the stage was done with it (analysis and publication), less the attempt's best (load average "
+        f"{loads.group(1)} before and {loads.group(2)} after, 1/5/15 min, 2 shared cores):"
+    )
+    runs = data["viewer_runs"]
+    cut = [r["stalled_cut_after_s"] for r in runs if r["stalled_cut_after_s"] is not None]
+    delayed = watched["delayed_by_viewer_over_2ms"]
+    tail = (
+        f"Target: no sample delayed by more than {late:g} ms by the viewer: {met(delayed == 0)} ({delayed:,} of "
+        f"{watched['samples']:,} samples were, paired with the same sample of the attempt with no viewer; p99 of "
+        f"the difference {watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms)."
+        + (
+            f" The attempt with no viewer had {alone['late_over_2ms']:,} samples later than {late:g} ms itself "
+            f"(p99 {alone['p99_ms']:.1f} ms): at this load the count measures the machine's scheduling as much as "
+            "the viewer; rerun on a quiet machine for the figure that matters."
+            if alone["late_over_2ms"]
+            else ""
+        )
+        + f" The stalled "
+        f"client was disconnected in {len(cut)} of {len(runs)} runs"
+        + (f" ({', '.join(f'{c:.1f}' for c in cut)} s after it connected)" if cut else "")
+        + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
+        f"{sum(r['page_drops'] + r['feed_drops'] for r in runs)} dropped."
+    )
+    return section(head, body, tail)
