@@ -21,7 +21,7 @@ changes the sentence, not only the figure. Every block opens with the commit its
 
 Each section's blocks are rendered by a module of ``readme_blocks`` (``report``, ``safe_prm``,
 ``retraction``, ``optmis``, ``fem``, ``tissue``, ``guide``, ``assessment``, ``assist``, ``devices``, ``canopen``,
-``live_delay``, ``cli``, ``scale``), with the
+``live_delay``, ``cli``, ``scale``, ``crash_walk``), with the
 formatting they share in ``readme_blocks.formatting``; this script knows the blocks, finds them in the pages and
 rewrites or checks them.
 """
@@ -39,6 +39,7 @@ from readme_blocks.assessment import render_assessment, render_cues
 from readme_blocks.assist import render_assist
 from readme_blocks.canopen import render_canopen_conformance
 from readme_blocks.cli import render_cli
+from readme_blocks.crash_walk import render_crash_walk
 from readme_blocks.devices import render_devices, render_mavlink, render_mavlink_hall
 from readme_blocks.fem import render_fem, render_fem_locking, render_fem_solvers, render_fem_vs_fenicsx
 from readme_blocks.formatting import BENCH, ReadmeError, provenance_note
@@ -87,6 +88,7 @@ BLOCKS: dict[str, Block] = {
     "live_delay": Block(render_live_delay, ("live_delay",)),
     "cli": Block(render_cli, ("cli",)),
     "scale": Block(render_scale, ("scale",)),
+    "crash_walk": Block(render_crash_walk, ("crash_walk",)),
 }
 
 

@@ -13,7 +13,8 @@ stage ``invalid_result`` and nothing downstream runs on it; a status outside
 the kind's likewise. A plugin that raises ends its stage with ``error`` (the
 message names the plugin and its package) and ends the run.
 
-Outputs are written atomically. A run first marks its output directory as in
+Outputs are written atomically. A run first locks its output directory
+(:mod:`surgiplan.outputlock`: a second run into it is refused), then marks its output directory as in
 progress (``.in-progress.json``, updated after every stage with the stages so
 far) and removes a previous run's ``result.json``, so a directory never
 holds a stale ``result.json`` beside new files. ``result.json`` is written
@@ -23,7 +24,6 @@ last, on success and on failure alike (with every stage so far and the run's
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
@@ -32,15 +32,16 @@ from pathlib import Path
 
 from . import __version__
 from .config import ExecutorModel
-from .errors import OutputError, SurgiplanError
+from .errors import SurgiplanError
 from .executors import DaskExecutor, Executor, LocalExecutor
 from .kinds import RunState, StageKind, StageRun, StageSpec
 from .live import LiveFeed
+from .outputlock import claim
 from .pipeline import Pipeline
 from .progress import NullProgress, Progress, StageProgress
 from .results import StageContext, StageResult
 from .status import RunOutcomeStatus, RunStatus
-from .storage import prepare_output_dir, to_jsonable, write_json_atomic
+from .storage import prepare_output_dir, remove_temporaries, to_jsonable, write_json_atomic
 from .units import LENGTH_UNITS
 
 log = logging.getLogger(__name__)
@@ -68,35 +69,16 @@ class RunOutcome:
 def begin_run(out: Path, pipeline_file: Path) -> Path:
     """Mark ``out`` as in progress and remove a previous run's ``result.json`` (before anything is written).
 
-    Refuses a directory another live run is writing to.
+    The caller holds ``out``'s lock (:func:`surgiplan.outputlock.claim`): no other run writes there.
     """
     marker = out / IN_PROGRESS
-    if marker.exists():
-        try:
-            other = json.loads(marker.read_text())
-            pid = int(other.get("pid", -1))
-        except (OSError, ValueError, TypeError):
-            other, pid = {}, -1
-        if pid > 0 and pid != os.getpid() and _alive(pid):
-            raise OutputError(
-                f"another surgiplan run (pid {pid}, {other.get('pipeline_file', '?')}, started "
-                f"{other.get('started', '?')}) is writing to {out}; wait for it or choose another --out",
-                location="output.dir",
-            )
     _write_marker(marker, pipeline_file, [])
     for stale in ("result.json", "report.html"):
         (out / stale).unlink(missing_ok=True)
+    left = remove_temporaries(out)  # a killed run's half-written temporary files: never read, now removed
+    if left:
+        log.info("removed %d temporary files a previous run left in %s", len(left), out)
     return marker
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _write_marker(marker: Path, pipeline_file: Path, results: list[StageResult]) -> None:
@@ -152,17 +134,30 @@ def run_pipeline(pipeline: Pipeline, *, progress: Progress | None = None, live: 
     the run is interrupted, with every stage so far.
     """
     progress = progress or NullProgress()
-    unit = pipeline.model.length_unit
-    unit_scale = LENGTH_UNITS[unit]
     packages = {s.plugin.package: s.plugin.version for s in pipeline.stages if s.plugin is not None}
     executor = make_executor(pipeline.model.executor, packages)  # a dask cluster is checked before writing
     log.info("pipeline '%s': %d stages, executor %s", pipeline.name, len(pipeline.stages), executor.describe())
+    lock = None
     try:
         out = prepare_output_dir(pipeline.output_dir)
+        lock = claim(out, pipeline.file)  # a second run into the same directory is refused here, naming this one
         marker = begin_run(out, pipeline.file)
     except BaseException:
         executor.close()
+        if lock is not None:
+            lock.release()
         raise
+    try:
+        return _run_stages(pipeline, progress, live, executor, out, marker)
+    finally:
+        lock.release()
+
+
+def _run_stages(
+    pipeline: Pipeline, progress: Progress, live: LiveFeed | None, executor: Executor, out: Path, marker: Path
+) -> RunOutcome:
+    unit = pipeline.model.length_unit
+    unit_scale = LENGTH_UNITS[unit]
     state = RunState(pipeline.name, out, pipeline.record, unit, unit_scale, figures=pipeline.model.output.figures)
     results: list[StageResult] = []
     files: list[str] = []

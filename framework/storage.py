@@ -1,9 +1,10 @@
 """Atomic files and the array bundle format used for artifacts and checkpoints.
 
-Everything surgiplan writes goes through :func:`atomic_write`: a temporary
-file in the destination directory, flushed and fsynced, then renamed over the
-target. A crash or Ctrl-C leaves either the old file or the new one, never a
-truncated one.
+Everything surgiplan writes goes through :func:`atomic_write` (or, for a file a library writes itself,
+:func:`commit_file`): a temporary file in the destination directory, flushed and fsynced, then renamed over the
+target, and the directory fsynced so the rename is durable. A crash, ``kill -9`` or Ctrl-C leaves either the
+old file or the new one, never a truncated one. ``docs/howto/reliability.md`` has the crash walk that proves
+it: :mod:`surgiplan.faults` makes the n-th write, fsync or rename fail or kill the process.
 
 A *bundle* is a ``.npz`` file of named numpy arrays plus one JSON document
 (``__meta__``) for everything else. It is read with ``allow_pickle=False``:
@@ -16,6 +17,7 @@ import contextlib
 import io
 import json
 import os
+import re
 import tempfile
 import zipfile
 from collections.abc import Iterator, Mapping
@@ -24,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from . import faults
 from .errors import OutputError
 
 _META = "__meta__"
@@ -31,32 +34,105 @@ _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
 
+class _FaultyHandle:
+    """A file handle whose writes are fault points (only while a fault or a trace is armed)."""
+
+    def __init__(self, handle: Any, path: Path) -> None:
+        self._handle, self._path = handle, path
+
+    def write(self, data: Any) -> int:
+        faults.point("write", self._path, partial=lambda: self._write_half(data))
+        return self._handle.write(data)
+
+    def _write_half(self, data: Any) -> None:  # a kill inside a write: half of it reaches the file first
+        self._handle.write(data[: len(data) // 2])
+        self._handle.flush()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._handle, name)
+
+
 @contextlib.contextmanager
-def atomic_write(path: str | Path, mode: str = "wb") -> Iterator[Any]:
-    """Open a temporary file next to ``path``; on success rename it over ``path``."""
+def atomic_write(path: str | Path, mode: str = "wb", *, private: bool = False) -> Iterator[Any]:
+    """Open a temporary file next to ``path``; on success sync it and rename it over ``path``.
+
+    ``private``: the file is created mode 0600 (personal data: a trainee's exports), else as the umask says.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs are ordinary files
+        os.fchmod(fd, 0o600 if private else 0o666 & ~_UMASK)  # mkstemp makes 0600; outputs are ordinary files
         with os.fdopen(fd, mode) as handle:
-            yield handle
+            yield _FaultyHandle(handle, path) if faults.ARMED else handle
             handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+            _fsync(handle.fileno(), path)
+        _rename(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
 
 
-def write_bytes_atomic(path: str | Path, data: bytes) -> None:
-    with atomic_write(path, "wb") as handle:
+def temporary_path(path: str | Path, suffix: str = ".tmp") -> Path:
+    """A new, empty temporary file next to ``path`` (for a library that writes a file by name); hand it to
+    :func:`commit_file` once written, or remove it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    return Path(tmp)
+
+
+def commit_file(tmp: str | Path, path: str | Path, *, mode: int | None = None) -> None:
+    """Sync a complete temporary file and rename it over ``path`` (then sync the directory); the temporary
+    file is removed if that fails. ``mode``: its permissions (default: as the umask says)."""
+    try:
+        os.chmod(tmp, mode if mode is not None else 0o666 & ~_UMASK)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            _fsync(fd, Path(path))
+        finally:
+            os.close(fd)
+        _rename(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def _fsync(fd: int, path: Path) -> None:
+    if faults.ARMED:
+        faults.point("fsync", path)
+    os.fsync(fd)
+
+
+def _rename(tmp: str | Path, path: str | Path) -> None:
+    if faults.ARMED:
+        faults.point("rename", path)
+    os.replace(tmp, path)
+    sync_directory(Path(path).parent)
+
+
+def sync_directory(directory: Path) -> None:
+    """fsync a directory, so a rename or a new file in it survives a power loss (where the OS allows it)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def write_bytes_atomic(path: str | Path, data: bytes, *, private: bool = False) -> None:
+    """Write ``data`` to ``path`` atomically (``private``: mode 0600)."""
+    with atomic_write(path, "wb", private=private) as handle:
         handle.write(data)
 
 
-def write_text_atomic(path: str | Path, text: str) -> None:
-    write_bytes_atomic(path, text.encode("utf-8"))
+def write_text_atomic(path: str | Path, text: str, *, private: bool = False) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (``private``: mode 0600)."""
+    write_bytes_atomic(path, text.encode("utf-8"), private=private)
 
 
 def write_json_atomic(path: str | Path, value: Any) -> None:
@@ -106,6 +182,21 @@ def load_bundle(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"metadata is not valid JSON ({exc})") from None
     return arrays, meta
+
+
+_TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp$")
+
+
+def remove_temporaries(directory: Path) -> list[Path]:
+    """Remove the temporary files (``.NAME.XXXXXXXX.tmp``, :func:`atomic_write`'s) a killed run left in
+    ``directory`` and below; only for a directory this process holds (its run's lock). Returns them."""
+    removed = []
+    for path in directory.rglob(".*.tmp"):
+        if _TEMPORARY.match(path.name) and path.is_file() and not path.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(path)
+    return removed
 
 
 def prepare_output_dir(path: Path) -> Path:

@@ -14,7 +14,7 @@ def add_parsers(sub) -> None:
         help="a trainee's attempts from the trainee record, their metrics against the task's benchmark and the "
         "proficiency gate, and figures",
     )
-    trainee.add_argument("name")
+    trainee.add_argument("name", nargs="?", default=None, help="the trainee (with --export: only them)")
     trainee.add_argument("--record", type=Path, default=Path("out/trainees.sqlite"), help="the trainee record")
     trainee.add_argument("--task", default=None, help="only this task")
     trainee.add_argument(
@@ -27,10 +27,25 @@ def add_parsers(sub) -> None:
         "--out", type=Path, default=None, help="where to write the figures (default: beside the record)"
     )
     trainee.add_argument("--json", action="store_true", help="machine-readable output")
+    trainee.add_argument(
+        "--export",
+        type=Path,
+        default=None,
+        metavar="CSV",
+        help="write every attempt in the record (of NAME, at --task, when given), one row each, to this CSV "
+        "(mode 0600)",
+    )
+    trainee.add_argument(
+        "--pseudonymise",
+        "--pseudonymize",
+        action="store_true",
+        help="with --export: stable pseudonyms (HMAC of the name with the record's own secret key) instead of names",
+    )
     trainee.set_defaults(handler=_cmd_trainee)
 
 
 def _cmd_trainee(args) -> int:
+    from ..errors import ConfigError
     from ..guidance.assessment import standing
     from ..guidance.assessment_figures import metric_history_figure
     from ..guidance.progression import cumulative_proficiency, history_rows, progression_figure, safe_name
@@ -38,6 +53,12 @@ def _cmd_trainee(args) -> int:
 
     if not args.record.is_file():
         raise RecordError(f"no trainee record at {args.record} (a guide stage with trainee: writes one)")
+    if args.export is not None:
+        return _cmd_export(args)
+    if args.pseudonymise:
+        raise ConfigError("--pseudonymise changes what --export writes; give --export CSV", location="--pseudonymise")
+    if args.name is None:
+        raise ConfigError("name the trainee (or --export CSV for every attempt in the record)", location="NAME")
     out = args.out or args.record.parent
     assessment = {}
     with TraineeRecord(args.record) as record:
@@ -80,6 +101,22 @@ def _cmd_trainee(args) -> int:
     console.print(_history_table(args, rows, proficiency, figure, level))
     for task, entry in assessment.items():
         console.print(_standing_table(args.name, task, entry))
+    return 0
+
+
+def _cmd_export(args) -> int:
+    from ..guidance.export import export_rows, write_rows_csv
+    from ..guidance.record import TraineeRecord
+
+    with TraineeRecord(args.record) as record:
+        rows = export_rows(record, trainee=args.name, task=args.task, pseudonymise=args.pseudonymise)
+    write_rows_csv(args.export, rows)
+    trainees = len({r["trainee"] for r in rows})
+    what = "pseudonymised" if args.pseudonymise else "named"
+    if args.json:
+        print(json.dumps({"csv": str(args.export), "attempts": len(rows), "trainees": trainees, "names": what}))
+    else:
+        print(f"{args.export}: {len(rows)} attempts of {trainees} trainees ({what}), mode 0600")
     return 0
 
 

@@ -8,13 +8,10 @@ CUSUM after it (:func:`write_csv`, and the JSON of ``--json``).
 
 from __future__ import annotations
 
-import csv
-import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..storage import write_text_atomic
 from .benchmark import Benchmark, gate
 from .cusum import Cusum, CusumSettings, cusum
 from .metrics import METRICS
@@ -123,11 +120,7 @@ def cohort(
 
 
 def write_csv(path: Path, result: Cohort) -> None:
-    """Every attempt of the cohort, one row each (written atomically)."""
-    rows = result.rows()
-    out = io.StringIO()
-    writer = csv.DictWriter(out, fieldnames=list(rows[0]), lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: "" if v is None else v for k, v in row.items()})
-    write_text_atomic(path, out.getvalue())
+    """Every attempt of the cohort, one row each (written atomically, mode 0600: it names trainees)."""
+    from .export import write_rows_csv
+
+    write_rows_csv(path, result.rows())

@@ -4,7 +4,9 @@ Python's own :mod:`sqlite3`, one file (default ``out/trainees.sqlite``;
 ``record:`` in a pipeline). An attempt and its samples are written in one
 transaction when the attempt ends, so a crash (even ``kill -9``) mid-attempt
 leaves every earlier attempt intact and no half-written one. The file is in
-WAL mode with full synchronisation.
+WAL mode with full synchronisation, created mode 0600 (personal data), and
+written by several processes at once without loss (:mod:`.transaction`:
+``BEGIN IMMEDIATE``, busy timeout, retried).
 
 The schema (version :data:`~.schema.SCHEMA_VERSION`, in ``PRAGMA user_version``) and its migrations are
 :mod:`.schema`'s and ``docs/trainee-record.md``'s: trainees (and their level), attempts, their samples and
@@ -35,6 +37,7 @@ from ..errors import SurgiplanError
 from .benchmark import Benchmark, Threshold
 from .metrics import METRIC_BY_NAME, AttemptSamples
 from .schema import SCHEMA_VERSION, migrate
+from .transaction import BUSY_TIMEOUT_S, create_private, immediate
 
 ATTEMPT_COLUMNS = (
     "status",
@@ -78,13 +81,15 @@ class TraineeRecord:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.db = sqlite3.connect(self.path, timeout=10.0)
+            create_private(self.path)  # personal data: 0600 from the start (the -wal and -shm files follow)
+            self.db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S)
             version = self._version()  # before anything writes to the file: a newer one is left as it is
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.execute("PRAGMA foreign_keys=ON")
-            migrate(self.db, version)
+            if version < SCHEMA_VERSION:
+                with immediate(self.db, self.path):  # another process may be migrating it now: once, not twice
+                    migrate(self.db, self.db.execute("PRAGMA user_version").fetchone()[0])
         except sqlite3.DatabaseError as exc:
             raise RecordError(f"cannot open the trainee record {self.path}: {exc}") from None
         except (ValueError, TypeError, KeyError) as exc:  # a migration's backfill met data it cannot read
@@ -137,7 +142,7 @@ class TraineeRecord:
         """Store one attempt, its samples and its metrics (those of ``surgiplan.guidance.METRICS`` it has) in one
         transaction; returns its id. ``level`` (when given) becomes the trainee's level."""
         n = len(samples.t)
-        with self.db:  # one transaction: all of the attempt or none of it
+        with immediate(self.db, self.path):  # one transaction: all of the attempt or none of it
             self.db.execute("INSERT OR IGNORE INTO trainees(name, created) VALUES (?, ?)", (trainee, _now()))
             if level is not None:
                 self.db.execute("UPDATE trainees SET level = ? WHERE name = ?", (level, trainee))
@@ -204,12 +209,12 @@ class TraineeRecord:
     def set_level(self, trainee: str, level: str | None) -> None:
         """The trainee's level (the group a lab puts them in: expert, intermediate, ...; None: none)."""
         self._trainee_id(trainee)
-        with self.db:
+        with immediate(self.db, self.path):
             self.db.execute("UPDATE trainees SET level = ? WHERE name = ?", (level, trainee))
 
     def add_benchmark(self, benchmark: Benchmark) -> int:
         """Store a task's benchmark (it becomes the task's current one); returns its id."""
-        with self.db:
+        with immediate(self.db, self.path):
             cursor = self.db.execute(
                 "INSERT INTO benchmarks(task, created, method, k, percentile, consecutive, experts, attempts) "
                 "VALUES (?, ?, ?, ?, ?, ?, ?, ?)",

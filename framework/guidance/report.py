@@ -57,7 +57,7 @@ def write_samples_csv(path: Path, guide: Guide) -> None:
                 int(m.critical),
             ]
         )
-    write_text_atomic(path, out.getvalue())
+    write_text_atomic(path, out.getvalue(), private=True)  # personal data: mode 0600
 
 
 def attempt_figure(path: Path, guide: Guide, title: str) -> None:

@@ -129,15 +129,13 @@ MIGRATIONS: list[Migration] = [Migration(V1), Migration(V2, _backfill_v2)]
 
 def migrate(db: sqlite3.Connection, version: int) -> None:
     """Bring an open file of ``version`` (at most :data:`SCHEMA_VERSION`: the record refuses newer ones) up
-    to :data:`SCHEMA_VERSION`, one migration a transaction."""
+    to :data:`SCHEMA_VERSION`, inside the caller's write transaction (the record's ``BEGIN IMMEDIATE``: a
+    failed migration leaves the file as it was, and a second process waits, then finds it migrated)."""
     for v in range(version, SCHEMA_VERSION):
         migration = MIGRATIONS[v]
-        try:
-            db.executescript(f"BEGIN; {migration.sql}")  # the transaction stays open for the backfill
-            if migration.backfill is not None:
-                migration.backfill(db)
-            db.execute(f"PRAGMA user_version = {v + 1}")
-            db.commit()
-        except BaseException:
-            db.rollback()
-            raise
+        for statement in migration.sql.split(";"):  # the schema's SQL has no ';' inside a statement
+            if statement.strip():
+                db.execute(statement)
+        if migration.backfill is not None:
+            migration.backfill(db)
+        db.execute(f"PRAGMA user_version = {v + 1}")

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..clearance import regions_from_json
 from ..errors import OutputError, SurgiplanError
+from ..storage import commit_file
 
 FRAME = "world"
 GAP_S = 1.0
@@ -325,7 +326,7 @@ def export_mcap(run_dir: Path, out: Path, stages: Sequence[str] | None = None) -
         Path(temporary).unlink(missing_ok=True)
         raise
     export.close()
-    os.replace(temporary, out)
+    commit_file(temporary, out)  # synced, renamed into place, the directory synced (surgiplan.storage)
     return export.counts
 
 

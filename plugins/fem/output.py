@@ -11,12 +11,10 @@ Written atomically: a temporary file in the same directory, then renamed.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+from surgiplan.storage import commit_file, temporary_path
 
 
 def write_vtu(
@@ -38,14 +36,11 @@ def write_vtu(
     tets = np.asarray(tets)
     cell_type = "tetra10" if tets.shape[1] == 10 else "tetra"
     mesh = meshio.Mesh(np.asarray(positions, dtype=float), [(cell_type, tets)], point_data=points, cell_data=cells)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".vtu", dir=path.parent)
-    os.close(fd)
+    tmp = temporary_path(path, ".vtu")
     try:
         meshio.write(tmp, mesh, file_format="vtu")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        tmp.unlink(missing_ok=True)
         raise
+    commit_file(tmp, path)  # synced, renamed into place, the directory synced
     return path

@@ -26,6 +26,7 @@ from typing import Literal
 
 import can
 from surgiplan.models import StrictModel
+from surgiplan.storage import commit_file
 
 #: the formats and python-can's writer of each
 WRITERS = {"blf": can.BLFWriter, "asc": can.ASCWriter, "log": can.CanutilsLogWriter}
@@ -78,11 +79,9 @@ def write_trace(
                 count += 1
         finally:
             writer.stop()
-        with open(tmp, "rb+") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+    commit_file(tmp, path)  # synced, renamed into place, the directory synced
     return count

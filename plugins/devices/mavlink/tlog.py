@@ -19,10 +19,11 @@ leaves that partial file (every complete packet in it readable), never a truncat
 from __future__ import annotations
 
 import contextlib
-import os
 import struct
 import time
 from pathlib import Path
+
+from surgiplan.storage import commit_file
 
 #: the notes that mark the flight's samples (STATUSTEXT of the ground station, in the log only)
 RECORDING_STARTED = "surgiplan: flight samples start"
@@ -49,10 +50,8 @@ class TelemetryLog:
     def close(self) -> Path:
         """Flush, sync and rename into place; returns the final path."""
         if not self._file.closed:
-            self._file.flush()
-            os.fsync(self._file.fileno())
             self._file.close()
-            os.replace(self.partial, self.path)
+            commit_file(self.partial, self.path)  # synced, renamed into place, the directory synced
         return self.path
 
     def abandon(self) -> None:

@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from canopen import objectdictionary as od
+from surgiplan.storage import write_text_atomic
 
 from .. import cia402
 from .drives import axis_hardware, simulated_devices
@@ -86,8 +87,7 @@ def main(argv: list[str] | None = None) -> int:
             if current == text:
                 continue
             if args.write:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(text)
+                write_text_atomic(path, text)
                 print(f"wrote {path}")
             else:
                 stale.append(path)
