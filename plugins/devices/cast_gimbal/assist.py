@@ -131,7 +131,9 @@ class AssistLoop:
         """Why the assistance must end now (None: it may go on)."""
         master = self.master
         fresh = np.asarray(feedback.fresh, dtype=bool) & np.asarray(feedback.current, dtype=bool)
-        if not fresh.all():
+        # while enabling, every torque sent is zero: a TPDO not yet in (the first SYNC has no answer before it;
+        # a real-time bus's first answers may come late) only delays enabling, which counts fresh cycles alone
+        if not fresh.all() and not self.enabling:
             axis = master.axes[int(np.flatnonzero(~fresh)[0])]
             return f"missed TPDO from CAN node {axis.node_id} (joint '{axis.name}')"
         if self.started is None:
@@ -160,7 +162,8 @@ class AssistLoop:
         states = feedback.states
         zero = np.zeros(self.n)
         if self.enabling:
-            enabled = all(s == cia402.OPERATION_ENABLED for s in states)
+            fresh = np.asarray(feedback.fresh, dtype=bool) & np.asarray(feedback.current, dtype=bool)
+            enabled = fresh.all() and all(s == cia402.OPERATION_ENABLED for s in states)
             self.enabled_cycles = self.enabled_cycles + 1 if enabled else 0
             if self.enabled_cycles > self.settings.settle_cycles:
                 self.enabling = False
