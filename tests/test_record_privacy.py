@@ -238,3 +238,43 @@ def test_cohort_csv_is_0600(cli, tmp_path, record):
     code, _, err = cli("cohort", "--task", "bw", "--record", record, "--csv", out, "--out", tmp_path)
     assert code == 0, err
     assert mode(out) == 0o600 and len(read_csv(out)) == 6
+
+
+OPENER = """
+import sys, time
+from surgiplan.guidance import TraineeRecord
+start = float(sys.argv[2])
+while time.time() < start:
+    pass
+TraineeRecord(sys.argv[1]).close()
+"""
+
+
+def test_two_processes_opening_a_new_record_at_the_same_instant_both_open_it(tmp_path):
+    """A CI run failed here: the second process's switch to WAL met the first's migration and SQLite answered
+    'database is locked' at once (the busy timeout does not cover it); 22 of 50 such opens failed before the
+    switch waited for the lock like every write."""
+    import time
+
+    failures = []
+    for i in range(6):
+        path = tmp_path / f"new-{i}" / "record.sqlite"
+        start = time.time() + 0.8
+        processes = [
+            subprocess.Popen(
+                [sys.executable, "-c", OPENER, str(path), str(start)],
+                cwd=ROOT,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for _ in range(2)
+        ]
+        for process in processes:
+            _, err = process.communicate(timeout=120)
+            if process.returncode:
+                failures.append(err.strip().splitlines()[-1])
+        db = sqlite3.connect(path)
+        assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        db.close()
+    assert failures == []

@@ -37,7 +37,7 @@ from ..errors import SurgiplanError
 from .benchmark import Benchmark, Threshold
 from .metrics import METRIC_BY_NAME, AttemptSamples
 from .schema import SCHEMA_VERSION, migrate
-from .transaction import BUSY_TIMEOUT_S, create_private, immediate
+from .transaction import BUSY_TIMEOUT_S, create_private, immediate, wait_for_lock
 
 ATTEMPT_COLUMNS = (
     "status",
@@ -83,8 +83,10 @@ class TraineeRecord:
         try:
             create_private(self.path)  # personal data: 0600 from the start (the -wal and -shm files follow)
             self.db = sqlite3.connect(self.path, timeout=BUSY_TIMEOUT_S)
-            version = self._version()  # before anything writes to the file: a newer one is left as it is
-            self.db.execute("PRAGMA journal_mode=WAL")
+            # before anything writes to the file: a newer one is left as it is
+            version = wait_for_lock(self._version, self.path)
+            # a new file: another process may be creating it now, and the switch to WAL does not wait for it
+            wait_for_lock(lambda: self.db.execute("PRAGMA journal_mode=WAL"), self.path)
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.execute("PRAGMA foreign_keys=ON")
             if version < SCHEMA_VERSION:

@@ -17,11 +17,14 @@ import contextlib
 import os
 import sqlite3
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 from .. import faults
 from ..errors import SurgiplanError
+
+T = TypeVar("T")
 
 #: SQLite's busy timeout on each attempt to take the write lock (s)
 BUSY_TIMEOUT_S = 10.0
@@ -46,15 +49,17 @@ def _busy(exc: sqlite3.OperationalError) -> bool:
     return "locked" in str(exc) or "busy" in str(exc)
 
 
-@contextlib.contextmanager
-def immediate(db: sqlite3.Connection, path: Path, wait_s: float = LOCK_WAIT_S) -> Iterator[sqlite3.Connection]:
-    """One write transaction on ``db``: all of it or none. Waits for another writer (see the module)."""
+def wait_for_lock(action: Callable[[], T], path: Path, wait_s: float = LOCK_WAIT_S) -> T:
+    """``action()``, tried again while it meets the record locked by another process, up to ``wait_s`` in all.
+
+    Some statements fail at once on a lock instead of waiting out SQLite's busy timeout: ``BEGIN IMMEDIATE``
+    after its timeout, and switching a new file to WAL (``PRAGMA journal_mode=WAL``) while another process
+    creates and migrates the same file."""
     deadline = time.monotonic() + wait_s
     delay = 0.01
     while True:
         try:
-            db.execute("BEGIN IMMEDIATE")
-            break
+            return action()
         except sqlite3.OperationalError as exc:
             if not _busy(exc) or time.monotonic() + delay > deadline:
                 raise RecordBusyError(
@@ -62,6 +67,12 @@ def immediate(db: sqlite3.Connection, path: Path, wait_s: float = LOCK_WAIT_S) -
                 ) from None
             time.sleep(delay)
             delay = min(2 * delay, 1.0)
+
+
+@contextlib.contextmanager
+def immediate(db: sqlite3.Connection, path: Path, wait_s: float = LOCK_WAIT_S) -> Iterator[sqlite3.Connection]:
+    """One write transaction on ``db``: all of it or none. Waits for another writer (see the module)."""
+    wait_for_lock(lambda: db.execute("BEGIN IMMEDIATE"), path, wait_s)
     if faults.ARMED:
         db.set_progress_handler(lambda: faults.point("sql", path), SQL_POINT_STEPS)
     try:
