@@ -38,6 +38,7 @@ from surgiplan.guidance.files import read_attempt_csv
 from surgiplan.units import PositiveLength
 from surgiplan.validation import file_length_scale, input_path
 
+from ..canopen.realtime import realtime_section
 from .assist import AssistLoop, AssistSettings, assistance_level, proficiency_of
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
 
@@ -124,6 +125,8 @@ class CastGimbalObserver(PoseSource):
         self.missed_syncs = 0
         self.loop_span = (np.nan, np.nan)
         self.loop_syncs = 0
+        self.lateness = np.zeros(0)
+        self.loop_cycles = 0
 
     @classmethod
     def check_plan(cls, settings: CastGimbalObserveSettings, plan) -> tuple[str, tuple[str, ...]] | None:
@@ -231,15 +234,32 @@ class CastGimbalObserver(PoseSource):
         next_due = clock.now()
         self.loop_span = (next_due, next_due)
         self.loop_syncs = 0
-        previous_sync = None
         missing = np.zeros(len(self.cpu), dtype=int)
         rest_since = None
-        for _ in range(int(s.max_duration / period) + 2):  # bounded: max_duration
+        cycles = int(s.max_duration / period) + 2
+        # how late each cycle woke after its due time (s; real time): the loop's jitter, into an array made now
+        self.lateness = np.zeros(cycles)
+        self.loop_cycles = 0
+        # real time: the collector off (the heap frozen), a short GIL switch interval, SCHED_FIFO where the user
+        # asks for it (realtime_priority); the guide's measuring of each sample runs inside too (it is in the cycle)
+        with realtime_section(clock, s.realtime_priority):
+            yield from self._cycles(clock, master, period, next_due, missing, rest_since, cycles)
+
+    def _cycles(self, clock, master, period, next_due, missing, rest_since, cycles):
+        s = self.settings
+        previous_sync = None
+        sent = next_due
+        for k in range(cycles):  # bounded: max_duration
             clock.sleep_until(next_due)
             now = next_due
             next_due += period
+            self.lateness[k] = clock.now() - now
+            self.loop_cycles = k + 1
             if clock.realtime and clock.now() - now > period:  # descheduled: skip, never burst SYNCs
                 self.missed_syncs += int((clock.now() - now) // period)
+                # the drives get a whole period after the last SYNC went before their answers are judged (a SYNC
+                # that went late must not make its TPDOs look missed)
+                clock.sleep_until(max(clock.now(), sent + period))
                 now = clock.now()
                 next_due = now + period
             feedback = master.feedback()  # the answers to the previous SYNC
@@ -271,6 +291,7 @@ class CastGimbalObserver(PoseSource):
                     master.sync()
                 except Exception as exc:  # a bus error: the bus is gone
                     raise SourceStopped(f"the CAN bus failed: {exc}") from None
+            sent = clock.now()
             previous_sync = now
             self.loop_span = (self.loop_span[0], now)
             self.loop_syncs += 1
@@ -301,5 +322,8 @@ class CastGimbalObserver(PoseSource):
             if summary["ended_at_s"] is not None:  # from the attempt's start, as the samples' times
                 summary["ended_at_s"] -= self.origin
             summary["missed_syncs"] = self.missed_syncs
+            late = self.lateness[: self.loop_cycles]
+            for q, name in ((50, "p50"), (99, "p99"), (100, "max")):  # the cycle jitter (real time; 0 simulated)
+                summary[f"jitter_{name}_ms"] = 1000 * float(np.percentile(late, q)) if late.size else None
             summary["cycle_rate_hz"] = (self.loop_syncs - 1) / span if span > 0 else None
             self.assistance = summary
