@@ -440,15 +440,16 @@ class DriveMaster:
             np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         )
 
-    def exchange(self, controlwords, targets) -> None:
+    def exchange(self, controlwords, targets, sync: bool = True) -> None:
         """SYNC, then each axis' RPDO (controlword, target counts; torque mode: target torque, thousandths of the
-        rated torque, clipped to each axis' max torque whatever the caller asks). Raises ``can.CanError`` on a bus
-        error."""
+        rated torque, clipped to each axis' max torque whatever the caller asks); ``sync`` False: the RPDOs alone
+        (the cycle's SYNC went already, :meth:`sync`). Raises ``can.CanError`` on a bus error."""
         if self.max_torque is not None:
             targets = np.clip(np.rint(np.asarray(targets, dtype=float)), -self.max_torque, self.max_torque)
-        with self._lock:
-            # counted before sending: in real time the answers may arrive before transmit returns
-            self.syncs_sent += 1
+        if sync:
+            with self._lock:
+                # counted before sending: in real time the answers may arrive before transmit returns
+                self.syncs_sent += 1
         send_batch = getattr(self.bus, "send_batch", None)
         if send_batch is not None and not isinstance(self.network, PumpedNetwork):
             # one write for the cycle's frames where the interface can (loopback): SYNC first, in order; the
@@ -461,10 +462,11 @@ class DriveMaster:
             pack_into = self._rpdo.pack_into
             for i in range(len(self._rpdo_ids)):
                 pack_into(self._cycle_messages[i + 1].data, 0, int(controlwords[i]), int(targets[i]))
-            send_batch(self._cycle_messages)
+            send_batch(self._cycle_messages if sync else self._cycle_messages[1:])
             return
         pack = self._rpdo.pack
-        self.network.send_message(0x080, b"")
+        if sync:
+            self.network.send_message(0x080, b"")
         for cob, cw, tp in zip(self._rpdo_ids, controlwords, targets, strict=True):
             self.network.send_message(cob, pack(int(cw), int(tp)))
 

@@ -121,8 +121,9 @@ class AssistLoop:
         self.compute_s: list[float] = []
 
     def _send(self, controlwords, torques) -> None:
+        """The cycle's RPDOs (its SYNC went at the start of the cycle, the source's loop sent it)."""
         try:
-            self.master.exchange(controlwords, torques)
+            self.master.exchange(controlwords, torques, sync=False)
         except Exception as exc:  # a bus error: the bus is gone (the drives' SYNC watchdogs stop them)
             raise SourceStopped(f"the CAN bus failed: {exc}") from None
         self.controlword = np.asarray(controlwords, dtype=np.int64)
@@ -151,8 +152,8 @@ class AssistLoop:
         return None
 
     def cycle(self, now: float, feedback, sample_time: float | None, period: float) -> bool:
-        """One SYNC cycle of the assistance (after the feedback of the previous SYNC): send SYNC and the RPDOs;
-        returns False once the assistance has ended (the caller then goes on observing: SYNC alone)."""
+        """One SYNC cycle of the assistance (after the feedback of the previous SYNC and this cycle's SYNC): send the
+        RPDOs; returns False once the assistance has ended (the caller then goes on observing: SYNC alone)."""
         if self.ended is not None:
             return False
         why = self.fault(now, feedback, sample_time) if sample_time is not None else None

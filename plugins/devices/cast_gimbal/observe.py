@@ -263,6 +263,8 @@ class CastGimbalObserver(PoseSource):
                 now = clock.now()
                 next_due = now + period
             feedback = master.feedback()  # the answers to the previous SYNC
+            sample = None
+            done = False
             if previous_sync is not None:
                 fresh = np.asarray(feedback.fresh, dtype=bool) & np.asarray(feedback.current, dtype=bool)
                 missing = np.where(fresh, 0, missing + 1)
@@ -277,21 +279,27 @@ class CastGimbalObserver(PoseSource):
                     q = np.asarray(feedback.position, dtype=float) / self.cpu
                     t = previous_sync - self.origin
                     tip = self.gimbal_space.tip(q[None])[0]
-                    yield PoseSample(t, q=q) if self.yield_q else PoseSample(t, tip=tip)
+                    sample = PoseSample(t, q=q) if self.yield_q else PoseSample(t, tip=tip)
                     at_goal = float(np.linalg.norm(tip - self.goal_tip)) <= s.goal_tolerance
                     rest_since = (rest_since if rest_since is not None else t) if at_goal else None
-                    if rest_since is not None and t - rest_since >= s.rest_time:
-                        return
-                    if t >= self.hand_end + s.rest_time:
-                        return
-            # assist: SYNC and the torques (a bus error is SourceStopped); observe, or once the assistance has
-            # ended: SYNC alone
-            if self.assist is None or not self.assist.cycle(now, feedback, previous_sync, period):
-                try:
-                    master.sync()
-                except Exception as exc:  # a bus error: the bus is gone
-                    raise SourceStopped(f"the CAN bus failed: {exc}") from None
+                    rested = rest_since is not None and t - rest_since >= s.rest_time
+                    done = rested or t >= self.hand_end + s.rest_time
+            if done:  # the attempt's last sample: no SYNC after it
+                yield sample
+                return
+            # the cycle's SYNC at once, before the sample is measured and the torques computed: what those cost does
+            # not shorten the drives' time to answer (the same frames as SYNC with the RPDOs: RPDOs sent after a SYNC
+            # act at the next one either way)
+            try:
+                master.sync()
+            except Exception as exc:  # a bus error: the bus is gone
+                raise SourceStopped(f"the CAN bus failed: {exc}") from None
             sent = clock.now()
+            if sample is not None:
+                yield sample
+            # assist: the torques (a bus error is SourceStopped); observe, or once the assistance has ended: nothing
+            if self.assist is not None:
+                self.assist.cycle(now, feedback, previous_sync, period)
             previous_sync = now
             self.loop_span = (self.loop_span[0], now)
             self.loop_syncs += 1
