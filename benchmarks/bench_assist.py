@@ -11,9 +11,14 @@ assistance (``fade: none``). Seeds 0 .. N-1, each seed the same intended motion 
 Then the loop's timing: the fixture's computation per cycle (median, p99, over every cycle of the "on" arm) and,
 in the simulated bus's real-time mode (``clock: realtime``: the drives in a thread of their own on the virtual
 bus), one attempt at 500 Hz (the paired comparison runs the simulated clock at 250 Hz): the cycle rate the loop
-held and the SYNCs it missed (target: 500 Hz, 0 missed).
+held and the SYNCs it missed (target: 500 Hz, 0 missed). Beside it, the same attempt with the drives and the
+trainee's hand in a process of their own (``surgiplan-sim-drives --hand``, the loopback bus on 127.0.0.1, as
+bench_devices' "other process" configuration), at ordinary priority and under SCHED_FIFO (the loop at 30, the
+drives at 20; where the system allows it): rate, missed SYNCs, cycle jitter p50/p99/max, and whether the
+assistance lasted the attempt.
 
-    python benchmarks/bench_assist.py [--seeds 20] [--quick]    (--quick: 3 seeds, writes nothing)
+    python benchmarks/bench_assist.py [--seeds 20] [--quick] [--realtime-only]
+    (--quick: 3 seeds, writes nothing; --realtime-only: only the real-time attempts, writes nothing)
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import numpy as np
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import save, table
 from surgiplan import load_pipeline, run_pipeline
@@ -84,11 +90,73 @@ def attempt(tmp: Path, plan, space, settings: dict) -> dict:
             "completed": guide.reached_goal}  # fmt: skip
 
 
+def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) -> dict:
+    """One real-time attempt at REALTIME_RATE with the drives and the beginner's hand in another process (SCHED_FIFO
+    ``priority`` for the loop, DRIVES_PRIORITY for the drives; None: ordinary): the assistance summary."""
+    from devices_loop import drives_process
+    from devices_table import DRIVES_PRIORITY
+
+    spec = load_pipeline(pipeline_file(tmp, {"hand": {"level": "beginner", "seed": seed}})).stages[1]
+    critical = intervals(list(plan.critical_regions))
+    guide = Guide(space, plan.path, space.scene, threshold_value(plan.clearance_threshold), critical, spec.guidance)
+    source = spec.plugin.cls(spec.settings)
+    source.gimbal_space = space  # the hand's joints as the source computes them in-process
+    context = GuideContext(StageContext("hand", space.scene, tmp / "out", tmp), plan.path, guide.tips, space,
+                           space.scene, guide.threshold, critical)  # fmt: skip
+    times, joints = source._hand_motion(context)
+    hand = tmp / "hand.npz"
+    np.savez(hand, times=times, joints=joints)
+    model = spec.settings.hand
+    extra = ["--hand", str(hand), "--hand-stiffness", *map(str, model.stiffness), "--hand-damping"]
+    extra += list(map(str, model.damping))
+    drives = DRIVES_PRIORITY if priority is not None else None
+    with drives_process(joints[0], drives, extra) as (bus, _pid):
+        live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0, "bus": bus, "hand": None}
+        if priority is not None:
+            live["realtime_priority"] = priority
+        out = attempt(tmp, plan, space, {"assist": ON, **live})
+    return {**out["assistance"], "stopped": out["stopped"]}
+
+
+def realtime_row(configuration: str, assistance: dict) -> dict:
+    keys = ("cycle_rate_hz", "missed_syncs", "cycles", "ended", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms")
+    return {"drives": configuration, **{k: assistance.get(k) for k in keys}, "stopped": assistance.get("stopped")}
+
+
+def realtime_loops(tmp: Path, plan, space) -> list[dict]:
+    """The real-time attempts: the drives in a thread of this process, and in a process of their own (ordinary
+    priority, then SCHED_FIFO where allowed)."""
+    live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0}
+    thread = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
+    rows = [realtime_row("in-process thread (virtual bus)", {**thread["assistance"], "stopped": thread["stopped"]})]
+    rows.append(realtime_row("other process (loopback bus)", realtime_elsewhere(tmp, plan, space, 0, None)))
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError as exc:
+        print(f"no SCHED_FIFO here ({exc}): skipped", flush=True)
+        return rows
+    fifo = realtime_elsewhere(tmp, plan, space, 0, 30)
+    rows.append(realtime_row("other process (loopback bus), SCHED_FIFO 30 (drives 20)", fifo))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--quick", action="store_true", help="3 seeds, no results file")
+    parser.add_argument("--realtime-only", action="store_true", help="only the real-time attempts, no results file")
     args = parser.parse_args(argv)
+    if args.realtime_only:
+        with tempfile.TemporaryDirectory() as folder:
+            tmp = Path(folder)
+            planning = load_pipeline(pipeline_file(tmp, {}))
+            planning.stages = planning.stages[:1]
+            plan = run_pipeline(planning).results[0]
+            rows = realtime_loops(tmp, plan, planning.stages[0].space)
+        print(table(rows, list(rows[0])))
+        print(f"load average {os.getloadavg()}")
+        return 0
     seeds = 3 if args.quick else args.seeds
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as folder:

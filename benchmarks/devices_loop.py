@@ -48,8 +48,9 @@ def percentile(values, q: float) -> float:
 
 
 @contextlib.contextmanager
-def drives_process(initial, priority: int | None = None):
-    """Four simulated drives in another process on the loopback bus (127.0.0.1); yields the bus settings."""
+def drives_process(initial, priority: int | None = None, extra=()):
+    """Four simulated drives in another process on the loopback bus (127.0.0.1), ``extra`` arguments to
+    ``surgiplan-sim-drives`` (e.g. ``--hand``); yields the bus settings and the process id."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -58,6 +59,7 @@ def drives_process(initial, priority: int | None = None):
     command += ["--sync-timeout", "0.2", "--initial", *map(str, initial)]
     if priority is not None:
         command += ["--realtime-priority", str(priority)]
+    command += list(extra)
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
     try:
         if process.stdout.readline().strip() != "ready":

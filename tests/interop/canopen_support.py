@@ -42,9 +42,10 @@ def free_port() -> int:
 
 @contextlib.contextmanager
 def drives_process(
-    device: str = "cast_gimbal", initial=None, node_ids=None, start_timeout: float = 120.0, sync_timeout=None
+    device: str = "cast_gimbal", initial=None, node_ids=None, start_timeout: float = 120.0, sync_timeout=None, extra=()
 ):
-    """``surgiplan-sim-drives`` in a process of its own, hosting the loopback hub; yields the channel (port)."""
+    """``surgiplan-sim-drives`` in a process of its own, hosting the loopback hub (``extra``: more arguments);
+    yields the channel (port)."""
     port = free_port()
     command = [sys.executable, "-m", "surgiplan.plugins.devices.canopen.sim.process", "--device", device]
     command += ["--interface", "loopback", "--channel", str(port), "--option", "hub=host"]
@@ -54,6 +55,7 @@ def drives_process(
         command += ["--node-ids", *map(str, node_ids)]
     if sync_timeout is not None:  # the drives' SYNC watchdog (s): lenient where a loaded machine delays SYNCs
         command += ["--sync-timeout", str(sync_timeout)]
+    command += list(extra)
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         ready, _, _ = select.select([process.stdout], [], [], start_timeout)

@@ -38,10 +38,12 @@ import sys
 import threading
 from pathlib import Path
 
+import numpy as np
 from surgiplan.errors import SurgiplanError
 
 from ..bus import ArmedFaults, BusSettings, open_bus
 from ..clock import RealTimeClock
+from ..control import SWITCH_INTERVAL
 from .drives import DriveSimulator, axis_hardware, simulated_devices
 from .motor import MotorModel
 
@@ -76,11 +78,52 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
     device.model = device.build_model()
     hardware = axis_hardware(device)  # the settings are checked before the bus is opened
     model = MotorModel.of(device.settings.simulation)
+    hand = read_hand(args.hand, len(hardware)) if args.hand else None  # refused before the bus is opened
+    for name, values in (("--hand-stiffness", args.hand_stiffness), ("--hand-damping", args.hand_damping)):
+        if values is not None and (len(values) not in (1, len(hardware)) or min(values) < 0):
+            raise SurgiplanError(f"{name}: one value >= 0, or one per axis ({len(hardware)}); got {values}")
     bus, _ = open_bus(BusSettings.model_validate(settings["bus"]))
     clock = RealTimeClock()
     state = Path(args.state_dir) if args.state_dir else None
-    return DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None, device=args.device,
-                          memory=state, unconfigured=args.unconfigured)  # fmt: skip
+    simulator = DriveSimulator(bus, hardware, model, clock, ArmedFaults([], clock.now), link=None,
+                               device=args.device, memory=state, unconfigured=args.unconfigured)  # fmt: skip
+    if hand is not None:
+        hold_hand(simulator, *hand, args.hand_stiffness, args.hand_damping)
+    return simulator
+
+
+def read_hand(path: str, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The times (s) and joints (n axes) of ``--hand``'s .npz file (raises SurgiplanError naming it)."""
+    try:
+        with np.load(path) as data:
+            times, joints = np.asarray(data["times"], dtype=float), np.asarray(data["joints"], dtype=float)
+    except (OSError, KeyError, ValueError) as exc:
+        raise SurgiplanError(f"--hand {path}: not an .npz file with arrays 'times' and 'joints' ({exc})") from None
+    if times.ndim != 1 or len(times) < 2 or joints.shape != (len(times), n) or np.any(np.diff(times) <= 0):
+        raise SurgiplanError(
+            f"--hand {path}: 'times' must be increasing (at least 2) and 'joints' ({len(times)}, {n}) for the "
+            f"device's {n} axes; got times {times.shape}, joints {joints.shape}"
+        )
+    return times, joints
+
+
+def hold_hand(simulator: DriveSimulator, times: np.ndarray, joints: np.ndarray, stiffness, damping) -> None:
+    """The trainee's hand on the drives (:meth:`DriveSimulator.move_by_hand`), its time 0 the first SYNC."""
+    n = len(simulator.axes)
+    started: list[float] = []
+
+    def first_sync(*_frame) -> None:
+        if not started:
+            started.append(simulator.clock.now())
+
+    simulator.network.subscribe(0x80, first_sync)
+    columns = [np.ascontiguousarray(joints[:, k]) for k in range(n)]
+
+    def hand(t: float) -> np.ndarray:
+        u = t - started[0] if started else 0.0
+        return np.array([np.interp(u, times, column) for column in columns])
+
+    simulator.move_by_hand(hand, stiffness, damping)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -101,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
         "--realtime-priority", type=int, help="run the drives' threads under SCHED_FIFO at this priority (1-99)"
     )
     parser.add_argument("--state-dir", help="the drives' non-volatile memory (0x1010 stores, LSS configuration)")
+    parser.add_argument("--hand", help="simulation: the trainee's hand, an .npz of times (s) and joints; 0 = 1st SYNC")
+    parser.add_argument("--hand-stiffness", type=float, nargs="+", help="the hand's spring per axis (N·m/rad, N/m)")
+    parser.add_argument("--hand-damping", type=float, nargs="+", help="the hand's damper per axis (N·m·s/rad, N·s/m)")
     parser.add_argument(
         "--unconfigured", action="store_true", help="start without node-IDs (unless LSS stored one): set them by LSS"
     )
@@ -125,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     # by reference counting (no collection at all was seen in 12 s at 1 kHz once frozen)
     gc.collect()
     gc.freeze()
+    # the hub's thread and the drives' share the GIL: one that wants it waits at most this long, not Python's 5 ms
+    # (a SYNC waiting in the hub behind a drive's work)
+    sys.setswitchinterval(SWITCH_INTERVAL)
     print("ready", flush=True)
     try:
         stop.wait()
