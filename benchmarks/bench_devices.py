@@ -7,8 +7,9 @@
    loopback python-can interface (a hub on 127.0.0.1 that the drives' process
    hosts: ``surgiplan-sim-drives``; the master's process does only what it
    would do with hardware); the same at 500 and 1000 Hz under SCHED_FIFO (the
-   master's loop, receive and heartbeat threads at priority 30, the drives'
-   process at 20, below it); and side by side the drives simulated in a
+   master's loop, receive and heartbeat threads at priority 30); the drives'
+   process (simulated hardware) runs under SCHED_FIFO 20 in both, where the
+   system allows it (``drives_priority``); and side by side the drives simulated in a
    thread of the master's process (``clock: realtime`` on the virtual bus), at
    500 and 1000 Hz. Per rate: runs completed and runs without a missed cycle
    (the loop woke more than a period late and skipped cycles), the cycle
