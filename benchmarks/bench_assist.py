@@ -13,8 +13,8 @@ in the simulated bus's real-time mode (``clock: realtime``: the drives in a thre
 bus), one attempt at 500 Hz (the paired comparison runs the simulated clock at 250 Hz): the cycle rate the loop
 held and the SYNCs it missed (target: 500 Hz, 0 missed). Beside it, the same attempt with the drives and the
 trainee's hand in a process of their own (``surgiplan-sim-drives --hand``, the loopback bus on 127.0.0.1, as
-bench_devices' "other process" configuration), at ordinary priority and under SCHED_FIFO (the loop at 30, the
-drives at 20; where the system allows it): rate, missed SYNCs, cycle jitter p50/p99/max, and whether the
+bench_devices' "other process" configuration; the drives under SCHED_FIFO 20 where the system allows it), the
+loop at ordinary priority and under SCHED_FIFO 30: rate, missed SYNCs, cycle jitter p50/p99/max, and whether the
 assistance lasted the attempt.
 
     python benchmarks/bench_assist.py [--seeds 20] [--quick] [--realtime-only]
@@ -92,8 +92,9 @@ def attempt(tmp: Path, plan, space, settings: dict) -> dict:
 
 def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) -> dict:
     """One real-time attempt at REALTIME_RATE with the drives and the beginner's hand in another process (SCHED_FIFO
-    ``priority`` for the loop, DRIVES_PRIORITY for the drives; None: ordinary): the assistance summary."""
-    from devices_loop import drives_process
+    ``priority`` for the loop, None: ordinary; the drives at DRIVES_PRIORITY where allowed): the assistance
+    summary."""
+    from devices_loop import drives_process, fifo_allowed
     from devices_table import DRIVES_PRIORITY
 
     spec = load_pipeline(pipeline_file(tmp, {"hand": {"level": "beginner", "seed": seed}})).stages[1]
@@ -109,7 +110,8 @@ def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) 
     model = spec.settings.hand
     extra = ["--hand", str(hand), "--hand-stiffness", *map(str, model.stiffness), "--hand-damping"]
     extra += list(map(str, model.damping))
-    drives = DRIVES_PRIORITY if priority is not None else None
+    # the drives stand for hardware: under SCHED_FIFO below the loop wherever allowed, as in bench_devices
+    drives = DRIVES_PRIORITY if fifo_allowed() else None
     with drives_process(joints[0], drives, extra) as (bus, _pid):
         live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0, "bus": bus, "hand": None}
         if priority is not None:
@@ -129,7 +131,11 @@ def realtime_loops(tmp: Path, plan, space) -> list[dict]:
     live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0}
     thread = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
     rows = [realtime_row("in-process thread (virtual bus)", {**thread["assistance"], "stopped": thread["stopped"]})]
-    rows.append(realtime_row("other process (loopback bus)", realtime_elsewhere(tmp, plan, space, 0, None)))
+    rows.append(
+        realtime_row(
+            "other process (loopback bus), loop at ordinary priority", realtime_elsewhere(tmp, plan, space, 0, None)
+        )
+    )
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
