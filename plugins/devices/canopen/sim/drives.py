@@ -54,9 +54,6 @@ from .storage import Memory
 
 log = logging.getLogger(__name__)
 
-#: real time: the longest the drives' thread waits for a frame before integrating the motors up to now (s)
-PRE_ADVANCE = 0.0005
-
 
 @dataclass
 class AxisHardware:
@@ -353,19 +350,15 @@ class DriveSimulator(
         self.clock.precise()
         while not self._stop.is_set():
             due = self.scheduler.next_due()
-            wait = PRE_ADVANCE if due is None else min(PRE_ADVANCE, max(0.0, due - self.clock.now()))
+            wait = 0.005 if due is None else min(0.005, max(0.0, due - self.clock.now()))
             # a few frames at a time: the timers (heartbeats, the SYNC watchdog) must not wait behind
             # a backlog of frames when the process was descheduled
             try:
-                received = self.network.pump(wait, limit=2 + 2 * len(self.axes))
+                self.network.pump(wait, limit=2 + 2 * len(self.axes))
             except can.CanError as exc:  # the bus went away (its hub closed): nothing more to serve
                 log.warning("simulated drives: %s", exc)
                 return
             now = self.clock.now()
-            if not received and now - self.t >= PRE_ADVANCE:
-                # idle: integrate the motors up to now, so that a SYNC finds at most PRE_ADVANCE s to integrate
-                # before its TPDOs go (a 2 ms period with the hand's impedance was up to 20 substeps at the SYNC)
-                self.advance(now)
             while (timer := self.scheduler.pop_due(now)) is not None:
                 timer.action()
 
