@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from pipeline_builders import guide_stages, retraction_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "configs" / "scenes" / "block_world.yaml"
@@ -58,27 +59,6 @@ class RunKind:
     #: path fragments of the files that are committed work: a rerun must not write them again
     work: tuple[str, ...] = ()
     record: str | None = None
-
-
-def _guide_stages(seed: int, trainee: bool) -> list[dict[str, Any]]:
-    return [
-        {
-            "stage": "plan",
-            "name": "recommended",
-            "plugin": "safe_prm",
-            "settings": {"proficiency": "beginner", "milestones": 300, "seed": 1},
-            "start": "entry",
-            "goal": "target",
-        },
-        {
-            "stage": "guide",
-            "name": "attempt",
-            "plugin": "synthetic_trainee",
-            "path_from": "recommended",
-            "settings": {"level": "beginner", "seed": seed, "pace": 0},
-            **({"trainee": {"name": "alice", "task": "block-world"}} if trainee else {}),
-        },
-    ]
 
 
 def _plan(seed: int) -> dict[str, Any]:
@@ -138,60 +118,8 @@ def _optmis(grid_mm: float) -> dict[str, Any]:
 
 
 def _retraction(samples: int) -> dict[str, Any]:
-    flap = {
-        "mesh": {"box": {"size": [50, 50, 2.5], "divisions": [6, 6, 1], "pattern": "five"}},
-        "material": {"youngs_modulus": 1.0e6, "poisson_ratio": 0.45, "density": 1000},
-        "base_plane": {},
-    }
-    return {
-        "name": "walk-retraction",
-        "length_unit": "mm",
-        "scene": {
-            "bounds": {"min": [-10, -10, -5], "max": [80, 60, 60]},
-            "obstacles": [{"name": "bar", "box": {"min": [8, -5, 20], "max": [18, 55, 24]}}],
-        },
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "page",
-                "plugin": "retraction",
-                "space": {
-                    "kind": "se3",
-                    "body": [
-                        {"name": "jaws", "box": {"size": [7, 7, 4]}},
-                        {"name": "shaft", "capsule": {"a": [0, 0, 2], "b": [0, 0, 30], "radius": 1.5}},
-                    ],
-                    "rotation_weight": 20,
-                },
-                "start": {"xyz": [50, 25, 1.25]},
-                "settings": {
-                    "deformable": {"plugin": "stvk", "settings": flap},
-                    "anchored": [{"min": [0, 0, 0], "max": [0, 50, 2.5]}],
-                    "jaws": {"size": [7, 7, 4]},
-                    "grasps": {},
-                    "sampling": {
-                        "kind": "uniform",
-                        "samples": samples,
-                        "region": {"min": [28, 12, 3], "max": [52, 38, 32]},
-                        "max_rotation": "30 deg",
-                        "chunk": 4,
-                    },
-                    "relief": {"max_iterations": 1},
-                    "visibility": {
-                        "camera": [40, 25, 150],
-                        "area": [[38, 20], [46, 20], [46, 30], [38, 30]],
-                        "resolution": 2,
-                    },
-                    "roadmap": {"k": 8, "step": 4},
-                    "smoothing": {"step": 4},
-                    "metric": "max_energy",
-                },
-                "artifact": "store/page.npz",
-            }
-        ],
-        "executor": {"kind": "local", "workers": 1},
-        "output": {"dir": "out", "gltf": False},
-    }
+    pipeline = retraction_pipeline("walk-retraction", (6, 6, 1), samples, chunk=4, artifact="store/page.npz")
+    return {**pipeline, "output": {"dir": "out", "gltf": False}}
 
 
 def _guide(seed: int) -> dict[str, Any]:
@@ -199,7 +127,7 @@ def _guide(seed: int) -> dict[str, Any]:
         "name": "walk-guide",
         "length_unit": "mm",
         "scene": str(SCENE),
-        "pipeline": _guide_stages(seed, trainee=True),
+        "pipeline": guide_stages(seed, trainee="alice"),
         "output": {"dir": "out", "gltf": False},
         "record": "record/trainees.sqlite",
     }
