@@ -28,7 +28,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -37,34 +36,18 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, start_live_view, wait_for  # noqa: E402
 from common import save, table  # noqa: E402
+from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
 
 
 def pipeline(tmp: Path, name: str, guide: dict) -> Path:
-    data = {
-        "name": name,
-        "length_unit": "mm",
-        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
-        "record": str(tmp / "record.sqlite"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "recommended",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "beginner", "milestones": 2000, "k": 15, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-                "artifact": str(tmp / "roadmap.npz"),
-            },
-            {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "path_from": "recommended", **guide},
-        ],
-        "output": {"dir": str(tmp / name), "figures": False, "gltf": False},
-    }
-    path = tmp / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    stages = [
+        recommended_stage("beginner", 2000, k=15, artifact=tmp / "roadmap.npz"),
+        {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "path_from": "recommended", **guide},
+    ]
+    return block_world_pipeline(tmp / f"{name}.yaml", name, stages, tmp / name, record=str(tmp / "record.sqlite"))
 
 
 def run(path: Path, *extra: str) -> None:

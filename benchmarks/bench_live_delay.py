@@ -34,7 +34,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -43,6 +42,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, stalled_client, start_live_view, wait_for  # noqa: E402
 from common import save, table  # noqa: E402
+from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
 LATE_MS = 2.0
@@ -75,33 +75,15 @@ class Recording:
 
 
 def pipeline(tmp: Path, seconds: float) -> Path:
-    data = {
-        "name": "live-delay",
-        "length_unit": "mm",
-        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "recommended",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "beginner", "milestones": 2000, "k": 15, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-                "artifact": str(tmp / "roadmap.npz"),
-            },
-            {
-                "stage": "guide",
-                "name": "attempt",
-                "plugin": "synthetic_trainee",
-                "path_from": "recommended",
-                "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
-            },
-        ],
-        "output": {"dir": str(tmp / "out"), "figures": False, "gltf": False},
+    guide = {
+        "stage": "guide",
+        "name": "attempt",
+        "plugin": "synthetic_trainee",
+        "path_from": "recommended",
+        "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
     }
-    path = tmp / "live-delay.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    stages = [recommended_stage("beginner", 2000, k=15, artifact=tmp / "roadmap.npz"), guide]
+    return block_world_pipeline(tmp / "live-delay.yaml", "live-delay", stages, tmp / "out")
 
 
 def attempt(path: Path, feed: Recording) -> np.ndarray:

@@ -1,27 +1,59 @@
 """Pipelines several tests (and the crash walk) build: one builder each, so a change of a plugin's settings is
 made in one place.
 
-- :func:`guide_stages`: a recommended path (safe PRM on block_world) and a synthetic trainee's attempt at it;
+- :func:`recommended_stage`: the recommended path (safe PRM from ``entry`` to ``target`` of block_world);
+- :func:`guide_stages`: that and a synthetic trainee's attempt at it;
+- :func:`block_world_pipeline`: stages in a pipeline document on block_world, written as a file;
 - :func:`retraction_pipeline`: the retraction planner (paper 002) on a flap anchored along x = 0 with a bar
   above it, as a whole pipeline document."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
+
+import yaml
+
+BLOCK_WORLD = Path(__file__).resolve().parent.parent / "configs" / "scenes" / "block_world.yaml"
+
+
+def recommended_stage(
+    proficiency: str = "beginner", milestones: int = 300, k: int | None = None, artifact: Path | None = None
+) -> dict[str, Any]:
+    """A ``plan`` stage ``recommended``: safe PRM (seed 1) from ``entry`` to ``target``, stored as ``artifact``
+    when given."""
+    settings = {"proficiency": proficiency, "milestones": milestones, **({"k": k} if k else {}), "seed": 1}
+    return {
+        "stage": "plan",
+        "name": "recommended",
+        "plugin": "safe_prm",
+        "settings": settings,
+        "start": "entry",
+        "goal": "target",
+        **({"artifact": str(artifact)} if artifact else {}),
+    }
+
+
+def block_world_pipeline(path: Path, name: str, stages: list[dict[str, Any]], out: Path, **extra) -> Path:
+    """Write the pipeline ``name`` of ``stages`` on block_world (mm) to ``path``, output in ``out`` without
+    figures or glTF; ``extra``: more top-level keys (``record``). Returns ``path``."""
+    data = {
+        "name": name,
+        "length_unit": "mm",
+        "scene": str(BLOCK_WORLD),
+        "pipeline": stages,
+        "output": {"dir": str(out), "figures": False, "gltf": False},
+        **extra,
+    }
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
 
 
 def guide_stages(seed: int, trainee: str | None = None, milestones: int = 300) -> list[dict[str, Any]]:
-    """A ``plan`` stage (``recommended``: safe PRM, beginner, from ``entry`` to ``target``) and a ``guide`` stage
-    (``attempt``: a beginner synthetic trainee following it, ``seed``, no pacing) for ``trainee`` when given."""
+    """:func:`recommended_stage` (beginner) and a ``guide`` stage (``attempt``: a beginner synthetic trainee
+    following it, ``seed``, no pacing) for ``trainee`` when given."""
     return [
-        {
-            "stage": "plan",
-            "name": "recommended",
-            "plugin": "safe_prm",
-            "settings": {"proficiency": "beginner", "milestones": milestones, "seed": 1},
-            "start": "entry",
-            "goal": "target",
-        },
+        recommended_stage("beginner", milestones),
         {
             "stage": "guide",
             "name": "attempt",
