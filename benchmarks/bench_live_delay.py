@@ -40,7 +40,7 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, feed_url, stalled_client, start_live_view, wait_for  # noqa: E402
+from browser_support import Browser, feed_url, live_view, stalled_client, wait_for  # noqa: E402
 from common import save, table  # noqa: E402
 from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
@@ -109,8 +109,7 @@ def tcp_state(sock: socket.socket) -> int:
 def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
     from surgiplan.live import WebSocketFeed
 
-    process, url = start_live_view(exit_after=600)
-    try:
+    with live_view(exit_after=600) as url:
         page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
         stalled = stalled_client(url)
         started = time.monotonic()
@@ -147,9 +146,6 @@ def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
             "feed_drops": got["drops"]["feed"],
             "stalled_cut_after_s": round(cut[0], 2) if cut else None,
         }
-    finally:
-        process.terminate()
-        process.wait(10)
 
 
 def summary(case: str, runs: list[np.ndarray], **extra) -> dict:
