@@ -290,12 +290,16 @@ class Outcome:
     point: str
     action: str
     exit: int
+    #: the kind of file the point wrote (its suffix: ``.png``, ``.sqlite``, ...)
+    file: str = ""
     problems: list[str] = field(default_factory=list)
     states: dict[str, int] = field(default_factory=dict)
     temporaries: int = 0
     attempts: int | None = None
     redone: int = 0
     rerun_work: int = 0
+    #: whether the run was rerun after the crash (and the rerun checked)
+    reran: bool = False
 
 
 def _write_pipelines(kind: RunKind, base: Path) -> tuple[Path, Path]:
@@ -321,6 +325,27 @@ def chosen_points(points, stride: int) -> list[int]:
 FAIL_POINTS = ("write", "commit")
 
 
+def file_kind(target: str) -> str:
+    """The kind of file a point wrote: its suffix (``-`` for none)."""
+    return Path(target).suffix or "-" if target else "-"
+
+
+def points_by_file_kind(points) -> dict[str, list[int]]:
+    """The points of each (kind of point, kind of file) pair, ``"write .png"``: their numbers, in order."""
+    out: dict[str, list[int]] = {}
+    for seq, point, _, target in points:
+        out.setdefault(f"{point} {file_kind(target)}", []).append(seq)
+    return out
+
+
+def file_kind_points(points, files: tuple[str, ...]) -> list[int]:
+    """The last point of each kind of point in a file of each kind in ``files`` (``("*",)``: every kind the run
+    writes): the quickest walk's crashes at every kind of file."""
+    return sorted(
+        seqs[-1] for pair, seqs in points_by_file_kind(points).items() if "*" in files or pair.split(" ", 1)[1] in files
+    )
+
+
 def after_first_work(kind: RunKind, points) -> list[int]:
     """The point just after the first work file's rename: a crash there has committed work a rerun must keep."""
     for seq, point, _, target in points:
@@ -330,12 +355,20 @@ def after_first_work(kind: RunKind, points) -> list[int]:
 
 
 def walk(
-    kind: RunKind, base: Path, stride: int = 1, actions: tuple[str, ...] = ("kill",), select: str = "stride"
+    kind: RunKind,
+    base: Path,
+    stride: int = 1,
+    actions: tuple[str, ...] = ("kill",),
+    select: str = "stride",
+    files: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Walk ``kind``'s points (see the module) in ``base``; returns the counts and every problem found.
 
     ``select``: ``stride`` (every ``stride``-th point, see :func:`chosen_points`), or ``work`` (one point: just
-    after the first work file is committed; the quickest check that a rerun keeps committed work)."""
+    after the first work file is committed; the quickest check that a rerun keeps committed work). ``files``
+    (suffixes, or ``*``): also kill at the last point of each kind in a file of each of these kinds
+    (:func:`file_kind_points`), checking the files and the record after the crash (the rerun is checked after
+    the crashes ``select`` chose)."""
     started = time.monotonic()
     old_yaml, new_yaml = _write_pipelines(kind, base)
     pristine = base / "pristine"
@@ -359,19 +392,23 @@ def walk(
 
     outcomes: list[Outcome] = []
     for action in actions:
+        rerun: set[int] | None = None  # None: after every crash
         if select == "work":
             chosen = after_first_work(kind, points)
         elif action == "fail" and not stride:  # the quickest walk: an I/O error in a file's write, and in a commit
             chosen = [max(seq for seq, point, *_ in points if point == p) for p in FAIL_POINTS if p in counts]
         else:
             chosen = chosen_points(points, stride if action == "kill" else stride * 3)
+        if files and action == "kill":
+            rerun = set(chosen)
+            chosen = sorted(rerun | set(file_kind_points(points, files)))
         for n in chosen:
-            _, point, _, _ = points[n - 1]
+            _, point, _, target = points[n - 1]
             work = base / f"{action}-{n}"
             shutil.copytree(pristine, work, symlinks=True)
             outcome = _crash_and_check(kind, work, new_yaml, f"{action}:any:{n}", old, new, points, n, old_attempts)
-            outcome.point, outcome.action = point, action
-            if action == "kill":
+            outcome.point, outcome.action, outcome.file = point, action, file_kind(target)
+            if action == "kill" and (rerun is None or n in rerun):
                 _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, outcome)
             outcomes.append(outcome)
             shutil.rmtree(work)
@@ -380,6 +417,7 @@ def walk(
         "stride": stride,
         "points": len(points),
         "points_by_kind": counts,
+        "points_by_file_kind": {pair: len(seqs) for pair, seqs in points_by_file_kind(points).items()},
         "exercised": {a: sum(o.action == a for o in outcomes) for a in actions},
         "work_files": len(all_work),
         "problems": [f"{o.action} at point {o.n} ({o.point}): {p}" for o in outcomes for p in o.problems],
@@ -437,6 +475,7 @@ def _crash_and_check(kind, work, new_yaml, fault, old, new, points, n, old_attem
 def _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, outcome) -> None:
     trace = work.parent / f"{work.name}.rerun.trace"
     code, err = run_child(work, new_yaml, trace=trace)
+    outcome.reran = True
     if code != 0:
         outcome.problems.append(f"the rerun after the crash failed ({code}): {err[-1500:]}")
         return
@@ -465,7 +504,11 @@ def _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, ou
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "kinds", nargs="*", default=list(KINDS), help="KIND or KIND:work (one crash, after its first committed work)"
+        "kinds",
+        nargs="*",
+        default=list(KINDS),
+        help="KIND, KIND:work (one crash, after its first committed work) or KIND:files[=.png,.csv] (also the last "
+        "point of each kind in each kind of file, or in these)",
     )
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--fail", action="store_true", help="also inject I/O errors (every 3rd chosen stride)")
@@ -479,10 +522,13 @@ def main(argv: list[str] | None = None) -> int:
     reports = []
     for spec in args.kinds:
         name, _, select = spec.partition(":")
+        select, _, suffixes = select.partition("=")
+        files = tuple(suffixes.split(",")) if suffixes else ("*",) if select == "files" else ()
+        select = "stride" if select in ("", "files") else select
         base = Path(tempfile.mkdtemp(prefix=f"walk-{name}-", dir=args.keep))
         try:
             actions = ("kill", "fail") if args.fail and select != "work" else ("kill",)
-            reports.append(walk(KINDS[name], base, args.stride, actions, select or "stride"))
+            reports.append(walk(KINDS[name], base, args.stride, actions, select, files))
         finally:
             if args.keep is None:
                 shutil.rmtree(base, ignore_errors=True)
