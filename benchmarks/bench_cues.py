@@ -17,7 +17,6 @@ watcher (the stage, feed and relay alone). Medians and percentiles over every sa
 
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -34,7 +33,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, live_view, wait_for, watch_live  # noqa: E402
-from common import save, table  # noqa: E402
+from common import paced_run_arguments, save, table  # noqa: E402
 from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
@@ -101,12 +100,7 @@ def summary(case: str, values: list[float], runs: int) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--seconds", type=float, default=20.0)
-    parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args()
-    runs, seconds = (1, 8.0) if args.quick else (args.runs, args.seconds)
+    runs, seconds, quick = paced_run_arguments(__doc__.splitlines()[0])
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
@@ -139,7 +133,7 @@ def main() -> None:
         *per_run,
     ]
     print(table(rows, list(rows[0])))
-    if args.quick:
+    if quick:
         return
     after = os.getloadavg()
     notes = (

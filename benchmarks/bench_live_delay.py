@@ -22,7 +22,6 @@ what the page got and was told it lost. The machine is shared: the load average 
 
 from __future__ import annotations
 
-import argparse
 import os
 import socket
 import struct
@@ -41,7 +40,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, live_view, stalled_client, wait_for  # noqa: E402
-from common import save, table  # noqa: E402
+from common import paced_run_arguments, save, table  # noqa: E402
 from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
@@ -163,12 +162,7 @@ def summary(case: str, runs: list[np.ndarray], **extra) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--seconds", type=float, default=20.0)
-    parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args()
-    runs, seconds = (1, 8.0) if args.quick else (args.runs, args.seconds)
+    runs, seconds, quick = paced_run_arguments(__doc__.splitlines()[0])
     load = os.getloadavg()
     alone, watched, paired, viewer_runs = [], [], [], []
     with tempfile.TemporaryDirectory() as tmpdir:
@@ -200,7 +194,7 @@ def main() -> None:
     ]
     print(table(rows, list(rows[1])))
     print(table(viewer_runs, list(viewer_runs[0])))
-    if args.quick:
+    if quick:
         return
     after = os.getloadavg()
     notes = (
