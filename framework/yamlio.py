@@ -117,7 +117,7 @@ def _parse_events(text: str, path: str | Path) -> tuple[Any, LineMap]:
         if isinstance(event, events.StreamEndEvent):
             return None, lines
         if not isinstance(event, events.DocumentStartEvent):
-            raise _NotPlain
+            raise _NotPlain("not a document")
         while True:
             event = loader.get_event()
             kind = type(event)
@@ -130,7 +130,7 @@ def _parse_events(text: str, path: str | Path) -> tuple[Any, LineMap]:
             frame = stack[-1] if stack else None
             if frame is not None and frame[2] is None and type(frame[0]) is dict:  # a mapping's key
                 if kind is not events.ScalarEvent:
-                    raise _NotPlain  # a complex key
+                    raise _NotPlain("a complex key")
                 key = event.value
                 first = frame[3]
                 if key in first:
@@ -160,7 +160,7 @@ def _parse_events(text: str, path: str | Path) -> tuple[Any, LineMap]:
             elif kind is events.SequenceStartEvent:
                 value = opened = []
             else:
-                raise _NotPlain  # an alias
+                raise _NotPlain("an alias")
             if frame is None:
                 root = value
                 lines[at] = line
@@ -174,7 +174,7 @@ def _parse_events(text: str, path: str | Path) -> tuple[Any, LineMap]:
             if opened is not None:
                 stack.append([opened, at, None, {}])
         if not isinstance(loader.get_event(), events.StreamEndEvent):
-            raise _NotPlain  # several documents: the composer refuses them with its own words
+            raise _NotPlain("several documents")  # the composer refuses them with its own words
     finally:
         loader.dispose()
     return root, lines
