@@ -112,6 +112,13 @@ class Scene:
                 self._tree = bvh.build(self._packed[6], self._packed[7], self._radii)
         self._packed_ready = True
 
+    def prepare(self) -> None:
+        """Build the scene's distance structures now rather than at its first large query: the compiled kernels
+        (numba, from its cache) and, for many obstacles, the tree. A stage calls it before its timed sections;
+        a few-point check before it (a pipeline's validation) is answered without them."""
+        if self.obstacles:
+            self._prepare()
+
     def _prepare_groups(self) -> None:
         """Bounding spheres and shape groups (numpy only), built once."""
         if getattr(self, "_groups", None) is not None:
