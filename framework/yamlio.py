@@ -291,7 +291,7 @@ def _check_duplicate_keys(root: yaml.Node, path: str | Path) -> None:
         if isinstance(node, yaml.MappingNode):
             first: dict[Any, int] = {}
             for key_node, _ in node.value:
-                if not isinstance(key_node, yaml.ScalarNode) or key_node.value == "<<":
+                if _key(key_node, path) == "<<":
                     continue
                 line = key_node.start_mark.line + 1
                 if key_node.value in first:
@@ -303,6 +303,18 @@ def _check_duplicate_keys(root: yaml.Node, path: str | Path) -> None:
                     )
                 first[key_node.value] = line
         stack.extend(_children(node))
+
+
+def _key(key_node: yaml.Node, path: str | Path) -> Any:
+    """A mapping key's value: a scalar; a sequence or mapping as a key is refused (file and line)."""
+    if not isinstance(key_node, yaml.ScalarNode):
+        kind = "a list" if isinstance(key_node, yaml.SequenceNode) else "a mapping"
+        raise ConfigError(
+            f"invalid YAML: a key is {kind}; keys must be plain names or numbers",
+            file=path,
+            line=key_node.start_mark.line + 1,
+        )
+    return key_node.value
 
 
 def _walk(node: yaml.Node, path: tuple[Any, ...], lines: LineMap) -> None:
@@ -330,9 +342,9 @@ def _walk_tree(root: yaml.Node, path: str | Path, lines: LineMap) -> None:
         if isinstance(node, yaml.MappingNode):
             first: dict[Any, int] = {}
             for key_node, value_node in node.value:
-                key = key_node.value
+                key = _key(key_node, path)
                 line = key_node.start_mark.line + 1
-                if isinstance(key_node, yaml.ScalarNode) and key != "<<":
+                if key != "<<":
                     if key in first:
                         raise ConfigError(
                             f"duplicate key '{key}' (lines {first[key]} and {line}); a key may appear once per mapping",
