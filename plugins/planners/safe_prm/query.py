@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from surgiplan.paths import certify_edges
 
+from .query_fused import UNDECIDED, link_search_repair
 from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
 
@@ -191,6 +192,52 @@ def _direct(space, start, goal, slack, ends_safe, d_thresh, reach) -> tuple[floa
     return float(space.distance(start, goal)), safe
 
 
+def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack: np.ndarray, ends_safe: np.ndarray, started):
+    """The whole query in one compiled call (:mod:`.query_fused`); None when a link needs the space's exact check
+    (the stepwise query then answers)."""
+    grid = roadmap.grid
+    work = roadmap.search_workspace
+    with work.lock:
+        while True:
+            status, path, kinds, repaired, settled, avoided, offsets = link_search_repair(
+                ends,
+                ends_slack,
+                ends_safe,
+                roadmap.d_thresh,
+                grid.points,
+                grid.origin,
+                grid.dims,
+                grid.cell,
+                grid.first,
+                roadmap.search_identity,
+                roadmap.k,
+                roadmap.s,
+                roadmap.search_slack,
+                roadmap.search_safe,
+                roadmap.search_milestones,
+                *roadmap.kernel_arrays,
+                work.arrays(),
+            )
+            if status != 3:
+                break
+            work.grow()  # more entries than the workspace holds: twice as many, and again
+    if status == UNDECIDED:
+        return None
+    # one call: linking, search and repair are not told apart (link_s is the ends' clearance before it)
+    timings = {"search_s": time.perf_counter() - started}
+    if status == 1:
+        return QueryOutcome(False, message=_APART, timings=timings, settled=int(settled))
+    if status == 2:
+        return QueryOutcome(False, message="no path in R", timings=timings, settled=int(settled))
+    names = [SAFE if k == SAFE_EDGE else RISK for k in kinds.tolist()]
+    bounds = offsets.tolist()
+    detours = [avoided[a:b] for a, b in itertools.pairwise(bounds) if b > a]
+    return QueryOutcome(True, path, names, int(repaired), timings=timings, settled=int(settled), detours=detours)
+
+
+_APART = "start and goal are in different components of the roadmap R (no collision-free path among the milestones)"
+
+
 def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOutcome:
     """Algorithms 2-4: the shortest path from start to goal in R, repaired through R_safe where possible."""
     space = roadmap.space
@@ -202,6 +249,12 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     clearance = space.clearance(ends)
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
+    if space.euclidean_motions and (d_thresh <= 0 or ends_safe.all()):
+        linked = time.perf_counter()
+        fused = _query_fused(roadmap, ends, np.minimum(clearance, workspace), ends_safe, linked)
+        if fused is not None:
+            fused.timings = {"link_s": linked - started, **fused.timings}
+            return fused
     if space.euclidean_motions:
         start_links, goal_links, direct_cost, direct_safe = _link_euclidean(
             ends, roadmap, d_thresh, np.minimum(clearance, workspace), ends_safe
@@ -257,8 +310,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     if status == 1:
         return QueryOutcome(
             False,
-            message="start and goal are in different components of the roadmap R "
-            "(no collision-free path among the milestones)",
+            message=_APART,
             timings=timings,
             settled=int(settled),
         )
