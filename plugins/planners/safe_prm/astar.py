@@ -50,8 +50,9 @@ _SHRINK = 1.0 - 1e-12
 BUCKETS = 1 << 12
 #: a bucket's width, as a fraction of the roadmap's mean edge cost
 BUCKET_FRACTION = 1.0 / 32.0
-# the record of a node: its stamp, cost so far and heuristic, side by side (one cache line per visit)
-_STAMP, _COST, _HEURISTIC = 0, 1, 2
+# the record of a node: its stamp, cost so far, heuristic and parent side by side, 32 bytes (a visit touches one
+# cache line of it, where separate arrays cost one each: a query after other work runs on cold caches)
+_STAMP, _COST, _HEURISTIC, _PARENT = 0, 1, 2, 3
 
 
 class Workspace:
@@ -59,13 +60,12 @@ class Workspace:
 
     def __init__(self, n: int, entries: int) -> None:
         size = n + 2
-        self.node = np.zeros((size, 3))  # stamp, cost, heuristic
-        self.parent = np.empty(size, dtype=np.int64)
+        self.node = np.zeros((size, 4))  # stamp, cost, heuristic, parent
         self.end = np.zeros((size, 2))  # stamp, cost of the link to the virtual goal
-        self.head = np.empty(BUCKETS, dtype=np.int64)
-        self.entry_node = np.empty(entries, dtype=np.int64)
+        self.head = np.empty(BUCKETS, dtype=np.int32)
+        self.entry_node = np.empty(entries, dtype=np.int32)
         self.entry_key = np.empty(entries)
-        self.entry_next = np.empty(entries, dtype=np.int64)
+        self.entry_next = np.empty(entries, dtype=np.int32)
         self.generation = np.zeros(1)
         self.path = np.empty(size, dtype=np.int64)
         self.lock = threading.Lock()
@@ -73,15 +73,14 @@ class Workspace:
     def grow(self) -> None:
         """Twice the entries (a search that ran out of them is run again)."""
         entries = 2 * len(self.entry_node)
-        self.entry_node = np.empty(entries, dtype=np.int64)
+        self.entry_node = np.empty(entries, dtype=np.int32)
         self.entry_key = np.empty(entries)
-        self.entry_next = np.empty(entries, dtype=np.int64)
+        self.entry_next = np.empty(entries, dtype=np.int32)
 
     def arrays(self) -> tuple:
         """The arrays in the order :func:`search` takes them."""
         return (
             self.node,
-            self.parent,
             self.end,
             self.head,
             self.entry_node,
@@ -164,7 +163,6 @@ def search(
     target_point,
     direct_cost,
     node,
-    parent,
     end,
     head,
     entry_node,
@@ -180,9 +178,9 @@ def search(
     ``source_costs``, position ``source_point``), ``target`` n+1 the virtual goal (reached from
     ``target_links[target_use]`` at ``target_costs``, position ``target_point``); ``direct_cost`` a motion from
     the virtual start straight to the virtual goal (``inf``: none). ``scaled``: milestone coordinates times the
-    space's weights; ``far``: every milestone's roadmap distance to each landmark (:mod:`.landmarks`; no
-    columns: the straight-line bound alone), ``tolerance`` the round-off allowed in them; ``delta`` the buckets'
-    width. The remaining arguments are a :class:`Workspace`'s arrays.
+    space's weights; ``far``: every milestone's roadmap distance to each landmark (float32,
+    :func:`compact_landmarks`; no columns: the straight-line bound alone), ``tolerance`` the round-off allowed in
+    them; ``delta`` the buckets' width. The remaining arguments are a :class:`Workspace`'s arrays.
     """
     n = scaled.shape[0]
     start_node = n
@@ -209,7 +207,7 @@ def search(
     goal_cost = np.inf
     node[start_node, _STAMP] = gen
     node[start_node, _COST] = 0.0
-    parent[start_node] = -1
+    node[start_node, _PARENT] = -1
     node[goal_node, _STAMP] = gen
     node[goal_node, _COST] = np.inf
     if source == start_node:
@@ -223,16 +221,16 @@ def search(
             elif source_costs[k] >= node[t, _COST]:
                 continue
             node[t, _COST] = source_costs[k]
-            parent[t] = start_node
+            node[t, _PARENT] = start_node
             if t == target:
                 goal_cost = min(goal_cost, source_costs[k])
         if target == goal_node and direct_cost < goal_cost:
             goal_cost = direct_cost
             node[goal_node, _COST] = direct_cost
-            parent[goal_node] = start_node
+            node[goal_node, _PARENT] = start_node
         for k in range(source_targets.shape[0]):
             t = source_targets[k]
-            if source_use[k] and parent[t] == start_node and node[t, _COST] == source_costs[k]:
+            if source_use[k] and node[t, _PARENT] == start_node and node[t, _COST] == source_costs[k]:
                 if used == capacity:
                     return -1, np.inf, 0
                 entry_node[used] = t
@@ -242,7 +240,7 @@ def search(
         node[source, _STAMP] = gen
         node[source, _COST] = 0.0
         node[source, _HEURISTIC] = _heuristic(scaled, source, goal_at, far, low, high)
-        parent[source] = -1
+        node[source, _PARENT] = -1
         entry_node[0] = source
         entry_key[0] = node[source, _HEURISTIC]
         used = 1
@@ -288,7 +286,7 @@ def search(
             if c < goal_cost:
                 goal_cost = c
                 node[goal_node, _COST] = c
-                parent[goal_node] = v
+                node[goal_node, _PARENT] = v
         for k in range(indptr[v], indptr[v + 1]):
             w = indices[k]
             c = g + data[k]
@@ -298,7 +296,7 @@ def search(
             elif c >= node[w, _COST]:
                 continue
             node[w, _COST] = c
-            parent[w] = v
+            node[w, _PARENT] = v
             if w == target:
                 goal_cost = min(goal_cost, c)
                 continue
@@ -317,13 +315,13 @@ def search(
         return 0, np.inf, expanded
     count = 1
     v = target
-    while parent[v] >= 0:
-        v = parent[v]
+    while node[v, _PARENT] >= 0:
+        v = int(node[v, _PARENT])
         count += 1
     v = target
     for k in range(count - 1, -1, -1):
         path[k] = v
-        v = parent[v]
+        v = int(node[v, _PARENT])
     return count, goal_cost, expanded
 
 
@@ -334,10 +332,19 @@ def bucket_width(edge_cost: np.ndarray) -> float:
 
 
 def landmark_tolerance(far: np.ndarray) -> float:
-    """The round-off allowed in the landmark bounds: a billionth of the longest finite distance (a distance
-    summed over a path of up to thousands of edges is off by far less)."""
+    """The round-off allowed in the landmark bounds: a millionth of the longest finite distance. The distances
+    are stored as float32 (:func:`compact_landmarks`), each rounded by at most 2^-24 of itself, the node's and
+    the target's both, 1.2e-7 of the longest at most; a distance summed over a path of up to thousands of edges
+    is off by far less again."""
     finite = far[np.isfinite(far)]
-    return 1e-9 * float(finite.max()) if finite.size else 0.0
+    return 1e-6 * float(finite.max()) if finite.size else 0.0
+
+
+def compact_landmarks(far: np.ndarray) -> np.ndarray:
+    """Landmark distances as the search reads them: float32, C order (32 bytes a node for 8 landmarks, half a
+    cache line; they only bound the heuristic, loosened by :func:`landmark_tolerance`, so the costs the search
+    adds stay exact float64)."""
+    return np.ascontiguousarray(far, dtype=np.float32)
 
 
 def shortest_path(
@@ -369,7 +376,7 @@ def shortest_path(
         np.ascontiguousarray(graph.indices, np.int32),
         np.ascontiguousarray(graph.data, np.float64),
     )
-    far = np.empty((n, 0)) if far is None else np.ascontiguousarray(far, np.float64)
+    far = compact_landmarks(np.empty((n, 0)) if far is None else far)
     arguments = (
         *rows,
         np.ascontiguousarray(scaled, np.float64),

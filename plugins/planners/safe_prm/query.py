@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from surgiplan.paths import certify_edges
 
-from .query_fused import UNDECIDED, link_search_repair
+from .query_fused import PROJECT, UNDECIDED, link_search_repair, measure_link_search_repair
 from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
 
@@ -192,38 +192,31 @@ def _direct(space, start, goal, slack, ends_safe, d_thresh, reach) -> tuple[floa
     return float(space.distance(start, goal)), safe
 
 
-def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack: np.ndarray, ends_safe: np.ndarray, started):
-    """The whole query in one compiled call (:mod:`.query_fused`); None when a link needs the space's exact check
-    (the stepwise query then answers)."""
-    grid = roadmap.grid
+def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, started: float):
+    """The whole query in one compiled call (:mod:`.query_fused`): the ends measured in it too when the roadmap
+    holds the scene's compiled obstacles (``ends_slack`` None), else with the slack and safety given. None when
+    a link needs the space's exact check or an end is to be projected (the stepwise query then answers)."""
     work = roadmap.search_workspace
     with work.lock:
         while True:
-            status, path, kinds, repaired, settled, avoided, offsets = link_search_repair(
-                ends,
-                ends_slack,
-                ends_safe,
-                roadmap.d_thresh,
-                grid.points,
-                grid.origin,
-                grid.dims,
-                grid.cell,
-                grid.first,
-                roadmap.search_identity,
-                roadmap.k,
-                roadmap.s,
-                roadmap.search_slack,
-                roadmap.search_safe,
-                roadmap.search_milestones,
-                *roadmap.kernel_arrays,
-                work.arrays(),
-            )
-            if status != 3:
+            if ends_slack is None:
+                obstacles, tip_radius = roadmap.point_obstacles
+                answer = measure_link_search_repair(
+                    ends, obstacles, tip_radius, roadmap.d_thresh, roadmap.linking_arrays, roadmap.kernel_arrays,
+                    work.arrays(),
+                )  # fmt: skip
+            else:
+                answer = link_search_repair(
+                    ends, ends_slack, ends_safe, roadmap.d_thresh, *roadmap.linking_arrays, *roadmap.kernel_arrays,
+                    work.arrays(),
+                )  # fmt: skip
+            if answer[0] != 3:
                 break
             work.grow()  # more entries than the workspace holds: twice as many, and again
-    if status == UNDECIDED:
+    status, path, kinds, repaired, settled, avoided, offsets = answer
+    if status in (UNDECIDED, PROJECT):
         return None
-    # one call: linking, search and repair are not told apart (link_s is the ends' clearance before it)
+    # one call: linking, search and repair are not told apart (link_s is what came before it)
     timings = {"search_s": time.perf_counter() - started}
     if status == 1:
         return QueryOutcome(False, message=_APART, timings=timings, settled=int(settled))
@@ -246,6 +239,11 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     timings: dict[str, float] = {}
     started = time.perf_counter()
     ends = np.array((start, goal), dtype=float)
+    if roadmap.point_obstacles is not None:  # the ends measured, linked, searched and repaired in one call
+        fused = _query_fused(roadmap, ends, None, None, started)
+        if fused is not None:
+            fused.timings = {"link_s": 0.0, **fused.timings}
+            return fused
     clearance = space.clearance(ends)
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0

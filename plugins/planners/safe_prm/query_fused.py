@@ -15,11 +15,14 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from surgiplan.geometry.compiled import nearest
 
 from .query_kernel import link_ends, search_and_repair
 
 #: :func:`link_search_repair`'s status when a link is left to the space's exact check
 UNDECIDED = 4
+#: :func:`measure_link_search_repair`'s status when an end is in the risk region (it is projected)
+PROJECT = 5
 
 
 @njit(cache=True, nogil=True)
@@ -127,10 +130,47 @@ def link_search_repair(
     )
 
 
+@njit(cache=True, nogil=True)
+def measure_link_search_repair(ends, obstacles, tip_radius, d_thresh, linking, kernel, work):
+    """:func:`link_search_repair` with the ends' clearance measured in the same call, for a point robot of radius
+    ``tip_radius`` among a scene's compiled primitives (``obstacles``: the scene's packed form, what
+    :func:`surgiplan.geometry.compiled.nearest` takes first): the scene's signed distance less the radius, the
+    number ``R3Space.clearance`` gives, is the ends' slack (no workspace limit). ``linking``: the arguments of
+    :func:`link_search_repair` from ``points`` to ``milestones``; ``kernel``: the roadmap's
+    :attr:`~.roadmap.RoadmapPair.kernel_arrays`. Status :data:`PROJECT` (nothing else set) when an end is in the
+    risk region: the query projects it, in Python."""
+    distance = np.empty(2)
+    index = np.empty(2, dtype=np.int64)
+    cutoff = np.full(2, np.inf)
+    nearest(*obstacles, ends, ends, False, cutoff, distance, index)
+    clearance = distance - tip_radius
+    ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
+    if d_thresh > 0 and not (ends_safe[0] and ends_safe[1]):
+        none = np.empty((0, ends.shape[1]))
+        return PROJECT, none, np.empty(0, np.uint8), 0, 0, none, np.zeros(1, np.int64)
+    return link_search_repair(ends, clearance, ends_safe, d_thresh, *linking, *kernel, work)
+
+
+def point_obstacles(space) -> tuple | None:
+    """What :func:`measure_link_search_repair` needs of a space to measure the ends itself: (the scene's packed
+    primitives, the tip radius) for an :class:`~surgiplan.spaces.R3Space` (its clearance is the scene's signed
+    distance less the radius, no workspace slack) whose scene answers in one compiled call; None otherwise."""
+    from surgiplan.spaces import R3Space
+
+    if type(space) is not R3Space or not space.scene.obstacles:
+        return None
+    scene = space.scene
+    scene._prepare()  # the scene's own compiled form, built once (its first distance query does the same)
+    packed, tree = getattr(scene, "_packed", None), getattr(scene, "_tree", None)
+    if packed is None or tree is not None:
+        return None
+    return tuple(packed), float(space.tip_radius)
+
+
 def _compile() -> None:
     """Load (or compile) the kernel for the types :mod:`.query` passes, when this module is imported: no query
     pays it."""
-    from .astar import Workspace
+    from .astar import Workspace, compact_landmarks
     from .kernels import csr_rows, grid_build
     from .landmarks import landmark_distances
 
@@ -138,14 +178,17 @@ def _compile() -> None:
     rows = csr_rows(2, np.array([[0, 1]], dtype=np.int64), np.ones(1), np.ones(1, dtype=np.bool_), 1e-15)
     labels = np.zeros(2, dtype=np.int64)
     safe = np.ones(2, dtype=np.bool_)
-    far = landmark_distances(*rows, points, labels, 1, 0.1)
+    far = compact_landmarks(landmark_distances(*rows, points, labels, 1, 0.1))
     origin, dims, first, _, ordered = grid_build(points, 1.0)
     ends = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.0]])
-    link_search_repair(
-        ends, np.ones(2), safe, 0.0, ordered, origin, dims, 1.0, first, np.arange(2, dtype=np.int64), 2, 2.0,
-        np.ones(2), safe, points, *rows, *rows, points, far, far, 1e-9, 0.1, safe, labels, 1, labels, 1,
-        Workspace(2, 16).arrays(),
-    )  # fmt: skip
+    linking = (ordered, origin, dims, 1.0, first, np.arange(2, dtype=np.int64), 2, 2.0, np.ones(2), safe, points)
+    kernel = (*rows, *rows, points, far, far, 1e-9, 0.1, safe, labels, 1, labels, 1)
+    link_search_repair(ends, np.ones(2), safe, 0.0, *linking, *kernel, Workspace(2, 16).arrays())
+    vectors = np.full((1, 3), 5.0)  # one obstacle, as the scene packs it (geometry.compiled.compile_all)
+    obstacles = (np.zeros(1, np.int64), np.eye(3)[None].copy(), vectors, np.ones((1, 3)), vectors, np.ones(1),
+                 vectors - 1.0, vectors + 1.0)  # fmt: skip
+    for d_thresh in (0.0, 0.5):
+        measure_link_search_repair(ends, obstacles, 0.0, d_thresh, linking, kernel, Workspace(2, 16).arrays())
 
 
 _compile()
