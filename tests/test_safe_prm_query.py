@@ -76,8 +76,8 @@ def test_hundreds_of_queries_match_the_plain_implementation(block_world, level):
     with_landmarks = roadmap.kernel_arrays
     roadmap.kernel_arrays = (
         *with_landmarks[:7],
-        np.empty((roadmap.n, 0), dtype=np.float32),  # the landmarks' type (astar.compact_landmarks)
-        np.empty((roadmap.n, 0), dtype=np.float32),
+        roadmap.free_far[:, :0],  # no columns, the landmarks' type (astar.search_records)
+        roadmap.safe_far[:, :0],
         *with_landmarks[9:],
     )
     plain = [prm_query.query(roadmap, start, goal).settled for start, goal in pairs]

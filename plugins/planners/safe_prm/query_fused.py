@@ -63,6 +63,7 @@ def link_search_repair(
     scaled,
     free_far,
     safe_far,
+    safe_scaled,
     tolerance,
     delta,
     search_safe,
@@ -84,6 +85,8 @@ def link_search_repair(
     if undecided:
         return UNDECIDED, none, np.empty(0, np.uint8), 0, 0, none, np.zeros(1, np.int64)
     keep = keeps == 1
+    direct_cost = direct if direct_free != 0 else np.inf
+    direct_safe = direct_free != 0 and direct_keeps != 0
     n = scaled.shape[0]
     status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
         free_indptr,
@@ -95,6 +98,7 @@ def link_search_repair(
         scaled,
         free_far,
         safe_far,
+        safe_scaled,
         tolerance,
         delta,
         search_safe,
@@ -111,8 +115,8 @@ def link_search_repair(
         keep[split:],
         ends[1],
         ends_safe,
-        direct if direct_free != 0 else np.inf,
-        direct_free != 0 and direct_keeps != 0,
+        direct_cost,
+        direct_safe,
         n,
         n + 1,
         work,
@@ -170,7 +174,7 @@ def point_obstacles(space) -> tuple | None:
 def _compile() -> None:
     """Load (or compile) the kernel for the types :mod:`.query` passes, when this module is imported: no query
     pays it."""
-    from .astar import Workspace, compact_landmarks
+    from .astar import Workspace, search_records
     from .kernels import csr_rows, grid_build
     from .landmarks import landmark_distances
 
@@ -178,11 +182,11 @@ def _compile() -> None:
     rows = csr_rows(2, np.array([[0, 1]], dtype=np.int64), np.ones(1), np.ones(1, dtype=np.bool_), 1e-15)
     labels = np.zeros(2, dtype=np.int64)
     safe = np.ones(2, dtype=np.bool_)
-    far = compact_landmarks(landmark_distances(*rows, points, labels, 1, 0.1))
+    scaled, far = search_records(points, landmark_distances(*rows, points, labels, 1, 0.1))
     origin, dims, first, _, ordered = grid_build(points, 1.0)
     ends = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.0]])
     linking = (ordered, origin, dims, 1.0, first, np.arange(2, dtype=np.int64), 2, 2.0, np.ones(2), safe, points)
-    kernel = (*rows, *rows, points, far, far, 1e-9, 0.1, safe, labels, 1, labels, 1)
+    kernel = (*rows, *rows, scaled, far, far, scaled, 1e-9, 0.1, safe, labels, 1, labels, 1)
     link_search_repair(ends, np.ones(2), safe, 0.0, *linking, *kernel, Workspace(2, 16).arrays())
     vectors = np.full((1, 3), 5.0)  # one obstacle, as the scene packs it (geometry.compiled.compile_all)
     obstacles = (np.zeros(1, np.int64), np.eye(3)[None].copy(), vectors, np.ones((1, 3)), vectors, np.ones(1),

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
-from .astar import Workspace, bucket_width, compact_landmarks, landmark_tolerance
+from .astar import Workspace, bucket_width, landmark_tolerance, search_records
 from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
 from .landmarks import LANDMARKS, landmark_distances
 from .query_fused import point_obstacles
@@ -120,20 +120,20 @@ class RoadmapPair:
         safe_labels = np.ascontiguousarray(self.safe_labels[order])
         #: every search node's distance to the landmarks of R and of R_safe (the query's A* bounds, :mod:`.landmarks`)
         delta = bucket_width(cost)
-        self.free_far = compact_landmarks(
-            landmark_distances(*self.free_rows, self.grid.points, free_labels, LANDMARKS, delta)
-        )
-        self.safe_far = compact_landmarks(
-            landmark_distances(*self.safe_rows, self.grid.points, safe_labels, LANDMARKS, delta)
-        )
+        free_far = landmark_distances(*self.free_rows, self.grid.points, free_labels, LANDMARKS, delta)
+        safe_far = landmark_distances(*self.safe_rows, self.grid.points, safe_labels, LANDMARKS, delta)
+        # each search reads a node's position and landmarks in one row (:func:`.astar.search_records`)
+        self.free_scaled, self.free_far = search_records(self.grid.points, free_far)
+        self.safe_scaled, self.safe_far = search_records(self.grid.points, safe_far)
         #: what :func:`.query_kernel.search_and_repair` takes of the roadmap, in its order
         self.kernel_arrays = (
             *self.free_rows,
             *self.safe_rows,
-            self.grid.points,
+            self.free_scaled,
             self.free_far,
             self.safe_far,
-            max(landmark_tolerance(self.free_far), landmark_tolerance(self.safe_far)),
+            self.safe_scaled,
+            max(landmark_tolerance(free_far), landmark_tolerance(safe_far)),
             delta,
             self.search_safe,
             free_labels,
