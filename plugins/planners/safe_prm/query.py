@@ -216,7 +216,8 @@ def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, 
     status, path, kinds, repaired, settled, avoided, offsets = answer
     if status in (UNDECIDED, PROJECT):
         return None
-    # one call: linking, search and repair are not told apart (link_s is what came before it)
+    # one call: linking, search and repair are not told apart, all are search_s (link_s, when there is one, is the
+    # ends' clearance measured before it)
     timings = {"search_s": time.perf_counter() - started}
     if status == 1:
         return QueryOutcome(False, message=_APART, timings=timings, settled=int(settled))
@@ -242,12 +243,11 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     if roadmap.point_obstacles is not None:  # the ends measured, linked, searched and repaired in one call
         fused = _query_fused(roadmap, ends, None, None, started)
         if fused is not None:
-            fused.timings = {"link_s": 0.0, **fused.timings}
             return fused
     clearance = space.clearance(ends)
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
-    if space.euclidean_motions and (d_thresh <= 0 or ends_safe.all()):
+    if space.euclidean_motions and roadmap.point_obstacles is None and (d_thresh <= 0 or ends_safe.all()):
         linked = time.perf_counter()
         fused = _query_fused(roadmap, ends, np.minimum(clearance, workspace), ends_safe, linked)
         if fused is not None:
