@@ -34,7 +34,7 @@ def dijkstra(indptr, indices, data, delta, source, out):
     entries = indices.shape[0] + n + 64
     node = np.zeros((n + 2, 4))
     end = np.zeros((n + 2, 2))
-    head = np.empty(BUCKETS, dtype=np.int32)
+    head = np.full(BUCKETS, -1, dtype=np.int32)
     generation = np.zeros(1)
     path = np.empty(n + 2, dtype=np.int64)
     nothing, no_landmarks = np.empty((n, 0)), np.empty((n, 0), dtype=np.float32)
