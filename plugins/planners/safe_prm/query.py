@@ -14,9 +14,13 @@ by a collision-free motion, searched in spheres of growing radius; the path
 runs start → projection → ... and the link is reported like a critical
 region (it cannot be avoided either).
 
-The links are found here (K-S neighbours from the roadmap's grid, certified by
-covering balls or the space's exact check); the search and the repair are one
-compiled call (:mod:`.query_kernel`, on :mod:`.astar`).
+For a space with Euclidean motions the whole query is one compiled call
+(:mod:`.query_fused`: the links, the search and repair, the path's
+configurations; for a point robot among primitives the ends' clearance too)
+whenever the covering balls decide every link and no end is projected.
+Otherwise the links are found here (K-S neighbours from the roadmap's grid,
+certified by covering balls or the space's exact check) and the search and
+the repair are one compiled call (:mod:`.query_kernel`, on :mod:`.astar`).
 """
 
 from __future__ import annotations
