@@ -164,7 +164,7 @@ def point_obstacles(space) -> tuple | None:
     if type(space) is not R3Space or not space.scene.obstacles:
         return None
     scene = space.scene
-    scene._prepare()  # the scene's own compiled form, built once (its first distance query does the same)
+    scene.prepare()  # the scene's own compiled form, built once (its first large distance query does the same)
     packed, tree = getattr(scene, "_packed", None), getattr(scene, "_tree", None)
     if packed is None or tree is not None:
         return None
