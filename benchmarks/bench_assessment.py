@@ -37,11 +37,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import RESULTS, save, table
+from pipeline_builders import block_world_pipeline, recommended_stage
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.clearance import intervals
 from surgiplan.guidance import GuidanceSettings, Guide
@@ -64,24 +65,8 @@ class Trainee:
 
 
 def recommended(tmp: Path):
-    data = {
-        "name": "assessment-plan",
-        "length_unit": "mm",
-        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "recommended",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "intermediate", "milestones": 2000, "k": 15, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-            }
-        ],
-        "output": {"dir": str(tmp / "plan"), "figures": False, "gltf": False},
-    }
-    (tmp / "plan.yaml").write_text(yaml.safe_dump(data))
-    pipeline = load_pipeline(tmp / "plan.yaml")
+    stages = [recommended_stage("intermediate", 2000, k=15)]
+    pipeline = load_pipeline(block_world_pipeline(tmp / "plan.yaml", "assessment-plan", stages, tmp / "plan"))
     return pipeline.stages[0], run_pipeline(pipeline).results[0]
 
 

@@ -17,8 +17,6 @@ watcher (the stage, feed and relay alone). Medians and percentiles over every sa
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import subprocess
 import sys
@@ -28,43 +26,26 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, feed_url, start_live_view, wait_for  # noqa: E402
-from common import save, table  # noqa: E402
+from browser_support import Browser, feed_url, live_view, wait_for, watch_live  # noqa: E402
+from common import paced_run_arguments, save, table  # noqa: E402
+from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
 
 
 def pipeline(tmp: Path, name: str, guide: dict) -> Path:
-    data = {
-        "name": name,
-        "length_unit": "mm",
-        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
-        "record": str(tmp / "record.sqlite"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "recommended",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "beginner", "milestones": 2000, "k": 15, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-                "artifact": str(tmp / "roadmap.npz"),
-            },
-            {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "path_from": "recommended", **guide},
-        ],
-        "output": {"dir": str(tmp / name), "figures": False, "gltf": False},
-    }
-    path = tmp / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    stages = [
+        recommended_stage("beginner", 2000, k=15, artifact=tmp / "roadmap.npz"),
+        {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "path_from": "recommended", **guide},
+    ]
+    return block_world_pipeline(tmp / f"{name}.yaml", name, stages, tmp / name, record=str(tmp / "record.sqlite"))
 
 
 def run(path: Path, *extra: str) -> None:
@@ -73,14 +54,9 @@ def run(path: Path, *extra: str) -> None:
         raise SystemExit(f"{path}: {done.stderr}")
 
 
-def viewer() -> tuple[subprocess.Popen, str]:
-    return start_live_view(exit_after=600)
-
-
 def page_run(browser: Browser, attempt: Path) -> tuple[list[float], list[float]]:
     """Sample-to-pixels latencies (ms) of one attempt watched by a page, and sample to the page's handling of it."""
-    process, url = viewer()
-    try:
+    with live_view(exit_after=600) as url:
         page = browser.page(url + "#latency", ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
         run(attempt, "--live", feed_url(url))
         wait_for(page, "surgiplan.live.status !== null && surgiplan.live.pending.length === 0", 60_000)
@@ -91,39 +67,23 @@ def page_run(browser: Browser, attempt: Path) -> tuple[list[float], list[float]]
         if problems:
             raise SystemExit(f"the page reported problems: {problems}")
         return latencies, arrivals
-    finally:
-        process.terminate()
-        process.wait(10)
 
 
 def transport_run(attempt: Path) -> list[float]:
     """Sample-to-arrival latencies (ms) at a websocket watcher in Python: the stage, the feed and the relay."""
-    from websockets.sync.client import connect
-
-    process, url = viewer()
     latencies: list[float] = []
 
-    def watch() -> None:
-        with connect(feed_url(url, "/watch"), origin=url.split("/?")[0]) as socket:
-            for _ in range(1_000_000):  # bounded; ends at the stage's status
-                message = json.loads(socket.recv(timeout=60))
-                now = time.time()
-                for item in message if isinstance(message, list) else [message]:
-                    if item["channel"] == "tip" and "wall" in item["payload"]:
-                        latencies.append(1000 * (now - item["payload"]["wall"]))
-                    if item["channel"] == "status":
-                        return
+    def arrived(item: dict, now: float) -> None:
+        if item["channel"] == "tip" and "wall" in item["payload"]:
+            latencies.append(1000 * (now - item["payload"]["wall"]))
 
-    try:
-        thread = threading.Thread(target=watch, daemon=True)
+    with live_view(exit_after=600) as url:
+        thread = threading.Thread(target=watch_live, args=(url, arrived), daemon=True)
         thread.start()
         time.sleep(1.0)
         run(attempt, "--live", feed_url(url))
         thread.join(60)
         return latencies
-    finally:
-        process.terminate()
-        process.wait(10)
 
 
 def summary(case: str, values: list[float], runs: int) -> dict:
@@ -140,12 +100,7 @@ def summary(case: str, values: list[float], runs: int) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--seconds", type=float, default=20.0)
-    parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args()
-    runs, seconds = (1, 8.0) if args.quick else (args.runs, args.seconds)
+    runs, seconds, quick = paced_run_arguments(__doc__.splitlines()[0])
     load = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
@@ -178,7 +133,7 @@ def main() -> None:
         *per_run,
     ]
     print(table(rows, list(rows[0])))
-    if args.quick:
+    if quick:
         return
     after = os.getloadavg()
     notes = (

@@ -22,7 +22,6 @@ what the page got and was told it lost. The machine is shared: the load average 
 
 from __future__ import annotations
 
-import argparse
 import os
 import socket
 import struct
@@ -34,15 +33,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, feed_url, stalled_client, start_live_view, wait_for  # noqa: E402
-from common import save, table  # noqa: E402
+from browser_support import Browser, feed_url, live_view, stalled_client, wait_for  # noqa: E402
+from common import paced_run_arguments, save, table  # noqa: E402
+from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
 LATE_MS = 2.0
@@ -75,33 +74,15 @@ class Recording:
 
 
 def pipeline(tmp: Path, seconds: float) -> Path:
-    data = {
-        "name": "live-delay",
-        "length_unit": "mm",
-        "scene": str(ROOT / "configs" / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "recommended",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "beginner", "milestones": 2000, "k": 15, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-                "artifact": str(tmp / "roadmap.npz"),
-            },
-            {
-                "stage": "guide",
-                "name": "attempt",
-                "plugin": "synthetic_trainee",
-                "path_from": "recommended",
-                "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
-            },
-        ],
-        "output": {"dir": str(tmp / "out"), "figures": False, "gltf": False},
+    guide = {
+        "stage": "guide",
+        "name": "attempt",
+        "plugin": "synthetic_trainee",
+        "path_from": "recommended",
+        "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
     }
-    path = tmp / "live-delay.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    stages = [recommended_stage("beginner", 2000, k=15, artifact=tmp / "roadmap.npz"), guide]
+    return block_world_pipeline(tmp / "live-delay.yaml", "live-delay", stages, tmp / "out")
 
 
 def attempt(path: Path, feed: Recording) -> np.ndarray:
@@ -127,8 +108,7 @@ def tcp_state(sock: socket.socket) -> int:
 def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
     from surgiplan.live import WebSocketFeed
 
-    process, url = start_live_view(exit_after=600)
-    try:
+    with live_view(exit_after=600) as url:
         page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
         stalled = stalled_client(url)
         started = time.monotonic()
@@ -165,9 +145,6 @@ def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
             "feed_drops": got["drops"]["feed"],
             "stalled_cut_after_s": round(cut[0], 2) if cut else None,
         }
-    finally:
-        process.terminate()
-        process.wait(10)
 
 
 def summary(case: str, runs: list[np.ndarray], **extra) -> dict:
@@ -185,12 +162,7 @@ def summary(case: str, runs: list[np.ndarray], **extra) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--seconds", type=float, default=20.0)
-    parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args()
-    runs, seconds = (1, 8.0) if args.quick else (args.runs, args.seconds)
+    runs, seconds, quick = paced_run_arguments(__doc__.splitlines()[0])
     load = os.getloadavg()
     alone, watched, paired, viewer_runs = [], [], [], []
     with tempfile.TemporaryDirectory() as tmpdir:
@@ -222,7 +194,7 @@ def main() -> None:
     ]
     print(table(rows, list(rows[1])))
     print(table(viewer_runs, list(viewer_runs[0])))
-    if args.quick:
+    if quick:
         return
     after = os.getloadavg()
     notes = (

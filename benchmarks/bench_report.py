@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import statistics
 import subprocess
 import sys
@@ -35,7 +34,7 @@ CONFIGS = ROOT / "configs"
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, wait_for  # noqa: E402
+from browser_support import Browser, feed_url, live_view, wait_for  # noqa: E402
 from common import package_version, save, table  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
@@ -200,32 +199,19 @@ def live(browser: Browser, tmp: Path) -> dict:
     for i in range(3):
         run(robot(tmp, f"alone-{i}"))
         alone.append(stage_metrics(tmp / f"alone-{i}"))
-    viewer = subprocess.Popen(
-        [*SURGIPLAN, "view", "--live", "--port", "0", "--no-browser", "--exit-after", "600"],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=ENV,
-    )
-    url = None
-    while url is None:
-        match = re.search(r"(http://127\.0\.0\.1:\d+/)", viewer.stdout.readline())
-        url = match.group(1) if match else None
     fed, watched, page_rates = [], [], []
-    try:
+    with live_view(exit_after=600, env=ENV) as url:
         for _ in range(3):  # fed to the viewer, no page watching: the feed's own cost
-            run(path, "--live", url.replace("http://", "ws://") + "feed")
+            run(path, "--live", feed_url(url))
             fed.append(stage_metrics(tmp / "live"))
         for i in range(3):
             page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
-            run(path, "--live", url.replace("http://", "ws://") + "feed")
+            run(path, "--live", feed_url(url))
             wait_for(page, "surgiplan.live.status !== null")
             watched.append(stage_metrics(tmp / "live"))
             page_rates.append(rates(page))
             page.close()
             print(f"live run {i + 1}: {page_rates[-1]}", flush=True)
-    finally:
-        viewer.terminate()
-        viewer.wait(10)
     publish = publish_cost(tmp)
 
     def med(rows, key):

@@ -120,3 +120,17 @@ def table(rows: list[dict], columns: list[str]) -> str:
         "| " + " | ".join(str(r.get(c, "")).ljust(w) for c, w in zip(columns, widths, strict=True)) + " |" for r in rows
     ]
     return "\n".join([line, rule, *body])
+
+
+def paced_run_arguments(description: str, argv: list[str] | None = None) -> tuple[int, float, bool]:
+    """The command line of the benchmarks that pace an attempt in real time: ``--runs N`` (default 3), ``--seconds
+    S`` per attempt (default 20), ``--quick`` (1 run of 8 s; the caller writes nothing). Returns (runs, seconds,
+    quick)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--quick", action="store_true", help="1 run of 8 s, writes nothing")
+    args = parser.parse_args(argv)
+    return (1, 8.0, True) if args.quick else (args.runs, args.seconds, False)

@@ -96,16 +96,12 @@ class Scene:
 
     # ------------------------------------------------------------------ distances
     def _prepare(self) -> None:
-        """Bounding spheres and shape groups, built once (obstacles do not change)."""
-        if getattr(self, "_groups", None) is not None:
+        """Bounding spheres, shape groups and (primitives only) the compiled kernels' packed arrays and tree,
+        built once (obstacles do not change)."""
+        if getattr(self, "_packed_ready", False):
             return
-        spheres = [o.bounding_sphere for o in self.obstacles]
-        self._centres = np.array([c for c, _ in spheres]).reshape(-1, 3)
-        self._radii = np.array([r for _, r in spheres], dtype=float)
-        # the distance to a point inside an obstacle bounds the distance to the obstacle from above
-        self._upper_ok = np.array([centre_inside(o) for o in self.obstacles], dtype=bool)
-        self._groups = group_obstacles(self.obstacles)
-        # primitives only: one compiled call per batch (geometry.compiled), else the vectorised groups below
+        self._prepare_groups()
+        # primitives only: one compiled call per batch (geometry.compiled), else the vectorised groups
         self._packed = self._tree = None
         if self.obstacles and all(type(o) in COMPILED for o in self.obstacles):
             from .geometry import bvh, compiled
@@ -114,10 +110,29 @@ class Scene:
             if len(self.obstacles) >= bvh.MIN_OBSTACLES:
                 # many obstacles: a tree over their world boxes, so a query costs what is near it
                 self._tree = bvh.build(self._packed[6], self._packed[7], self._radii)
+        self._packed_ready = True
+
+    def prepare(self) -> None:
+        """Build the scene's distance structures now rather than at its first large query: the compiled kernels
+        (numba, from its cache) and, for many obstacles, the tree. A stage calls it before its timed sections;
+        a few-point check before it (a pipeline's validation) is answered without them."""
+        if self.obstacles:
+            self._prepare()
+
+    def _prepare_groups(self) -> None:
+        """Bounding spheres and shape groups (numpy only), built once."""
+        if getattr(self, "_groups", None) is not None:
+            return
+        spheres = [o.bounding_sphere for o in self.obstacles]
+        self._centres = np.array([c for c, _ in spheres]).reshape(-1, 3)
+        self._radii = np.array([r for _, r in spheres], dtype=float)
+        # the distance to a point inside an obstacle bounds the distance to the obstacle from above
+        self._upper_ok = np.array([centre_inside(o) for o in self.obstacles], dtype=bool)
+        self._groups = group_obstacles(self.obstacles)
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        for cached in ("_groups", "_centres", "_radii", "_upper_ok", "_packed", "_tree"):
+        for cached in ("_groups", "_centres", "_radii", "_upper_ok", "_packed", "_tree", "_packed_ready"):
             state.pop(cached, None)
         return state
 
@@ -146,17 +161,23 @@ class Scene:
         return self._nearest(a, b, cutoff)
 
     _CHUNK = 1_000_000  # (point, obstacle) pairs per block
+    #: batches of at most this many queries, asked before anything needed the compiled kernels (a pipeline's
+    #: validation: its start and goal), are answered by the vectorised groups: numba is not imported for them
+    FEW = 64
 
     def _nearest(self, a: np.ndarray, b: np.ndarray | None, cutoff) -> tuple[np.ndarray, np.ndarray]:
         n = len(a)
         if not self.obstacles or n == 0:
             return np.full(n, np.inf), np.full(n, -1, dtype=np.int64)
-        self._prepare()
-        if self._tree is not None:
+        if n <= self.FEW and not getattr(self, "_packed_ready", False):
+            self._prepare_groups()  # the same exact closed forms, numpy's (tests/test_compiled.py compares them)
+        else:
+            self._prepare()
+        if getattr(self, "_tree", None) is not None:
             from .geometry import bvh
 
             return bvh.distances(self._packed, self._tree, a, b, cutoff)
-        if self._packed is not None:
+        if getattr(self, "_packed", None) is not None:
             from .geometry import compiled
 
             return compiled.distances(self._packed, a, b, cutoff)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -193,3 +194,55 @@ def stalled_client(page_url: str, receive_buffer: int = 4096):
         s.close()
         raise AssertionError(f"the viewer did not upgrade the stalled client: {head!r}")
     return s
+
+
+@contextmanager
+def live_view(exit_after: float = 120.0, env=None):
+    """``surgiplan view --live`` (:func:`start_view`) for the ``with`` block: yields the page's URL, with its
+    token; the viewer is terminated at the end."""
+    process, url = start_view(["--live", "--port", "0"], exit_after, env)
+    try:
+        yield url
+    finally:
+        process.terminate()
+        process.wait(10)
+
+
+def watch_live(page_url: str, on_item, timeout: float = 60.0, most: int = 1_000_000) -> None:
+    """Watch the live viewer whose page is ``page_url`` as a page does (``/watch`` with the page's token and
+    origin) until the stage's ``status``: ``on_item(item, now)`` for every item it relays (``now``: time.time()
+    at the message's arrival). Bounded: ``most`` messages, ``timeout`` s each."""
+    import json
+    import time
+    from urllib.parse import urlsplit
+
+    from websockets.sync.client import connect
+
+    with connect(feed_url(page_url, "/watch"), origin=f"http://{urlsplit(page_url).netloc}") as socket:
+        for _ in range(most):
+            message = json.loads(socket.recv(timeout=timeout))
+            now = time.time()
+            for item in message if isinstance(message, list) else [message]:
+                on_item(item, now)
+                if item["channel"] == "status":
+                    return
+
+
+@contextmanager
+def serving(viewer, exit_after: float = 120.0):
+    """A :class:`~surgiplan.outputs.report.server.LiveViewer` serving in a thread of this process for the
+    ``with`` block (its queues and memory can be read); stopped at the end."""
+    import asyncio
+    import threading
+
+    ready = threading.Event()
+    loop = asyncio.new_event_loop()
+    serve = viewer.serve(open_browser=False, exit_after=exit_after, announce=lambda _: ready.set())
+    thread = threading.Thread(target=loop.run_until_complete, args=(serve,), daemon=True)
+    thread.start()
+    try:
+        assert ready.wait(20), "the live viewer did not start"
+        yield viewer
+    finally:
+        viewer.stop()
+        thread.join(10)

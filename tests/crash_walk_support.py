@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from pipeline_builders import guide_stages, retraction_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "configs" / "scenes" / "block_world.yaml"
@@ -58,27 +59,6 @@ class RunKind:
     #: path fragments of the files that are committed work: a rerun must not write them again
     work: tuple[str, ...] = ()
     record: str | None = None
-
-
-def _guide_stages(seed: int, trainee: bool) -> list[dict[str, Any]]:
-    return [
-        {
-            "stage": "plan",
-            "name": "recommended",
-            "plugin": "safe_prm",
-            "settings": {"proficiency": "beginner", "milestones": 300, "seed": 1},
-            "start": "entry",
-            "goal": "target",
-        },
-        {
-            "stage": "guide",
-            "name": "attempt",
-            "plugin": "synthetic_trainee",
-            "path_from": "recommended",
-            "settings": {"level": "beginner", "seed": seed, "pace": 0},
-            **({"trainee": {"name": "alice", "task": "block-world"}} if trainee else {}),
-        },
-    ]
 
 
 def _plan(seed: int) -> dict[str, Any]:
@@ -138,60 +118,8 @@ def _optmis(grid_mm: float) -> dict[str, Any]:
 
 
 def _retraction(samples: int) -> dict[str, Any]:
-    flap = {
-        "mesh": {"box": {"size": [50, 50, 2.5], "divisions": [6, 6, 1], "pattern": "five"}},
-        "material": {"youngs_modulus": 1.0e6, "poisson_ratio": 0.45, "density": 1000},
-        "base_plane": {},
-    }
-    return {
-        "name": "walk-retraction",
-        "length_unit": "mm",
-        "scene": {
-            "bounds": {"min": [-10, -10, -5], "max": [80, 60, 60]},
-            "obstacles": [{"name": "bar", "box": {"min": [8, -5, 20], "max": [18, 55, 24]}}],
-        },
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "page",
-                "plugin": "retraction",
-                "space": {
-                    "kind": "se3",
-                    "body": [
-                        {"name": "jaws", "box": {"size": [7, 7, 4]}},
-                        {"name": "shaft", "capsule": {"a": [0, 0, 2], "b": [0, 0, 30], "radius": 1.5}},
-                    ],
-                    "rotation_weight": 20,
-                },
-                "start": {"xyz": [50, 25, 1.25]},
-                "settings": {
-                    "deformable": {"plugin": "stvk", "settings": flap},
-                    "anchored": [{"min": [0, 0, 0], "max": [0, 50, 2.5]}],
-                    "jaws": {"size": [7, 7, 4]},
-                    "grasps": {},
-                    "sampling": {
-                        "kind": "uniform",
-                        "samples": samples,
-                        "region": {"min": [28, 12, 3], "max": [52, 38, 32]},
-                        "max_rotation": "30 deg",
-                        "chunk": 4,
-                    },
-                    "relief": {"max_iterations": 1},
-                    "visibility": {
-                        "camera": [40, 25, 150],
-                        "area": [[38, 20], [46, 20], [46, 30], [38, 30]],
-                        "resolution": 2,
-                    },
-                    "roadmap": {"k": 8, "step": 4},
-                    "smoothing": {"step": 4},
-                    "metric": "max_energy",
-                },
-                "artifact": "store/page.npz",
-            }
-        ],
-        "executor": {"kind": "local", "workers": 1},
-        "output": {"dir": "out", "gltf": False},
-    }
+    pipeline = retraction_pipeline("walk-retraction", (6, 6, 1), samples, chunk=4, artifact="store/page.npz")
+    return {**pipeline, "output": {"dir": "out", "gltf": False}}
 
 
 def _guide(seed: int) -> dict[str, Any]:
@@ -199,7 +127,7 @@ def _guide(seed: int) -> dict[str, Any]:
         "name": "walk-guide",
         "length_unit": "mm",
         "scene": str(SCENE),
-        "pipeline": _guide_stages(seed, trainee=True),
+        "pipeline": guide_stages(seed, trainee="alice"),
         "output": {"dir": "out", "gltf": False},
         "record": "record/trainees.sqlite",
     }
@@ -362,12 +290,16 @@ class Outcome:
     point: str
     action: str
     exit: int
+    #: the kind of file the point wrote (its suffix: ``.png``, ``.sqlite``, ...)
+    file: str = ""
     problems: list[str] = field(default_factory=list)
     states: dict[str, int] = field(default_factory=dict)
     temporaries: int = 0
     attempts: int | None = None
     redone: int = 0
     rerun_work: int = 0
+    #: whether the run was rerun after the crash (and the rerun checked)
+    reran: bool = False
 
 
 def _write_pipelines(kind: RunKind, base: Path) -> tuple[Path, Path]:
@@ -393,6 +325,27 @@ def chosen_points(points, stride: int) -> list[int]:
 FAIL_POINTS = ("write", "commit")
 
 
+def file_kind(target: str) -> str:
+    """The kind of file a point wrote: its suffix (``-`` for none)."""
+    return Path(target).suffix or "-" if target else "-"
+
+
+def points_by_file_kind(points) -> dict[str, list[int]]:
+    """The points of each (kind of point, kind of file) pair, ``"write .png"``: their numbers, in order."""
+    out: dict[str, list[int]] = {}
+    for seq, point, _, target in points:
+        out.setdefault(f"{point} {file_kind(target)}", []).append(seq)
+    return out
+
+
+def file_kind_points(points, files: tuple[str, ...]) -> list[int]:
+    """The last point of each kind of point in a file of each kind in ``files`` (``("*",)``: every kind the run
+    writes): the quickest walk's crashes at every kind of file."""
+    return sorted(
+        seqs[-1] for pair, seqs in points_by_file_kind(points).items() if "*" in files or pair.split(" ", 1)[1] in files
+    )
+
+
 def after_first_work(kind: RunKind, points) -> list[int]:
     """The point just after the first work file's rename: a crash there has committed work a rerun must keep."""
     for seq, point, _, target in points:
@@ -402,12 +355,20 @@ def after_first_work(kind: RunKind, points) -> list[int]:
 
 
 def walk(
-    kind: RunKind, base: Path, stride: int = 1, actions: tuple[str, ...] = ("kill",), select: str = "stride"
+    kind: RunKind,
+    base: Path,
+    stride: int = 1,
+    actions: tuple[str, ...] = ("kill",),
+    select: str = "stride",
+    files: tuple[str, ...] = (),
 ) -> dict[str, Any]:
     """Walk ``kind``'s points (see the module) in ``base``; returns the counts and every problem found.
 
     ``select``: ``stride`` (every ``stride``-th point, see :func:`chosen_points`), or ``work`` (one point: just
-    after the first work file is committed; the quickest check that a rerun keeps committed work)."""
+    after the first work file is committed; the quickest check that a rerun keeps committed work). ``files``
+    (suffixes, or ``*``): also kill at the last point of each kind in a file of each of these kinds
+    (:func:`file_kind_points`), checking the files and the record after the crash (the rerun is checked after
+    the crashes ``select`` chose)."""
     started = time.monotonic()
     old_yaml, new_yaml = _write_pipelines(kind, base)
     pristine = base / "pristine"
@@ -431,19 +392,23 @@ def walk(
 
     outcomes: list[Outcome] = []
     for action in actions:
+        rerun: set[int] | None = None  # None: after every crash
         if select == "work":
             chosen = after_first_work(kind, points)
         elif action == "fail" and not stride:  # the quickest walk: an I/O error in a file's write, and in a commit
             chosen = [max(seq for seq, point, *_ in points if point == p) for p in FAIL_POINTS if p in counts]
         else:
             chosen = chosen_points(points, stride if action == "kill" else stride * 3)
+        if files and action == "kill":
+            rerun = set(chosen)
+            chosen = sorted(rerun | set(file_kind_points(points, files)))
         for n in chosen:
-            _, point, _, _ = points[n - 1]
+            _, point, _, target = points[n - 1]
             work = base / f"{action}-{n}"
             shutil.copytree(pristine, work, symlinks=True)
             outcome = _crash_and_check(kind, work, new_yaml, f"{action}:any:{n}", old, new, points, n, old_attempts)
-            outcome.point, outcome.action = point, action
-            if action == "kill":
+            outcome.point, outcome.action, outcome.file = point, action, file_kind(target)
+            if action == "kill" and (rerun is None or n in rerun):
                 _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, outcome)
             outcomes.append(outcome)
             shutil.rmtree(work)
@@ -452,6 +417,7 @@ def walk(
         "stride": stride,
         "points": len(points),
         "points_by_kind": counts,
+        "points_by_file_kind": {pair: len(seqs) for pair, seqs in points_by_file_kind(points).items()},
         "exercised": {a: sum(o.action == a for o in outcomes) for a in actions},
         "work_files": len(all_work),
         "problems": [f"{o.action} at point {o.n} ({o.point}): {p}" for o in outcomes for p in o.problems],
@@ -509,6 +475,7 @@ def _crash_and_check(kind, work, new_yaml, fault, old, new, points, n, old_attem
 def _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, outcome) -> None:
     trace = work.parent / f"{work.name}.rerun.trace"
     code, err = run_child(work, new_yaml, trace=trace)
+    outcome.reran = True
     if code != 0:
         outcome.problems.append(f"the rerun after the crash failed ({code}): {err[-1500:]}")
         return
@@ -537,7 +504,11 @@ def _rerun_and_check(kind, work, new_yaml, points, n, all_work, old_attempts, ou
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "kinds", nargs="*", default=list(KINDS), help="KIND or KIND:work (one crash, after its first committed work)"
+        "kinds",
+        nargs="*",
+        default=list(KINDS),
+        help="KIND, KIND:work (one crash, after its first committed work) or KIND:files[=.png,.csv] (also the last "
+        "point of each kind in each kind of file, or in these)",
     )
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--fail", action="store_true", help="also inject I/O errors (every 3rd chosen stride)")
@@ -551,10 +522,13 @@ def main(argv: list[str] | None = None) -> int:
     reports = []
     for spec in args.kinds:
         name, _, select = spec.partition(":")
+        select, _, suffixes = select.partition("=")
+        files = tuple(suffixes.split(",")) if suffixes else ("*",) if select == "files" else ()
+        select = "stride" if select in ("", "files") else select
         base = Path(tempfile.mkdtemp(prefix=f"walk-{name}-", dir=args.keep))
         try:
             actions = ("kill", "fail") if args.fail and select != "work" else ("kill",)
-            reports.append(walk(KINDS[name], base, args.stride, actions, select or "stride"))
+            reports.append(walk(KINDS[name], base, args.stride, actions, select, files))
         finally:
             if args.keep is None:
                 shutil.rmtree(base, ignore_errors=True)

@@ -99,6 +99,14 @@ TABLE = [
         ),
         ["duplicate key 'via_points'"],
     ),
+    ("list-as-key", "validate", _text("name: p\n? [a, b]\n: 1\n"), ["pipeline.yaml:2:", "a key is a list"]),
+    ("mapping-as-key", "validate", _text("name: p\n{a: 1}: 2\n"), ["pipeline.yaml:2:", "a key is a mapping"]),
+    (
+        "list-as-key-with-anchors",
+        "validate",
+        _text("name: &n p\n? [a, b]\n: 1\n"),
+        ["pipeline.yaml:2:", "a key is a list"],
+    ),
     ("not-a-mapping", "validate", _text("- a\n- b\n"), ["a pipeline file must be a mapping"]),
     ("empty-file", "validate", _text(""), ["a pipeline file must be a mapping"]),
     (

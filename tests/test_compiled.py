@@ -110,12 +110,12 @@ def test_builds_and_queries_compile_nothing():
         from numba.core.registry import CPUDispatcher
         from surgiplan import PlanningProblem, load_scene
         from surgiplan.geometry import compiled
-        from surgiplan.plugins.planners.safe_prm import astar, kernels, landmarks, query_kernel
+        from surgiplan.plugins.planners.safe_prm import astar, kernels, landmarks, query_fused, query_kernel
         from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
         from surgiplan.plugins.planners.segmented_astar import astar as pathmap_astar
         from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace, R3Space
 
-        modules = (compiled, astar, kernels, landmarks, query_kernel, pathmap_astar)
+        modules = (compiled, astar, kernels, landmarks, query_fused, query_kernel, pathmap_astar)
         def counts():
             return {f"{m.__name__}.{name}": len(f.signatures) for m in modules for name, f in vars(m).items()
                     if isinstance(f, CPUDispatcher)}
@@ -150,6 +150,7 @@ def test_builds_and_queries_compile_nothing():
         "surgiplan.plugins.planners.safe_prm.kernels.csr_rows",
         "surgiplan.plugins.planners.safe_prm.kernels.component_labels",
         "surgiplan.plugins.planners.safe_prm.landmarks.landmark_distances",
+        "surgiplan.plugins.planners.safe_prm.query_fused.link_search_repair",
         "surgiplan.plugins.planners.safe_prm.query_kernel.link_ends",
         "surgiplan.plugins.planners.safe_prm.query_kernel.search_and_repair",
         "surgiplan.plugins.planners.segmented_astar.astar.astar_junctions",

@@ -1,6 +1,8 @@
 """Crash at every write point (issue 32, item 1), in the suite's budget: a plan run and a guide run killed at
-each kind of their points (the last point of each kind; an I/O error at the last write and commit), an optMIS
-build and a retraction's FEM generation killed just after their first checkpoint is committed; each checked as
+each kind of their points (the last point of each kind, then rerun; an I/O error at the last write and commit),
+and at the last point of each kind in each kind of file (the plan run: every kind it writes, .json .npz .png
+.glb .html; the guide run: the .csv it alone writes; the record's transaction steps), an optMIS build and a
+retraction's FEM generation killed just after their first checkpoint is committed; each checked as
 ``crash_walk_support`` says. The full walk, every point of every kind, is ``benchmarks/crash_walk.py`` (its
 counts are in docs/howto/reliability.md).
 
@@ -25,7 +27,7 @@ def walked():
         [
             sys.executable,
             str(ROOT / "tests" / "crash_walk_support.py"),
-            *("plan", "optmis:work", "retraction:work", "guide"),
+            *("plan:files", "optmis:work", "retraction:work", "guide:files=.csv"),
             *("--stride", "0", "--fail", "--json"),
         ],
         cwd=ROOT,
@@ -49,7 +51,13 @@ def test_a_crash_at_any_kind_of_write_point_loses_nothing_and_a_rerun_redoes_not
     if kind == "guide":
         assert {"sql", "commit", "committed"} <= kinds
     if kind in ("plan", "guide"):  # every kind of point was killed at; an I/O error in a write and in a commit
-        assert {o["point"] for o in report["outcomes"] if o["action"] == "kill"} == kinds
+        assert {o["point"] for o in report["outcomes"] if o["action"] == "kill" and o["reran"]} == kinds
+        killed = {f"{o['point']} {o['file']}" for o in report["outcomes"] if o["action"] == "kill"}
+        if kind == "plan":  # every kind of point in every kind of file the run writes
+            assert killed == set(report["points_by_file_kind"])
+            assert {".json", ".npz", ".png", ".glb", ".html"} <= {pair.split()[1] for pair in killed}
+        else:
+            assert {"write .csv", "fsync .csv", "rename .csv", "sql .sqlite", "commit .sqlite"} <= killed
         fails = {o["point"] for o in report["outcomes"] if o["action"] == "fail"}
         assert fails == ({"write", "commit"} if kind == "guide" else {"write"})
     else:
@@ -61,8 +69,8 @@ def test_a_crash_at_any_kind_of_write_point_loses_nothing_and_a_rerun_redoes_not
     if kind != "guide":
         assert report["work_files"] >= 1
         # a crash after work was committed: its rerun did only the rest (and none of it again: no problem above)
-        assert any(o["rerun_work"] < report["work_files"] for o in report["outcomes"] if o["action"] == "kill")
+        assert any(o["rerun_work"] < report["work_files"] for o in report["outcomes"] if o["reran"])
     else:
-        kills = {o["point"]: o["attempts"] for o in report["outcomes"] if o["action"] == "kill"}
+        kills = {o["point"]: o["attempts"] for o in report["outcomes"] if o["action"] == "kill" and o["reran"]}
         assert kills["commit"] == 1 and kills["committed"] == 2  # before the COMMIT: not there; after: there
     assert code == 0 or any(r["problems"] for r in reports.values())

@@ -26,7 +26,9 @@ pytest.importorskip("myst_parser", reason="the docs extra: pip install -e '.[doc
 def site(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("site")
     build = subprocess.run(
-        [sys.executable, "-m", "sphinx", "-q", "-b", "html", "-W", "--keep-going", "-E", str(DOCS), str(out)],
+        # -j 2: read and write in two processes (every extension declares itself parallel safe): the suite runs
+        # one test at a time, so the build has the second core to itself
+        [sys.executable, "-m", "sphinx", "-q", "-b", "html", "-W", "--keep-going", "-E", "-j", "2", DOCS, out],
         capture_output=True,
         text=True,
         timeout=600,

@@ -13,55 +13,27 @@ import numpy as np
 import pytest
 import yaml
 from conftest import CONFIGS
+from gimbal_guide_support import gimbal_guide_pipeline, open_source
 from surgiplan import load_pipeline, run_pipeline
-from surgiplan.guidance import GuideContext, SourceStopped
+from surgiplan.guidance import SourceStopped
 from surgiplan.guidance.fixture import FixtureSettings, VirtualFixture, assistance_level
 from surgiplan.plugins.devices.canopen.sim.statemachine import SOD
 from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice, CastGimbalDeviceSettings
 from surgiplan.plugins.devices.cast_gimbal.assist import TorqueLaw
-from surgiplan.results import StageContext
 
-FULCRUM = {"xyz": [150, 50, 130], "rpy": [0, "90 deg", 0]}
 RATE = 250.0  # Hz: small tests
 
 
 def assist_pipeline(tmp_path, settings=None, trainee=None):
     guide = {
-        "stage": "guide",
-        "name": "attempt",
-        "plugin": "cast_gimbal",
-        "path_from": "recommended",
-        "settings": {
-            "hand": {"level": "beginner", "seed": 2},
-            "control_rate": RATE,
-            "mode": "assist",
-            "max_duration": 1.6,  # s: the attempt's first part is enough here (small tests)
-            **(settings or {}),
-        },
+        "hand": {"level": "beginner", "seed": 2},
+        "control_rate": RATE,
+        "mode": "assist",
+        "max_duration": 1.6,  # s: the attempt's first part is enough here (small tests)
+        **(settings or {}),
     }
-    if trainee:
-        guide["trainee"] = trainee
-    plan = {
-        "stage": "plan",
-        "name": "recommended",
-        "plugin": "safe_prm",
-        "settings": {"proficiency": "beginner", "milestones": 1000, "seed": 1},
-        "space": {"kind": "cast_gimbal", "fulcrum": FULCRUM},
-        "start": [60, 50, 20],
-        "goal": "target",
-        "artifact": str(tmp_path / "roadmap.npz"),  # built once per test, loaded by a second run
-    }
-    data = {
-        "name": "assist",
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [plan, guide],
-        "output": {"dir": str(tmp_path / "out"), "figures": False, "gltf": False},
-        "record": str(tmp_path / "record.sqlite"),
-    }
-    path = tmp_path / "assist.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    # the roadmap built once per test, loaded by a second run
+    return gimbal_guide_pipeline(tmp_path, "assist", guide, trainee, artifact=tmp_path / "roadmap.npz")
 
 
 @pytest.fixture(scope="module")
@@ -79,15 +51,9 @@ def run_source(tmp, planned, settings=None, during=None):
     pipeline = load_pipeline(assist_pipeline(tmp, settings))
     spec = pipeline.stages[1]
     from surgiplan.clearance import intervals, threshold_value
-    from surgiplan.guidance import Guide
 
     critical = intervals(list(plan.critical_regions))
-    threshold = threshold_value(plan.clearance_threshold)
-    guide = Guide(space, plan.path, space.scene, threshold, critical, spec.guidance)
-    context = StageContext("attempt", space.scene, tmp / "out", tmp)
-    (tmp / "out").mkdir(exist_ok=True)
-    source = spec.plugin.cls(spec.settings)
-    source.open(GuideContext(context, plan.path, guide.tips, space, space.scene, guide.threshold, critical))
+    source = open_source(tmp, plan, space, spec, threshold_value(plan.clearance_threshold), critical)
     truth = source.device.simulator
     node_ids = [a.node_id for a in source.device.master.axes]
     device, bus = source.device, source.device.bus

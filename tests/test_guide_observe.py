@@ -10,44 +10,13 @@ import coal
 import numpy as np
 import pytest
 import yaml
-from conftest import CONFIGS
+from gimbal_guide_support import gimbal_guide_pipeline, open_source
 from surgiplan import load_pipeline, run_pipeline
-from surgiplan.guidance import GuideContext
-from surgiplan.results import StageContext
-
-FULCRUM = {"xyz": [150, 50, 130], "rpy": [0, "90 deg", 0]}
 
 
 def gimbal_pipeline(tmp_path, guide_settings=None):
-    stages = [
-        {
-            "stage": "plan",
-            "name": "recommended",
-            "plugin": "safe_prm",
-            "settings": {"proficiency": "beginner", "milestones": 1000, "seed": 1},
-            "space": {"kind": "cast_gimbal", "fulcrum": FULCRUM},
-            "start": [60, 50, 20],
-            "goal": "target",
-        },
-        {
-            "stage": "guide",
-            "name": "attempt",
-            "plugin": "cast_gimbal",
-            "path_from": "recommended",
-            "settings": guide_settings or {"hand": {"level": "intermediate", "seed": 2}, "control_rate": 100},
-        },
-    ]
-    data = {
-        "name": "observe",
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": stages,
-        "output": {"dir": str(tmp_path / "out"), "figures": False, "gltf": False},
-        "record": str(tmp_path / "record.sqlite"),
-    }
-    path = tmp_path / "observe.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    settings = guide_settings or {"hand": {"level": "intermediate", "seed": 2}, "control_rate": 100}
+    return gimbal_guide_pipeline(tmp_path, "observe", settings)
 
 
 @pytest.fixture(scope="module")
@@ -60,13 +29,7 @@ def observed(tmp_path_factory):
     plan = run_pipeline(plan_only).results[0]
     spec = pipeline.stages[1]
     space = pipeline.stages[0].space
-    from surgiplan.guidance import Guide
-
-    guide = Guide(space, plan.path, space.scene, plan.clearance_threshold, [], spec.guidance)
-    context = StageContext("attempt", space.scene, tmp / "out", tmp)
-    (tmp / "out").mkdir(exist_ok=True)
-    source = spec.plugin.cls(spec.settings)
-    source.open(GuideContext(context, plan.path, guide.tips, space, space.scene, guide.threshold))
+    source = open_source(tmp, plan, space, spec, plan.clearance_threshold)
     truth = source.device.simulator
     samples, hand = [], []
     for sample in source.samples():

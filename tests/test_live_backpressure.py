@@ -9,14 +9,12 @@ write buffer grew by every byte pushed; now its share stays under its queue's bo
 
 from __future__ import annotations
 
-import asyncio
-import json
 import socket
 import threading
 import time
 import tracemalloc
 
-from browser_support import stalled_client
+from browser_support import serving, stalled_client, watch_live
 from surgiplan.live import MAX_MESSAGE, WebSocketFeed
 from surgiplan.outputs.report.server import LiveViewer
 
@@ -26,100 +24,86 @@ PAD = 8000  # bytes of padding per event: 40 MB in all
 
 
 def test_a_stalled_page_is_bounded_and_disconnected_while_a_normal_one_gets_everything():
-    from websockets.sync.client import connect
 
     viewer = LiveViewer(port=0, max_messages=64, max_bytes=MAX_BYTES, stall_after=5, patience=3)
-    loop = asyncio.new_event_loop()
-    ready = threading.Event()
-    thread = threading.Thread(
-        target=loop.run_until_complete,
-        args=(viewer.serve(open_browser=False, exit_after=120, announce=lambda _: ready.set()),),
-        daemon=True,
-    )
-    thread.start()
-    assert ready.wait(20)
-    port, token = viewer.bound, viewer.token
-    tracemalloc.start()
-    try:
-        stalled_socket = stalled_client(f"http://127.0.0.1:{port}/?token={token}")
-        for _ in range(500):
-            if viewer.watchers:
-                break
-            time.sleep(0.01)
-        (stalled,) = viewer.watchers
-
-        got = {"events": 0, "page_drops": 0, "status": False, "closed": None}
-
-        def watch() -> None:
-            with connect(f"ws://127.0.0.1:{port}/watch?token={token}", origin=f"http://127.0.0.1:{port}") as ws:
-                for _ in range(1_000_000):  # bounded; ends at the status
-                    for item in json.loads(ws.recv(timeout=60)):
-                        if item["channel"] == "event":
-                            got["events"] += 1
-                        elif item["channel"] == "drops" and "page" in item["payload"]:
-                            got["page_drops"] = item["payload"]["page"]
-                        elif item["channel"] == "status":
-                            got["status"] = True
-                            return
-
-        normal = threading.Thread(target=watch, daemon=True)
-        normal.start()
-        for _ in range(500):
-            if len(viewer.watchers) == 2:
-                break
-            time.sleep(0.01)
-        assert len(viewer.watchers) == 2
-        (normal_watcher,) = viewer.watchers - {stalled}
-        baseline = tracemalloc.get_traced_memory()[0]
-        tracemalloc.reset_peak()
-
-        feed = WebSocketFeed(viewer.feed_url, token=token)
-        pushed = 0
-        for i in range(EVENTS):
-            payload = {"t": i / 100, "kind": "note", "message": "x" * PAD}
-            pushed += PAD
-            feed.publish("event", payload)
-            if i % 20 == 19:
-                time.sleep(0.002)  # small batches (a feed message is at most 4 MiB)
-        feed.publish("status", {"status": "completed"})
-        feed.close(timeout=60)
-        normal.join(60)
-        peak = tracemalloc.get_traced_memory()[1] - baseline
-
-        # the stalled page: cut off, and its share bounded by its queue plus one write buffer's worth
-        for _ in range(2000):  # at most stall_after once the feed ended
-            if stalled.disconnected is not None and stalled not in viewer.watchers:
-                break
-            time.sleep(0.01)
-        assert stalled.disconnected is not None and "stalled" in stalled.disconnected
-        assert stalled not in viewer.watchers and normal_watcher.disconnected is None
-        # its queue, the write buffer's high-water mark and one message (a feed sends at most MAX_MESSAGE)
-        assert stalled.peak_bytes <= MAX_BYTES + 2**15 + MAX_MESSAGE, stalled.peak_bytes
-        assert stalled.queued_bytes == 0 and not stalled.queue
-        assert stalled.sent_messages < 64  # it took (into the kernel's buffers) hardly anything
-        # its socket was closed by the viewer: once what the kernel holds is read, the stream ends
-        stalled_socket.settimeout(10)
-        received = 0
+    with serving(viewer):
+        port, token = viewer.bound, viewer.token
+        tracemalloc.start()
         try:
-            for _ in range(100_000):
-                chunk = stalled_socket.recv(65536)
-                if not chunk:
+            stalled_socket = stalled_client(f"http://127.0.0.1:{port}/?token={token}")
+            for _ in range(500):
+                if viewer.watchers:
                     break
-                received += len(chunk)
-        except ConnectionResetError:
-            pass
-        stalled_socket.close()
-        assert received < 4 * MAX_BYTES  # the kernel's buffers, a few queue-lengths at most, not 40 MB
+                time.sleep(0.01)
+            (stalled,) = viewer.watchers
 
-        # the normal page got every event, or was told which it lost
-        assert feed.sent == EVENTS + 1 and feed.dropped == 0
-        assert got["status"] and got["events"] + got["page_drops"] == EVENTS, got
-        # the viewer's memory while 40 MB went through: its history of events (1000 kept) and bounded queues
-        assert pushed == EVENTS * PAD and peak < 32 * 2**20, peak / 2**20
-    finally:
-        tracemalloc.stop()
-        viewer.stop()
-        thread.join(10)
+            got = {"events": 0, "page_drops": 0, "status": False, "closed": None}
+
+            def arrived(item: dict, _now: float) -> None:
+                if item["channel"] == "event":
+                    got["events"] += 1
+                elif item["channel"] == "drops" and "page" in item["payload"]:
+                    got["page_drops"] = item["payload"]["page"]
+                elif item["channel"] == "status":
+                    got["status"] = True
+
+            page_url = f"http://127.0.0.1:{port}/?token={token}"
+            normal = threading.Thread(target=watch_live, args=(page_url, arrived), daemon=True)
+            normal.start()
+            for _ in range(500):
+                if len(viewer.watchers) == 2:
+                    break
+                time.sleep(0.01)
+            assert len(viewer.watchers) == 2
+            (normal_watcher,) = viewer.watchers - {stalled}
+            baseline = tracemalloc.get_traced_memory()[0]
+            tracemalloc.reset_peak()
+
+            feed = WebSocketFeed(viewer.feed_url, token=token)
+            pushed = 0
+            for i in range(EVENTS):
+                payload = {"t": i / 100, "kind": "note", "message": "x" * PAD}
+                pushed += PAD
+                feed.publish("event", payload)
+                if i % 20 == 19:
+                    time.sleep(0.002)  # small batches (a feed message is at most 4 MiB)
+            feed.publish("status", {"status": "completed"})
+            feed.close(timeout=60)
+            normal.join(60)
+            peak = tracemalloc.get_traced_memory()[1] - baseline
+
+            # the stalled page: cut off, and its share bounded by its queue plus one write buffer's worth
+            for _ in range(2000):  # at most stall_after once the feed ended
+                if stalled.disconnected is not None and stalled not in viewer.watchers:
+                    break
+                time.sleep(0.01)
+            assert stalled.disconnected is not None and "stalled" in stalled.disconnected
+            assert stalled not in viewer.watchers and normal_watcher.disconnected is None
+            # its queue, the write buffer's high-water mark and one message (a feed sends at most MAX_MESSAGE)
+            assert stalled.peak_bytes <= MAX_BYTES + 2**15 + MAX_MESSAGE, stalled.peak_bytes
+            assert stalled.queued_bytes == 0 and not stalled.queue
+            assert stalled.sent_messages < 64  # it took (into the kernel's buffers) hardly anything
+            # its socket was closed by the viewer: once what the kernel holds is read, the stream ends
+            stalled_socket.settimeout(10)
+            received = 0
+            try:
+                for _ in range(100_000):
+                    chunk = stalled_socket.recv(65536)
+                    if not chunk:
+                        break
+                    received += len(chunk)
+            except ConnectionResetError:
+                pass
+            stalled_socket.close()
+            assert received < 4 * MAX_BYTES  # the kernel's buffers, a few queue-lengths at most, not 40 MB
+
+            # the normal page got every event, or was told which it lost
+            assert feed.sent == EVENTS + 1 and feed.dropped == 0
+            assert got["status"] and got["events"] + got["page_drops"] == EVENTS, got
+            # the viewer's memory while 40 MB went through: its history of events (1000 kept) and bounded queues
+            assert pushed == EVENTS * PAD and peak < 32 * 2**20, peak / 2**20
+        finally:
+            tracemalloc.stop()
 
 
 def test_a_viewer_that_stops_reading_the_feed_cannot_hold_the_stage():
@@ -180,17 +164,7 @@ def test_a_viewer_that_stops_reading_the_feed_cannot_hold_the_stage():
 
 def test_a_large_backlog_reaches_the_viewer_in_messages_it_accepts():
     """6 MB queued at once (more than the 4 MiB a viewer accepts in one message): sent in halves, all of it."""
-    viewer = LiveViewer(port=0)
-    loop = asyncio.new_event_loop()
-    ready = threading.Event()
-    thread = threading.Thread(
-        target=loop.run_until_complete,
-        args=(viewer.serve(open_browser=False, exit_after=60, announce=lambda _: ready.set()),),
-        daemon=True,
-    )
-    thread.start()
-    assert ready.wait(20)
-    try:
+    with serving(LiveViewer(port=0), exit_after=60) as viewer:
         feed = WebSocketFeed(viewer.feed_url, token=viewer.token)
         for i in range(3000):
             feed.publish("event", {"t": i / 100, "kind": "note", "message": "x" * 2000})
@@ -201,6 +175,3 @@ def test_a_large_backlog_reaches_the_viewer_in_messages_it_accepts():
             time.sleep(0.01)
         assert feed.sent == 3000 and feed.dropped == 0 and viewer.received == 3000
         assert [e["t"] for e in viewer.events] == [i / 100 for i in range(2000, 3000)]  # the latest 1000, in order
-    finally:
-        viewer.stop()
-        thread.join(10)

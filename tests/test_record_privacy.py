@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from conftest import CONFIGS, ROOT
+from pipeline_builders import guide_stages
 from surgiplan.guidance import TraineeRecord
 from surgiplan.guidance.metrics import AttemptSamples
 
@@ -112,24 +113,7 @@ def test_two_guide_stages_in_two_processes_both_land_in_one_record(tmp_path):
             "name": f"bench-{name}",
             "length_unit": "mm",
             "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-            "pipeline": [
-                {
-                    "stage": "plan",
-                    "name": "recommended",
-                    "plugin": "safe_prm",
-                    "settings": {"proficiency": "beginner", "milestones": 300, "seed": 1},
-                    "start": "entry",
-                    "goal": "target",
-                },
-                {
-                    "stage": "guide",
-                    "name": "attempt",
-                    "plugin": "synthetic_trainee",
-                    "path_from": "recommended",
-                    "settings": {"level": "beginner", "seed": 7, "pace": 0},
-                    "trainee": {"name": name, "task": "block-world"},
-                },
-            ],
+            "pipeline": guide_stages(7, trainee=name),
             "output": {"dir": str(tmp_path / name), "figures": False, "gltf": False},
             "record": str(tmp_path / "record.sqlite"),
         }

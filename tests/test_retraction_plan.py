@@ -17,6 +17,7 @@ import coal
 import numpy as np
 import pytest
 import yaml
+from pipeline_builders import retraction_flap, retraction_pipeline
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.plugins.fem import StVKModel, StVKSettings
 from surgiplan.plugins.planners.retraction.equilibria import _Chain, _moment, _moment_by_differences, relieve
@@ -24,58 +25,14 @@ from surgiplan.plugins.planners.retraction.grasp import GraspFrame, configuratio
 from surgiplan.storage import load_bundle
 
 MM = 1e-3
-FLAP = {
-    "mesh": {"box": {"size": [50, 50, 2.5], "divisions": [8, 8, 1], "pattern": "five"}},
-    "material": {"youngs_modulus": 1.0e6, "poisson_ratio": 0.45, "density": 1000},
-    "base_plane": {},
-}
-BASE = {
-    "name": "retraction-test",
-    "length_unit": "mm",
-    "scene": {
-        "bounds": {"min": [-10, -10, -5], "max": [80, 60, 60]},
-        "obstacles": [{"name": "bar", "box": {"min": [8, -5, 20], "max": [18, 55, 24]}}],
-    },
-    "pipeline": [
-        {
-            "stage": "plan",
-            "name": "page",
-            "plugin": "retraction",
-            "space": {
-                "kind": "se3",
-                "body": [
-                    {"name": "jaws", "box": {"size": [7, 7, 4]}},
-                    {"name": "shaft", "capsule": {"a": [0, 0, 2], "b": [0, 0, 30], "radius": 1.5}},
-                ],
-                "rotation_weight": 20,
-            },
-            "start": {"xyz": [50, 25, 1.25]},
-            "settings": {
-                "deformable": {"plugin": "stvk", "settings": FLAP},
-                "anchored": [{"min": [0, 0, 0], "max": [0, 50, 2.5]}],
-                "jaws": {"size": [7, 7, 4]},
-                "grasps": {"edges": [{"start": [50, 12.5, 1.25], "end": [50, 37.5, 1.25], "count": 2}]},
-                "sampling": {
-                    "kind": "uniform",
-                    "samples": 25,
-                    "region": {"min": [28, 12, 3], "max": [52, 38, 32]},
-                    "max_rotation": "30 deg",
-                    "chunk": 13,
-                },
-                "relief": {"max_iterations": 1},
-                "visibility": {
-                    "camera": [40, 25, 150],
-                    "area": [[38, 20], [46, 20], [46, 30], [38, 30]],
-                    "resolution": 2,
-                },
-                "roadmap": {"k": 8, "step": 4},
-                "smoothing": {"step": 4},
-                "metric": "max_energy",
-            },
-        }
-    ],
-    "executor": {"kind": "local", "workers": 1},
-}
+FLAP = retraction_flap((8, 8, 1))
+BASE = retraction_pipeline(
+    "retraction-test",
+    (8, 8, 1),
+    samples=25,
+    chunk=13,
+    grasps={"edges": [{"start": [50, 12.5, 1.25], "end": [50, 37.5, 1.25], "count": 2}]},
+)
 
 
 def pipeline_file(path, out, change=None):

@@ -76,9 +76,59 @@ def test_hundreds_of_queries_match_the_plain_implementation(block_world, level):
     with_landmarks = roadmap.kernel_arrays
     roadmap.kernel_arrays = (
         *with_landmarks[:7],
-        np.empty((roadmap.n, 0)),
-        np.empty((roadmap.n, 0)),
+        roadmap.free_far[:, :0],  # no columns, the landmarks' type (astar.search_records)
+        roadmap.safe_far[:, :0],
         *with_landmarks[9:],
     )
     plain = [prm_query.query(roadmap, start, goal).settled for start, goal in pairs]
     assert np.sum(settled) < 0.8 * np.sum(plain)
+
+
+def test_the_one_call_query_is_the_stepwise_query(block_world, monkeypatch):
+    """The query in one compiled call (query_fused: the ends measured, linked, searched and repaired there) gives
+    the stepwise query's answer (the space's clearance, the kernels called one by one) on 200 random pairs at
+    each level: the same path, edge kinds, repairs, settled nodes and avoided stretches, found or not, ends in
+    the risk region (projected) and in collision included; the clearance it measures is R3Space.clearance's."""
+    from surgiplan.plugins.planners.safe_prm import query as prm_query
+    from surgiplan.plugins.planners.safe_prm.query_fused import point_obstacles
+
+    space = R3Space(block_world, tip_radius=0.001)
+    assert point_obstacles(space) is not None
+    rng = np.random.default_rng(23)
+    pairs = [np.array([block_world.points["entry"], block_world.points["target"]])]
+    pairs += list(rng.uniform(block_world.bounds_min, block_world.bounds_max, size=(200, 2, 3)))
+    fused = 0
+    for level in ("expert", "beginner"):
+        roadmap = (
+            SafePRM(SafePRMSettings(proficiency=level, milestones=400, seed=3))
+            .build(PlanningProblem(block_world, space))
+            .roadmap
+        )
+        one_call = [prm_query.query(roadmap, start, goal) for start, goal in pairs]
+        with monkeypatch.context() as patched:
+            patched.setattr(prm_query, "_query_fused", lambda *args: None)
+            stepwise = [prm_query.query(roadmap, start, goal) for start, goal in pairs]
+        for a, b in zip(one_call, stepwise, strict=True):
+            fused += "link_s" not in a.timings  # answered in the one call (linking not timed apart)
+            assert (a.found, a.message, a.kinds, a.repaired, a.settled) == (
+                b.found,
+                b.message,
+                b.kinds,
+                b.repaired,
+                b.settled,
+            )
+            np.testing.assert_array_equal(a.path, b.path)
+            assert len(a.detours) == len(b.detours)
+            for x, y in zip(a.detours, b.detours, strict=True):
+                np.testing.assert_array_equal(x, y)
+    # both ways exercised: the one call, and the stepwise query it hands over to (a projected end, or a link the
+    # covering balls leave open: most at this sparse roadmap's long links)
+    assert 40 <= fused <= 2 * len(pairs) - 40, fused
+    # the clearance the one call measures: the scene's signed distance less the tip radius, exactly
+    from surgiplan.geometry.compiled import nearest
+
+    obstacles, tip = point_obstacles(space)
+    ends = np.ascontiguousarray(np.concatenate(pairs[:50]))
+    distance, index = np.empty(len(ends)), np.empty(len(ends), dtype=np.int64)
+    nearest(*obstacles, ends, ends, False, np.full(len(ends), np.inf), distance, index)
+    np.testing.assert_array_equal(distance - tip, space.clearance(ends))

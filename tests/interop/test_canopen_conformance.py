@@ -66,18 +66,18 @@ def fresh(network, node_id: int):
     return node
 
 
-def map_for_402(node) -> dict[int, int]:
+def map_for_402(node, tpdo2_first: int = 0x6061, rpdo2: int = 0x607A) -> dict[int, int]:
     """PDOs a CiA 402 application maps (PRE-OPERATIONAL, canopen's procedure); returns COB-ID -> bytes.
 
-    RPDO1 controlword (acted on at reception), RPDO2 target position (at SYNC), TPDO1 statusword +
-    position, TPDO2 mode display + velocity (every SYNC)."""
+    RPDO1 controlword (acted on at reception), RPDO2 ``rpdo2`` (the target position by default, at SYNC),
+    TPDO1 statusword + position, TPDO2 ``tpdo2_first`` (the mode display by default) + velocity (every SYNC)."""
     node.tpdo.read()
     node.rpdo.read()
     layout = [
         (node.tpdo, 1, (0x6041, 0x6064), 1),
-        (node.tpdo, 2, (0x6061, 0x606C), 1),
+        (node.tpdo, 2, (tpdo2_first, 0x606C), 1),
         (node.rpdo, 1, (0x6040,), 255),
-        (node.rpdo, 2, (0x607A,), 1),
+        (node.rpdo, 2, (rpdo2,), 1),
     ]
     for maps, number, objects, trans in layout:
         pdo = maps[number]
@@ -191,24 +191,7 @@ def test_cyclic_synchronous_torque_through_base_node_402(network):
     """Mode 10 selected with canopen's op_mode, the target torque 0x6071 by RPDO at SYNC: the axis accelerates
     the way the torque says, 0x6077 reports it, and the max torque 0x6072 caps it."""
     node = fresh(network, 2)  # pitch: 0.1 N·m rated through 10:1, 0.004 kg·m²
-    node.tpdo.read()
-    node.rpdo.read()
-    layout = [
-        (node.tpdo, 1, (0x6041, 0x6064), 1),
-        (node.tpdo, 2, (0x6077, 0x606C), 1),
-        (node.rpdo, 1, (0x6040,), 255),
-        (node.rpdo, 2, (0x6071,), 1),
-    ]
-    for maps, number, objects, trans in layout:
-        pdo = maps[number]
-        pdo.clear()
-        for index in objects:
-            pdo.add_variable(index)
-        pdo.trans_type = trans
-        pdo.enabled = True
-    node.tpdo.save()
-    node.rpdo.save()
-    node.setup_402_state_machine(read_pdos=False)
+    map_for_402(node, tpdo2_first=0x6077, rpdo2=0x6071)  # TPDO2 the actual torque, RPDO2 the target torque
     assert node.sdo[0x6502].raw & 0x0200  # bit 9: cyclic synchronous torque
     assert node.sdo[0x6076].raw == 100  # the rated torque, mN·m (the EDS's)
     node.nmt.state = "OPERATIONAL"

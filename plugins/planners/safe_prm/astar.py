@@ -50,8 +50,9 @@ _SHRINK = 1.0 - 1e-12
 BUCKETS = 1 << 12
 #: a bucket's width, as a fraction of the roadmap's mean edge cost
 BUCKET_FRACTION = 1.0 / 32.0
-# the record of a node: its stamp, cost so far and heuristic, side by side (one cache line per visit)
-_STAMP, _COST, _HEURISTIC = 0, 1, 2
+# the record of a node: its stamp, cost so far, heuristic and parent side by side, 32 bytes (a visit touches one
+# cache line of it, where separate arrays cost one each: a query after other work runs on cold caches)
+_STAMP, _COST, _HEURISTIC, _PARENT = 0, 1, 2, 3
 
 
 class Workspace:
@@ -59,13 +60,12 @@ class Workspace:
 
     def __init__(self, n: int, entries: int) -> None:
         size = n + 2
-        self.node = np.zeros((size, 3))  # stamp, cost, heuristic
-        self.parent = np.empty(size, dtype=np.int64)
+        self.node = np.zeros((size, 4))  # stamp, cost, heuristic, parent
         self.end = np.zeros((size, 2))  # stamp, cost of the link to the virtual goal
-        self.head = np.empty(BUCKETS, dtype=np.int64)
-        self.entry_node = np.empty(entries, dtype=np.int64)
+        self.head = np.full(BUCKETS, -1, dtype=np.int32)  # empty buckets (a search leaves them so)
+        self.entry_node = np.empty(entries, dtype=np.int32)
         self.entry_key = np.empty(entries)
-        self.entry_next = np.empty(entries, dtype=np.int64)
+        self.entry_next = np.empty(entries, dtype=np.int32)
         self.generation = np.zeros(1)
         self.path = np.empty(size, dtype=np.int64)
         self.lock = threading.Lock()
@@ -73,15 +73,14 @@ class Workspace:
     def grow(self) -> None:
         """Twice the entries (a search that ran out of them is run again)."""
         entries = 2 * len(self.entry_node)
-        self.entry_node = np.empty(entries, dtype=np.int64)
+        self.entry_node = np.empty(entries, dtype=np.int32)
         self.entry_key = np.empty(entries)
-        self.entry_next = np.empty(entries, dtype=np.int64)
+        self.entry_next = np.empty(entries, dtype=np.int32)
 
     def arrays(self) -> tuple:
         """The arrays in the order :func:`search` takes them."""
         return (
             self.node,
-            self.parent,
             self.end,
             self.head,
             self.entry_node,
@@ -133,6 +132,13 @@ def _landmark_bounds(far, tolerance, target, goal_node, target_links, target_cos
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _top(top, bucket, window, size):
+    """The slots of the window that may hold entries (``head[:top]``) once one is filed into ``bucket``."""
+    slot = bucket - window
+    return max(top, slot + 1) if slot < size else top
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _file(e, bucket, window, head, entry_next, overflow):
     """Entry e into its bucket when the window holds it, else onto the overflow list; returns the list's head."""
     if bucket - window < head.shape[0]:
@@ -164,7 +170,6 @@ def search(
     target_point,
     direct_cost,
     node,
-    parent,
     end,
     head,
     entry_node,
@@ -180,9 +185,9 @@ def search(
     ``source_costs``, position ``source_point``), ``target`` n+1 the virtual goal (reached from
     ``target_links[target_use]`` at ``target_costs``, position ``target_point``); ``direct_cost`` a motion from
     the virtual start straight to the virtual goal (``inf``: none). ``scaled``: milestone coordinates times the
-    space's weights; ``far``: every milestone's roadmap distance to each landmark (:mod:`.landmarks`; no
-    columns: the straight-line bound alone), ``tolerance`` the round-off allowed in them; ``delta`` the buckets'
-    width. The remaining arguments are a :class:`Workspace`'s arrays.
+    space's weights; ``far``: every milestone's roadmap distance to each landmark (float32,
+    :func:`compact_landmarks`; no columns: the straight-line bound alone), ``tolerance`` the round-off allowed in
+    them; ``delta`` the buckets' width. The remaining arguments are a :class:`Workspace`'s arrays.
     """
     n = scaled.shape[0]
     start_node = n
@@ -201,15 +206,16 @@ def search(
                 if end[t, 0] != gen or target_costs[k] < end[t, 1]:
                     end[t, 0] = gen
                     end[t, 1] = target_costs[k]
-    for b in range(head.shape[0]):
-        head[b] = -1
+    # every slot of head is empty (-1) between searches: a search empties the buckets it drains and, when it
+    # ends, the slots it filed and left (head[:top]); clearing the whole window at each start was 16 kB written
     window_size = head.shape[0]
+    top = 0
     used = 0
     # the first entries: the source itself, or the start's links (and the direct motion to the goal)
     goal_cost = np.inf
     node[start_node, _STAMP] = gen
     node[start_node, _COST] = 0.0
-    parent[start_node] = -1
+    node[start_node, _PARENT] = -1
     node[goal_node, _STAMP] = gen
     node[goal_node, _COST] = np.inf
     if source == start_node:
@@ -223,16 +229,16 @@ def search(
             elif source_costs[k] >= node[t, _COST]:
                 continue
             node[t, _COST] = source_costs[k]
-            parent[t] = start_node
+            node[t, _PARENT] = start_node
             if t == target:
                 goal_cost = min(goal_cost, source_costs[k])
         if target == goal_node and direct_cost < goal_cost:
             goal_cost = direct_cost
             node[goal_node, _COST] = direct_cost
-            parent[goal_node] = start_node
+            node[goal_node, _PARENT] = start_node
         for k in range(source_targets.shape[0]):
             t = source_targets[k]
-            if source_use[k] and parent[t] == start_node and node[t, _COST] == source_costs[k]:
+            if source_use[k] and node[t, _PARENT] == start_node and node[t, _COST] == source_costs[k]:
                 if used == capacity:
                     return -1, np.inf, 0
                 entry_node[used] = t
@@ -242,7 +248,7 @@ def search(
         node[source, _STAMP] = gen
         node[source, _COST] = 0.0
         node[source, _HEURISTIC] = _heuristic(scaled, source, goal_at, far, low, high)
-        parent[source] = -1
+        node[source, _PARENT] = -1
         entry_node[0] = source
         entry_key[0] = node[source, _HEURISTIC]
         used = 1
@@ -253,7 +259,9 @@ def search(
         base = min(base, entry_key[e])
     overflow = -1
     for e in range(used):
-        overflow = _file(e, int((entry_key[e] - base) / delta), 0, head, entry_next, overflow)
+        bucket = int((entry_key[e] - base) / delta)
+        overflow = _file(e, bucket, 0, head, entry_next, overflow)
+        top = _top(top, bucket, 0, window_size)
     pending = used
     current = 0  # the bucket being emptied (counted from base)
     window = 0  # the bucket at the window's first slot
@@ -264,11 +272,14 @@ def search(
         if current - window >= window_size:
             # the window moves on: overflow entries that now fall within it go to their buckets
             window = current
+            top = 0  # every slot drained on the way here
             e = overflow
             overflow = -1
             while e >= 0:
                 following = entry_next[e]
-                overflow = _file(e, max(int((entry_key[e] - base) / delta), window), window, head, entry_next, overflow)
+                bucket = max(int((entry_key[e] - base) / delta), window)
+                overflow = _file(e, bucket, window, head, entry_next, overflow)
+                top = _top(top, bucket, window, window_size)
                 e = following
         e = head[current - window]
         if e < 0:
@@ -288,7 +299,7 @@ def search(
             if c < goal_cost:
                 goal_cost = c
                 node[goal_node, _COST] = c
-                parent[goal_node] = v
+                node[goal_node, _PARENT] = v
         for k in range(indptr[v], indptr[v + 1]):
             w = indices[k]
             c = g + data[k]
@@ -298,7 +309,7 @@ def search(
             elif c >= node[w, _COST]:
                 continue
             node[w, _COST] = c
-            parent[w] = v
+            node[w, _PARENT] = v
             if w == target:
                 goal_cost = min(goal_cost, c)
                 continue
@@ -306,24 +317,30 @@ def search(
             if key >= goal_cost:
                 continue
             if used == capacity:
+                for b in range(top):
+                    head[b] = -1
                 return -1, np.inf, expanded
             entry_node[used] = w
             entry_key[used] = key
-            overflow = _file(used, max(int((key - base) / delta), current), window, head, entry_next, overflow)
+            bucket = max(int((key - base) / delta), current)
+            overflow = _file(used, bucket, window, head, entry_next, overflow)
+            top = _top(top, bucket, window, window_size)
             used += 1
             pending += 1
+    for b in range(top):
+        head[b] = -1
 
     if goal_cost == np.inf:
         return 0, np.inf, expanded
     count = 1
     v = target
-    while parent[v] >= 0:
-        v = parent[v]
+    while node[v, _PARENT] >= 0:
+        v = int(node[v, _PARENT])
         count += 1
     v = target
     for k in range(count - 1, -1, -1):
         path[k] = v
-        v = parent[v]
+        v = int(node[v, _PARENT])
     return count, goal_cost, expanded
 
 
@@ -334,10 +351,41 @@ def bucket_width(edge_cost: np.ndarray) -> float:
 
 
 def landmark_tolerance(far: np.ndarray) -> float:
-    """The round-off allowed in the landmark bounds: a billionth of the longest finite distance (a distance
-    summed over a path of up to thousands of edges is off by far less)."""
+    """The round-off allowed in the landmark bounds: a millionth of the longest finite distance. The distances
+    are stored as float32 (:func:`compact_landmarks`), each rounded by at most 2^-24 of itself, the node's and
+    the target's both, 1.2e-7 of the longest at most; a distance summed over a path of up to thousands of edges
+    is off by far less again."""
     finite = far[np.isfinite(far)]
-    return 1e-9 * float(finite.max()) if finite.size else 0.0
+    return 1e-6 * float(finite.max()) if finite.size else 0.0
+
+
+#: bytes in a cache line: a node's :func:`search_records` row fills whole ones, starting at a line
+CACHE_LINE = 64
+
+
+def search_records(scaled: np.ndarray, far: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`search` reads of each node it reaches, side by side: its position (``scaled``, float64) and its
+    landmark distances (``far``, float32 as :func:`compact_landmarks`) in one row of whole cache lines, the first
+    row at a line's start (for 3 coordinates and 8 landmarks: 56 bytes, one line). A search reaches a thousand
+    nodes or so, scattered; after other work each row is a miss, so one line a node instead of two or three is
+    most of what a cold query costs. Returns the two as views of the rows (``scaled`` then ``far``)."""
+    n, d = scaled.shape
+    count = far.shape[1]
+    width = -(-(8 * d + 4 * count) // CACHE_LINE) * CACHE_LINE // 8  # float64 columns, whole lines
+    block = np.zeros(n * width + CACHE_LINE // 8)
+    skip = (-block.ctypes.data % CACHE_LINE) // 8
+    rows = block[skip : skip + n * width].reshape(n, width)
+    rows[:, :d] = scaled
+    landmarks = rows.view(np.float32)[:, 2 * d : 2 * d + count]
+    landmarks[:] = far
+    return rows[:, :d], landmarks
+
+
+def compact_landmarks(far: np.ndarray) -> np.ndarray:
+    """Landmark distances as the search reads them: float32, C order (32 bytes a node for 8 landmarks, half a
+    cache line; they only bound the heuristic, loosened by :func:`landmark_tolerance`, so the costs the search
+    adds stay exact float64)."""
+    return np.ascontiguousarray(far, dtype=np.float32)
 
 
 def shortest_path(
@@ -369,7 +417,7 @@ def shortest_path(
         np.ascontiguousarray(graph.indices, np.int32),
         np.ascontiguousarray(graph.data, np.float64),
     )
-    far = np.empty((n, 0)) if far is None else np.ascontiguousarray(far, np.float64)
+    far = compact_landmarks(np.empty((n, 0)) if far is None else far)
     arguments = (
         *rows,
         np.ascontiguousarray(scaled, np.float64),

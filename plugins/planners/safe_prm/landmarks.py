@@ -32,23 +32,22 @@ def dijkstra(indptr, indices, data, delta, source, out):
     width, :func:`.astar.bucket_width`)."""
     n = indptr.shape[0] - 1
     entries = indices.shape[0] + n + 64
-    node = np.zeros((n + 2, 3))
-    parent = np.empty(n + 2, dtype=np.int64)
+    node = np.zeros((n + 2, 4))
     end = np.zeros((n + 2, 2))
-    head = np.empty(BUCKETS, dtype=np.int64)
+    head = np.full(BUCKETS, -1, dtype=np.int32)
     generation = np.zeros(1)
     path = np.empty(n + 2, dtype=np.int64)
-    nothing = np.empty((n, 0))
+    nothing, no_landmarks = np.empty((n, 0)), np.empty((n, 0), dtype=np.float32)
     no_links, no_costs, no_use, nowhere = np.empty(0, np.int64), np.empty(0), np.empty(0, np.bool_), np.empty(0)
     while True:
-        entry_node = np.empty(entries, dtype=np.int64)
+        entry_node = np.empty(entries, dtype=np.int32)
         entry_key = np.empty(entries)
-        entry_next = np.empty(entries, dtype=np.int64)
+        entry_next = np.empty(entries, dtype=np.int32)
         count, _, _ = search(
-            indptr, indices, data, nothing, nothing, 0.0, delta,
+            indptr, indices, data, nothing, no_landmarks, 0.0, delta,
             source, no_links, no_costs, no_use, nowhere,
             n + 1, no_links, no_costs, no_use, nowhere, np.inf,
-            node, parent, end, head, entry_node, entry_key, entry_next, generation, path,
+            node, end, head, entry_node, entry_key, entry_next, generation, path,
         )  # fmt: skip
         if count >= 0:
             break

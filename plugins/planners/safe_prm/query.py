@@ -14,9 +14,13 @@ by a collision-free motion, searched in spheres of growing radius; the path
 runs start → projection → ... and the link is reported like a critical
 region (it cannot be avoided either).
 
-The links are found here (K-S neighbours from the roadmap's grid, certified by
-covering balls or the space's exact check); the search and the repair are one
-compiled call (:mod:`.query_kernel`, on :mod:`.astar`).
+For a space with Euclidean motions the whole query is one compiled call
+(:mod:`.query_fused`: the links, the search and repair, the path's
+configurations; for a point robot among primitives the ends' clearance too)
+whenever the covering balls decide every link and no end is projected.
+Otherwise the links are found here (K-S neighbours from the roadmap's grid,
+certified by covering balls or the space's exact check) and the search and
+the repair are one compiled call (:mod:`.query_kernel`, on :mod:`.astar`).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from surgiplan.paths import certify_edges
 
+from .query_fused import PROJECT, UNDECIDED, link_search_repair, measure_link_search_repair
 from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
 
@@ -191,6 +196,46 @@ def _direct(space, start, goal, slack, ends_safe, d_thresh, reach) -> tuple[floa
     return float(space.distance(start, goal)), safe
 
 
+def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, started: float):
+    """The whole query in one compiled call (:mod:`.query_fused`): the ends measured in it too when the roadmap
+    holds the scene's compiled obstacles (``ends_slack`` None), else with the slack and safety given. None when
+    a link needs the space's exact check or an end is to be projected (the stepwise query then answers)."""
+    work = roadmap.search_workspace
+    with work.lock:
+        while True:
+            if ends_slack is None:
+                obstacles, tip_radius = roadmap.point_obstacles
+                answer = measure_link_search_repair(
+                    ends, obstacles, tip_radius, roadmap.d_thresh, roadmap.linking_arrays, roadmap.kernel_arrays,
+                    work.arrays(),
+                )  # fmt: skip
+            else:
+                answer = link_search_repair(
+                    ends, ends_slack, ends_safe, roadmap.d_thresh, *roadmap.linking_arrays, *roadmap.kernel_arrays,
+                    work.arrays(),
+                )  # fmt: skip
+            if answer[0] != 3:
+                break
+            work.grow()  # more entries than the workspace holds: twice as many, and again
+    status, path, kinds, repaired, settled, avoided, offsets = answer
+    if status in (UNDECIDED, PROJECT):
+        return None
+    # one call: linking, search and repair are not told apart, all are search_s (link_s, when there is one, is the
+    # ends' clearance measured before it)
+    timings = {"search_s": time.perf_counter() - started}
+    if status == 1:
+        return QueryOutcome(False, message=_APART, timings=timings, settled=int(settled))
+    if status == 2:
+        return QueryOutcome(False, message="no path in R", timings=timings, settled=int(settled))
+    names = [SAFE if k == SAFE_EDGE else RISK for k in kinds.tolist()]
+    bounds = offsets.tolist()
+    detours = [avoided[a:b] for a, b in itertools.pairwise(bounds) if b > a]
+    return QueryOutcome(True, path, names, int(repaired), timings=timings, settled=int(settled), detours=detours)
+
+
+_APART = "start and goal are in different components of the roadmap R (no collision-free path among the milestones)"
+
+
 def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOutcome:
     """Algorithms 2-4: the shortest path from start to goal in R, repaired through R_safe where possible."""
     space = roadmap.space
@@ -199,9 +244,19 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     timings: dict[str, float] = {}
     started = time.perf_counter()
     ends = np.array((start, goal), dtype=float)
+    if roadmap.point_obstacles is not None:  # the ends measured, linked, searched and repaired in one call
+        fused = _query_fused(roadmap, ends, None, None, started)
+        if fused is not None:
+            return fused
     clearance = space.clearance(ends)
     workspace = space.workspace_slack(ends)
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
+    if space.euclidean_motions and roadmap.point_obstacles is None and (d_thresh <= 0 or ends_safe.all()):
+        linked = time.perf_counter()
+        fused = _query_fused(roadmap, ends, np.minimum(clearance, workspace), ends_safe, linked)
+        if fused is not None:
+            fused.timings = {"link_s": linked - started, **fused.timings}
+            return fused
     if space.euclidean_motions:
         start_links, goal_links, direct_cost, direct_safe = _link_euclidean(
             ends, roadmap, d_thresh, np.minimum(clearance, workspace), ends_safe
@@ -257,8 +312,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     if status == 1:
         return QueryOutcome(
             False,
-            message="start and goal are in different components of the roadmap R "
-            "(no collision-free path among the milestones)",
+            message=_APART,
             timings=timings,
             settled=int(settled),
         )

@@ -126,6 +126,7 @@ def search_and_repair(
     scaled,
     free_far,
     safe_far,
+    safe_scaled,
     tolerance,
     delta,
     safe,
@@ -152,7 +153,9 @@ def search_and_repair(
     projected to). Returns (status, nodes, edge kinds, repairs, settled, avoided nodes, avoided offsets):
     status 0 found, 1 start and goal in different components of R, 2 no path in R, 3 the workspace ran out of
     entries (grow it and ask again); the nodes of each risky stretch a repair replaced are
-    ``avoided[offsets[i]:offsets[i + 1]]``. ``delta``: :func:`.astar.search`'s; ``work``: a
+    ``avoided[offsets[i]:offsets[i + 1]]``. ``scaled``, ``free_far`` and ``safe_scaled``, ``safe_far``: the
+    positions and landmark distances the searches in R and in R_safe read (:func:`.astar.search_records`: the
+    same positions, each set side by side with its landmarks). ``delta``: :func:`.astar.search`'s; ``work``: a
     :class:`.astar.Workspace`'s arrays (:meth:`~.astar.Workspace.arrays`)."""
     n = scaled.shape[0]
     path = work[-1]
@@ -244,7 +247,7 @@ def search_and_repair(
                 safe_indptr,
                 safe_indices,
                 safe_data,
-                scaled,
+                safe_scaled,
                 safe_far,
                 tolerance,
                 delta,
@@ -376,7 +379,7 @@ def link_ends(ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell,
 def _compile() -> None:
     """Load (or compile) both kernels for the types :mod:`.query` passes, when this module is imported: no query
     pays it (a fresh clone's first query included)."""
-    from .astar import Workspace
+    from .astar import Workspace, search_records
     from .kernels import csr_rows, grid_build
 
     points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
@@ -391,13 +394,15 @@ def _compile() -> None:
         ends, np.ones(2), safe, 0.0, ordered, origin, dims, 1.0, first, order, 2, 2.0, np.ones(2), safe
     )
     work = Workspace(2, 16)
+    records = search_records(points, np.zeros((2, 1)))
     for source, target in ((2, 3), (0, 1)):
         search_and_repair(
             *rows,
             *rows,
-            points,
-            np.zeros((2, 1)),
-            np.zeros((2, 1)),
+            records[0],
+            records[1],
+            records[1],
+            records[0],
             1e-9,
             0.1,
             safe,

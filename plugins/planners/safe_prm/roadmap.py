@@ -34,9 +34,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
-from .astar import Workspace, bucket_width, landmark_tolerance
+from .astar import Workspace, bucket_width, landmark_tolerance, search_records
 from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
 from .landmarks import LANDMARKS, landmark_distances
+from .query_fused import point_obstacles
 
 
 class Grid(NamedTuple):
@@ -119,16 +120,20 @@ class RoadmapPair:
         safe_labels = np.ascontiguousarray(self.safe_labels[order])
         #: every search node's distance to the landmarks of R and of R_safe (the query's A* bounds, :mod:`.landmarks`)
         delta = bucket_width(cost)
-        self.free_far = landmark_distances(*self.free_rows, self.grid.points, free_labels, LANDMARKS, delta)
-        self.safe_far = landmark_distances(*self.safe_rows, self.grid.points, safe_labels, LANDMARKS, delta)
+        free_far = landmark_distances(*self.free_rows, self.grid.points, free_labels, LANDMARKS, delta)
+        safe_far = landmark_distances(*self.safe_rows, self.grid.points, safe_labels, LANDMARKS, delta)
+        # each search reads a node's position and landmarks in one row (:func:`.astar.search_records`)
+        self.free_scaled, self.free_far = search_records(self.grid.points, free_far)
+        self.safe_scaled, self.safe_far = search_records(self.grid.points, safe_far)
         #: what :func:`.query_kernel.search_and_repair` takes of the roadmap, in its order
         self.kernel_arrays = (
             *self.free_rows,
             *self.safe_rows,
-            self.grid.points,
+            self.free_scaled,
             self.free_far,
             self.safe_far,
-            max(landmark_tolerance(self.free_far), landmark_tolerance(self.safe_far)),
+            self.safe_scaled,
+            max(landmark_tolerance(free_far), landmark_tolerance(safe_far)),
             delta,
             self.search_safe,
             free_labels,
@@ -138,6 +143,14 @@ class RoadmapPair:
         )
         #: the search order's identity (:func:`.query_kernel.link_ends` then answers in search nodes)
         self.search_identity = np.arange(self.n, dtype=np.int64)
+        grid = self.grid
+        #: what :func:`.query_fused.link_search_repair` takes of the roadmap to link the ends, in its order
+        self.linking_arrays = (
+            grid.points, grid.origin, grid.dims, grid.cell, grid.first, self.search_identity, int(self.k),
+            float(self.s), self.search_slack, self.search_safe, self.search_milestones,
+        )  # fmt: skip
+        #: the scene's compiled obstacles and the tip radius when the query measures the ends itself, else None
+        self.point_obstacles = point_obstacles(self.space)
         self._workspace = Workspace(self.n, 2 * len(self.free_rows[1]) + self.n + 64)
 
     # ------------------------------------------------------------------ structure

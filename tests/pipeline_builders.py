@@ -1,0 +1,134 @@
+"""Pipelines several tests (and the crash walk) build: one builder each, so a change of a plugin's settings is
+made in one place.
+
+- :func:`recommended_stage`: the recommended path (safe PRM from ``entry`` to ``target`` of block_world);
+- :func:`guide_stages`: that and a synthetic trainee's attempt at it;
+- :func:`block_world_pipeline`: stages in a pipeline document on block_world, written as a file;
+- :func:`retraction_pipeline`: the retraction planner (paper 002) on a flap anchored along x = 0 with a bar
+  above it, as a whole pipeline document."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+BLOCK_WORLD = Path(__file__).resolve().parent.parent / "configs" / "scenes" / "block_world.yaml"
+
+
+def recommended_stage(
+    proficiency: str = "beginner", milestones: int = 300, k: int | None = None, artifact: Path | None = None
+) -> dict[str, Any]:
+    """A ``plan`` stage ``recommended``: safe PRM (seed 1) from ``entry`` to ``target``, stored as ``artifact``
+    when given."""
+    settings = {"proficiency": proficiency, "milestones": milestones, **({"k": k} if k else {}), "seed": 1}
+    return {
+        "stage": "plan",
+        "name": "recommended",
+        "plugin": "safe_prm",
+        "settings": settings,
+        "start": "entry",
+        "goal": "target",
+        **({"artifact": str(artifact)} if artifact else {}),
+    }
+
+
+def block_world_pipeline(path: Path, name: str, stages: list[dict[str, Any]], out: Path, **extra) -> Path:
+    """Write the pipeline ``name`` of ``stages`` on block_world (mm) to ``path``, output in ``out`` without
+    figures or glTF; ``extra``: more top-level keys (``record``). Returns ``path``."""
+    data = {
+        "name": name,
+        "length_unit": "mm",
+        "scene": str(BLOCK_WORLD),
+        "pipeline": stages,
+        "output": {"dir": str(out), "figures": False, "gltf": False},
+        **extra,
+    }
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path
+
+
+def guide_stages(seed: int, trainee: str | None = None, milestones: int = 300) -> list[dict[str, Any]]:
+    """:func:`recommended_stage` (beginner) and a ``guide`` stage (``attempt``: a beginner synthetic trainee
+    following it, ``seed``, no pacing) for ``trainee`` when given."""
+    return [
+        recommended_stage("beginner", milestones),
+        {
+            "stage": "guide",
+            "name": "attempt",
+            "plugin": "synthetic_trainee",
+            "path_from": "recommended",
+            "settings": {"level": "beginner", "seed": seed, "pace": 0},
+            **({"trainee": {"name": trainee, "task": "block-world"}} if trainee else {}),
+        },
+    ]
+
+
+def retraction_flap(divisions: tuple[int, int, int]) -> dict[str, Any]:
+    """The ``stvk`` settings of a 50 x 50 x 2.5 mm flap of ``divisions`` cells on a base plane."""
+    return {
+        "mesh": {"box": {"size": [50, 50, 2.5], "divisions": list(divisions), "pattern": "five"}},
+        "material": {"youngs_modulus": 1.0e6, "poisson_ratio": 0.45, "density": 1000},
+        "base_plane": {},
+    }
+
+
+def retraction_pipeline(
+    name: str,
+    divisions: tuple[int, int, int],
+    samples: int,
+    chunk: int,
+    grasps: dict[str, Any] | None = None,
+    artifact: str | None = None,
+) -> dict[str, Any]:
+    """A pipeline document of one retraction stage (``page``): the flap (:func:`retraction_flap`) anchored along
+    x = 0, grasped on its free edge (``grasps``: the planner's default when None), a bar above it, the area of
+    interest beneath the free edge; ``samples`` uniform samples per grasp in chunks of ``chunk``."""
+    stage = {
+        "stage": "plan",
+        "name": "page",
+        "plugin": "retraction",
+        "space": {
+            "kind": "se3",
+            "body": [
+                {"name": "jaws", "box": {"size": [7, 7, 4]}},
+                {"name": "shaft", "capsule": {"a": [0, 0, 2], "b": [0, 0, 30], "radius": 1.5}},
+            ],
+            "rotation_weight": 20,
+        },
+        "start": {"xyz": [50, 25, 1.25]},
+        "settings": {
+            "deformable": {"plugin": "stvk", "settings": retraction_flap(divisions)},
+            "anchored": [{"min": [0, 0, 0], "max": [0, 50, 2.5]}],
+            "jaws": {"size": [7, 7, 4]},
+            "grasps": grasps or {},
+            "sampling": {
+                "kind": "uniform",
+                "samples": samples,
+                "region": {"min": [28, 12, 3], "max": [52, 38, 32]},
+                "max_rotation": "30 deg",
+                "chunk": chunk,
+            },
+            "relief": {"max_iterations": 1},
+            "visibility": {
+                "camera": [40, 25, 150],
+                "area": [[38, 20], [46, 20], [46, 30], [38, 30]],
+                "resolution": 2,
+            },
+            "roadmap": {"k": 8, "step": 4},
+            "smoothing": {"step": 4},
+            "metric": "max_energy",
+        },
+        **({"artifact": artifact} if artifact else {}),
+    }
+    return {
+        "name": name,
+        "length_unit": "mm",
+        "scene": {
+            "bounds": {"min": [-10, -10, -5], "max": [80, 60, 60]},
+            "obstacles": [{"name": "bar", "box": {"min": [8, -5, 20], "max": [18, 55, 24]}}],
+        },
+        "pipeline": [stage],
+        "executor": {"kind": "local", "workers": 1},
+    }
