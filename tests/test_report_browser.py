@@ -193,6 +193,7 @@ def test_the_page_reports_what_it_drew_and_it_matches_result_json(browser, main_
         with np.load(stage["artifact"]) as stored:
             edges += len(stored["edges"])
     assert counts["obstacles"] == len(scene.obstacles) == 6
+    assert counts["obstacle_outlines"] == 6  # a few obstacles: each outlined (a merged mesh of many is not)
     assert counts["paths"] == len(stages_with_paths) == 4
     assert counts["critical_regions"] == regions == 2
     assert counts["points"] == len(scene.points)
@@ -428,3 +429,25 @@ def test_the_live_page_shows_the_samples_the_feed_dropped(browser):
     assert got["drops"] == {"feed": dropped, "page": 0}
     assert 500 - dropped <= got["tips"] <= 501 - dropped  # the page got every sample that was not dropped
     assert got["shown"] == f"samples dropped: {dropped} (by the run's feed {dropped}, by the viewer for this page 0)"
+
+
+def test_many_obstacles_are_one_translucent_mesh_of_front_faces_without_outlines(browser, tmp_path):
+    """configs/scanned_trainer.yaml's 117 boxes (more than outputs.merged.MAX_SEPARATE): one merged mesh, drawn
+    front faces only and writing depth (no blending of every box along a pixel's ray), not outlined."""
+    from surgiplan import load_scene
+
+    run = subprocess.run(
+        [*SURGIPLAN, "run", str(CONFIGS / "scanned_trainer.yaml"), "--quiet", "--out", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    scene = load_scene(CONFIGS / "scenes" / "scanned_trainer.yaml")
+    page = open_report(browser, tmp_path / "out")
+    assert_clean(page)
+    counts = page.evaluate("surgiplan.counts")
+    assert counts["obstacles"] == len(scene.obstacles) == 117 and counts["obstacle_outlines"] == 0
+    assert page.evaluate("surgiplan.obstacleMaterials()") == [
+        {"count": 117, "side": "front", "depthWrite": True, "transparent": True}
+    ]
