@@ -16,6 +16,9 @@ PHASES = [
     ("run_s", "run (with outputs)"),
 ]
 
+#: said of the wall times when other work shared the machine
+LOADED = ": the machine was shared with other work, so wall times are longer than a quiet machine's"
+
 
 def _exp(value) -> str:
     return "—" if value is None else f"{value:.2f}"
@@ -64,9 +67,9 @@ def render_scale(results: Path) -> str:
     outputs = max(base["figure_s"], base["glb_s"], base["report_s"])
     load_before, load_after = prov.get("load_before", [0])[0], prov.get("load_after", [0])[0]
     head = (
-        f"Measured by `benchmarks/bench_scale.py` (each case in a fresh process; the 2 cores shared with other work, "
-        f"load average {load_before:g} before and {load_after:g} after: wall times here are several times a quiet "
-        f"machine's; `benchmarks/results/scale.json`). Scenes of small boxes from `benchmarks/scale_scene.py`, "
+        f"Measured by `benchmarks/bench_scale.py` (each case in a fresh process, on 2 cores; load average "
+        f"{load_before:g} before and {load_after:g} after{LOADED if max(load_before, load_after) > 2 else ''}; "
+        f"`benchmarks/results/scale.json`). Scenes of small boxes from `benchmarks/scale_scene.py`, "
         f"a safe PRM (1 mm threshold) from entry to target; validate is `load_pipeline` after the plugins are "
         f"imported, query the whole answer (links, search, repair, smoothing):"
     )
