@@ -134,14 +134,7 @@ def _parse_events(text: str, path: str | Path) -> tuple[Any, LineMap]:
                 if kind is not scalar_event:
                     raise _NotPlain("a complex key")
                 key = event.value
-                first = frame[3]
-                if key in first:
-                    raise ConfigError(
-                        f"duplicate key '{key}' (lines {first[key]} and {line}); a key may appear once per mapping",
-                        file=path,
-                        line=line,
-                    )
-                first[key] = line
+                _first_time(frame[3], key, line, path)
                 made = cache.get((key, event.implicit[0]), missing)
                 frame[2] = (key, _scalar(loader, event, cache) if made is missing else made, line)
                 continue
@@ -293,16 +286,19 @@ def _check_duplicate_keys(root: yaml.Node, path: str | Path) -> None:
             for key_node, _ in node.value:
                 if _key(key_node, path) == "<<":
                     continue
-                line = key_node.start_mark.line + 1
-                if key_node.value in first:
-                    raise ConfigError(
-                        f"duplicate key '{key_node.value}' (lines {first[key_node.value]} and {line}); "
-                        "a key may appear once per mapping",
-                        file=path,
-                        line=line,
-                    )
-                first[key_node.value] = line
+                _first_time(first, key_node.value, key_node.start_mark.line + 1, path)
         stack.extend(_children(node))
+
+
+def _first_time(first: dict[Any, int], key: Any, line: int, path: str | Path) -> None:
+    """Record that ``key`` of one mapping is on ``line``; a key seen before in it is refused (both lines)."""
+    if key in first:
+        raise ConfigError(
+            f"duplicate key '{key}' (lines {first[key]} and {line}); a key may appear once per mapping",
+            file=path,
+            line=line,
+        )
+    first[key] = line
 
 
 def _key(key_node: yaml.Node, path: str | Path) -> Any:
@@ -345,13 +341,7 @@ def _walk_tree(root: yaml.Node, path: str | Path, lines: LineMap) -> None:
                 key = _key(key_node, path)
                 line = key_node.start_mark.line + 1
                 if key != "<<":
-                    if key in first:
-                        raise ConfigError(
-                            f"duplicate key '{key}' (lines {first[key]} and {line}); a key may appear once per mapping",
-                            file=path,
-                            line=line,
-                        )
-                    first[key] = line
+                    _first_time(first, key, line, path)
                 lines[(*at, key)] = line
                 stack.append((value_node, (*at, key)))
         elif isinstance(node, yaml.SequenceNode):
