@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 import yaml
-from pipeline_builders import guide_stages, retraction_pipeline
+from pipeline_support import guide_stages, retraction_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "configs" / "scenes" / "block_world.yaml"

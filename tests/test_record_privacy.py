@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from conftest import CONFIGS, ROOT
-from pipeline_builders import guide_stages
+from pipeline_support import guide_stages
 from surgiplan.guidance import TraineeRecord
 from surgiplan.guidance.metrics import AttemptSamples
 
