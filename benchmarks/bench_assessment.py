@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import RESULTS, save, table
-from pipeline_builders import block_world_pipeline, recommended_stage
+from pipeline_support import block_world_pipeline, recommended_stage
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.clearance import intervals
 from surgiplan.guidance import GuidanceSettings, Guide

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, live_view, wait_for, watch_live  # noqa: E402
 from common import paced_run_arguments, save, table  # noqa: E402
-from pipeline_builders import block_world_pipeline, recommended_stage  # noqa: E402
+from pipeline_support import block_world_pipeline, recommended_stage  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
 PATH_MM = 190.0  # about the beginner's recommended path in the block world

@@ -123,12 +123,15 @@ class PluginRegistry:
         self._load()
 
     # ------------------------------------------------------------------ loading
-    def _discover(self) -> list[metadata.EntryPoint]:
+    def _discover(self) -> list[tuple[metadata.EntryPoint, str, str]]:
+        """The entry points to load, surgiplan's first, each with its distribution's name and version (read once
+        per entry point: each read parses the distribution's METADATA headers)."""
         found = metadata.entry_points(group=NAME) if self.entry_points is None else self.entry_points
-        unique: dict[tuple[str, str, str], metadata.EntryPoint] = {}
+        unique: dict[tuple[str, str, str], tuple[metadata.EntryPoint, str, str]] = {}
         for ep in found:
-            unique.setdefault((_dist_name(ep)[0], ep.name, ep.value), ep)
-        return sorted(unique.values(), key=lambda ep: (_dist_name(ep)[0] != NAME, ep.name))
+            package, version = _dist_name(ep)
+            unique.setdefault((package, ep.name, ep.value), (ep, package, version))
+        return sorted(unique.values(), key=lambda named: (named[1] != NAME, named[0].name))
 
     def _fail(self, entry_point: str, package: str, message: str) -> None:
         if self.strict:
@@ -140,8 +143,7 @@ class PluginRegistry:
         manager = pluggy.PluginManager(NAME)
         manager.add_hookspecs(hookspecs)
         owners: dict[str, tuple[str, str, str]] = {}
-        for ep in self._discover():
-            package, version = _dist_name(ep)
+        for ep, package, version in self._discover():
             if self.packages is not None and package not in self.packages:
                 continue
             if ep.name in self.disabled:

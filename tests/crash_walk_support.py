@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 import yaml
-from pipeline_builders import guide_stages, retraction_pipeline
+from pipeline_support import guide_stages, retraction_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "configs" / "scenes" / "block_world.yaml"
@@ -61,7 +61,7 @@ class RunKind:
     record: str | None = None
 
 
-def _plan(seed: int) -> dict[str, Any]:
+def _plan(seed: int, figures: bool) -> dict[str, Any]:
     return {
         "name": "walk-plan",
         "length_unit": "mm",
@@ -77,11 +77,11 @@ def _plan(seed: int) -> dict[str, Any]:
                 "artifact": "store/roadmap.npz",
             }
         ],
-        "output": {"dir": "out"},
+        "output": {"dir": "out", "figures": figures},
     }
 
 
-def _optmis(grid_mm: float) -> dict[str, Any]:
+def _optmis(grid_mm: float, figures: bool) -> dict[str, Any]:
     return {
         "name": "walk-optmis",
         "length_unit": "mm",
@@ -113,32 +113,42 @@ def _optmis(grid_mm: float) -> dict[str, Any]:
             }
         ],
         "executor": {"kind": "local", "workers": 1},
-        "output": {"dir": "out", "gltf": False},
+        "output": {"dir": "out", "gltf": False, "figures": figures},
     }
 
 
-def _retraction(samples: int) -> dict[str, Any]:
+def _retraction(samples: int, figures: bool) -> dict[str, Any]:
     pipeline = retraction_pipeline("walk-retraction", (6, 6, 1), samples, chunk=4, artifact="store/page.npz")
-    return {**pipeline, "output": {"dir": "out", "gltf": False}}
+    pipeline["pipeline"][0]["settings"]["figures"] = figures  # the planner's own figures (Figs. 5-7)
+    return {**pipeline, "output": {"dir": "out", "gltf": False, "figures": figures}}
 
 
-def _guide(seed: int) -> dict[str, Any]:
+def _guide(seed: int, figures: bool) -> dict[str, Any]:
     return {
         "name": "walk-guide",
         "length_unit": "mm",
         "scene": str(SCENE),
         "pipeline": guide_stages(seed, trainee="alice"),
-        "output": {"dir": "out", "gltf": False},
+        "output": {"dir": "out", "gltf": False, "figures": figures},
         "record": "record/trainees.sqlite",
     }
 
 
-KINDS = {
-    "plan": RunKind("plan", _plan(1), _plan(2), work=("store/roadmap.npz",)),
-    "optmis": RunKind("optmis", _optmis(8), _optmis(7), work=("store/repository.npz", "out/.work/")),
-    "retraction": RunKind("retraction", _retraction(8), _retraction(9), work=("store/page.npz", "out/.work/")),
-    "guide": RunKind("guide", _guide(7), _guide(8), record="record/trainees.sqlite"),
-}
+def run_kinds(figures: bool = True) -> dict[str, RunKind]:
+    """The run kinds, by name. ``figures=False``: their runs draw no figure (no .png among their points): a run
+    costs a third to a half as much, for a walk that kills in no .png."""
+    f = figures
+    return {
+        "plan": RunKind("plan", _plan(1, f), _plan(2, f), work=("store/roadmap.npz",)),
+        "optmis": RunKind("optmis", _optmis(8, f), _optmis(7, f), work=("store/repository.npz", "out/.work/")),
+        "retraction": RunKind(
+            "retraction", _retraction(8, f), _retraction(9, f), work=("store/page.npz", "out/.work/")
+        ),
+        "guide": RunKind("guide", _guide(7, f), _guide(8, f), record="record/trainees.sqlite"),
+    }
+
+
+KINDS = run_kinds()
 
 
 # ----------------------------------------------------------------------------- running one child
@@ -514,7 +524,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fail", action="store_true", help="also inject I/O errors (every 3rd chosen stride)")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--keep", type=Path, default=None, help="walk in this directory (kept)")
+    parser.add_argument(
+        "--no-figures",
+        default="",
+        metavar="KIND,...",
+        help="these kinds' runs draw no figures (quicker; their walks then have no .png point)",
+    )
     args = parser.parse_args(argv)
+    without_figures = run_kinds(figures=False)
+    plain = set(filter(None, args.no_figures.split(",")))
     import surgiplan.cli  # noqa: F401 - imported once, before the children are forked
     from surgiplan.registry import default_registry
 
@@ -528,7 +546,8 @@ def main(argv: list[str] | None = None) -> int:
         base = Path(tempfile.mkdtemp(prefix=f"walk-{name}-", dir=args.keep))
         try:
             actions = ("kill", "fail") if args.fail and select != "work" else ("kill",)
-            reports.append(walk(KINDS[name], base, args.stride, actions, select, files))
+            kind = without_figures[name] if name in plain else KINDS[name]
+            reports.append(walk(kind, base, args.stride, actions, select, files))
         finally:
             if args.keep is None:
                 shutil.rmtree(base, ignore_errors=True)

@@ -7,11 +7,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import yaml
-from conftest import CONFIGS
+from pipeline_support import block_world_pipeline, safe_prm_stage
 from surgiplan.guidance import Guide, GuideContext
 from surgiplan.results import StageContext
 
+#: the gimbal's fulcrum, as configs/gimbal_in_the_loop.yaml places it
 FULCRUM = {"xyz": [150, 50, 130], "rpy": [0, "90 deg", 0]}
 
 
@@ -21,16 +21,8 @@ def gimbal_guide_pipeline(
     """Write ``<name>.yaml`` in ``tmp_path``: a safe PRM plan for the gimbal (1000 milestones, from [60, 50, 20]
     to ``target`` in block_world; stored as ``artifact`` when given), then a ``cast_gimbal`` guide stage with
     ``guide_settings`` (for ``trainee`` when given) into ``tmp_path/record.sqlite``; returns the file."""
-    plan = {
-        "stage": "plan",
-        "name": "recommended",
-        "plugin": "safe_prm",
-        "settings": {"proficiency": "beginner", "milestones": 1000, "seed": 1},
-        "space": {"kind": "cast_gimbal", "fulcrum": FULCRUM},
-        "start": [60, 50, 20],
-        "goal": "target",
-        **({"artifact": str(artifact)} if artifact else {}),
-    }
+    space = {"kind": "cast_gimbal", "fulcrum": FULCRUM}
+    plan = safe_prm_stage("recommended", 1000, start=[60, 50, 20], artifact=artifact, space=space)
     guide = {
         "stage": "guide",
         "name": "attempt",
@@ -39,17 +31,8 @@ def gimbal_guide_pipeline(
         "settings": guide_settings,
         **({"trainee": trainee} if trainee else {}),
     }
-    data = {
-        "name": name,
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [plan, guide],
-        "output": {"dir": str(tmp_path / "out"), "figures": False, "gltf": False},
-        "record": str(tmp_path / "record.sqlite"),
-    }
-    path = tmp_path / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    record = str(tmp_path / "record.sqlite")
+    return block_world_pipeline(tmp_path / f"{name}.yaml", name, [plan, guide], tmp_path / "out", record=record)
 
 
 def open_source(tmp: Path, plan, space, spec, threshold, critical=()):

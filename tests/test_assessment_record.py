@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from conftest import CONFIGS
+from pipeline_support import block_world_pipeline, recommended_stage
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.clearance import intervals
 from surgiplan.guidance import GuidanceSettings, Guide, TraineeRecord
@@ -163,24 +163,8 @@ class Keys:
 def cohort_record(tmp_path_factory):
     """Two trainees of each level, three synthetic attempts each (18), recorded through the guide stage's call."""
     tmp = tmp_path_factory.mktemp("cohort")
-    data = {
-        "name": "plan",
-        "length_unit": "mm",
-        "scene": str(SCENE),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "recommended",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "intermediate", "milestones": 600, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-            }
-        ],
-        "output": {"dir": str(tmp / "plan"), "figures": False, "gltf": False},
-    }
-    (tmp / "plan.yaml").write_text(yaml.safe_dump(data))
-    pipeline = load_pipeline(tmp / "plan.yaml")
+    path = block_world_pipeline(tmp / "plan.yaml", "plan", [recommended_stage("intermediate", 600)], tmp / "plan")
+    pipeline = load_pipeline(path)
     plan = run_pipeline(pipeline).results[0]
     spec = pipeline.stages[0]
     record = tmp / "record.sqlite"

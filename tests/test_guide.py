@@ -322,8 +322,10 @@ def test_surgiplan_trainee_prints_the_history_and_writes_a_progression_figure(at
 @pytest.mark.slow
 def test_the_record_survives_kill_9_mid_attempt_with_every_committed_attempt_intact(tmp_path):
     trainee = {"name": "alice", "task": "block-world"}
+    output = {"dir": str(tmp_path / "out"), "gltf": False, "figures": False}  # the record is what is checked
+    first = guide_pipeline(tmp_path, trainee=trainee, output=output)
     done = subprocess.run(
-        [sys.executable, "-m", "surgiplan.cli", "run", str(guide_pipeline(tmp_path, trainee=trainee)), "--quiet"],
+        [sys.executable, "-m", "surgiplan.cli", "run", str(first), "--quiet"],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -333,12 +335,12 @@ def test_the_record_survives_kill_9_mid_attempt_with_every_committed_attempt_int
     with TraineeRecord(tmp_path / "record.sqlite") as record:
         before = record.attempts("alice")
         samples_before = len(record.samples(before[0]["id"])["t"])
-    # the next attempt in real time (pace 1: about 18 s), killed after a few seconds
+    # the next attempt in real time (pace 1: about 18 s), killed a second into it
     slow = guide_pipeline(
         tmp_path,
         settings={"level": "beginner", "seed": 8, "pace": 1},
         trainee=trainee,
-        output={"dir": str(tmp_path / "out2"), "gltf": False},
+        output={**output, "dir": str(tmp_path / "out2")},
     )
     process = subprocess.Popen(
         [sys.executable, "-m", "surgiplan.cli", "run", str(slow), "--quiet"],
@@ -346,7 +348,17 @@ def test_the_record_survives_kill_9_mid_attempt_with_every_committed_attempt_int
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    time.sleep(6)
+    # mid-attempt: the run's marker lists the plan stage as done (the guide stage is running), a second later
+    marker, stages = tmp_path / "out2" / ".in-progress.json", []
+    deadline = time.monotonic() + 120
+    while stages != ["recommended"] and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        try:
+            stages = [s["name"] for s in json.loads(marker.read_text())["stages_so_far"]]
+        except (OSError, ValueError):  # not written yet (it is replaced atomically)
+            pass
+    assert stages == ["recommended"], stages
+    time.sleep(1)
     assert process.poll() is None
     os.kill(process.pid, signal.SIGKILL)
     process.wait(timeout=10)

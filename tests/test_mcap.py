@@ -7,14 +7,12 @@ import json
 
 import numpy as np
 import pytest
-import yaml
-from conftest import CONFIGS
+from gimbal_guide_support import FULCRUM
+from pipeline_support import block_world_pipeline, safe_prm_stage
 
 mcap_reader = pytest.importorskip("mcap.reader", reason="the mcap extra")
 decoder = pytest.importorskip("mcap_protobuf.decoder", reason="the mcap extra")
 pytest.importorskip("foxglove", reason="the mcap extra")
-
-FULCRUM = {"xyz": [150, 50, 130], "rpy": [0, "90 deg", 0]}  # as configs/gimbal_in_the_loop.yaml
 
 
 @pytest.fixture(scope="module")
@@ -23,27 +21,14 @@ def out(tmp_path_factory):
     from surgiplan import load_pipeline, run_pipeline
 
     tmp_path = tmp_path_factory.mktemp("mcap")
-    data = {
-        "name": "mcap-probe",
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "plan",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "intermediate", "milestones": 1500, "seed": 1},
-                "space": {"kind": "cast_gimbal", "fulcrum": FULCRUM},
-                "start": [60, 50, 20],
-                "goal": "target",
-            },
-            {"stage": "execute", "name": "gimbal", "plugin": "cast_gimbal", "settings": {"control_rate": 100}},
-            {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "settings": {"seed": 3, "pace": 0}},
-        ],
-        "output": {"dir": str(tmp_path / "out"), "figures": False, "gltf": False},
-    }
-    path = tmp_path / "p.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    stages = [
+        safe_prm_stage(
+            "plan", 1500, "intermediate", start=[60, 50, 20], space={"kind": "cast_gimbal", "fulcrum": FULCRUM}
+        ),
+        {"stage": "execute", "name": "gimbal", "plugin": "cast_gimbal", "settings": {"control_rate": 100}},
+        {"stage": "guide", "name": "attempt", "plugin": "synthetic_trainee", "settings": {"seed": 3, "pace": 0}},
+    ]
+    path = block_world_pipeline(tmp_path / "p.yaml", "mcap-probe", stages, tmp_path / "out")
     assert run_pipeline(load_pipeline(path)).ok
     return tmp_path / "out"
 

@@ -13,7 +13,8 @@ import time
 
 import pytest
 import yaml
-from conftest import CONFIGS, ROOT
+from conftest import ROOT
+from pipeline_support import block_world_pipeline, safe_prm_stage
 
 HOLD = textwrap.dedent(
     """
@@ -29,25 +30,7 @@ HOLD = textwrap.dedent(
 
 
 def _pipeline(tmp_path, out):
-    data = {
-        "name": "lock-probe",
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "route",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "beginner", "milestones": 200, "seed": 1},
-                "start": "entry",
-                "goal": "target",
-            }
-        ],
-        "output": {"dir": str(out), "figures": False, "gltf": False},
-    }
-    path = tmp_path / "second.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    return block_world_pipeline(tmp_path / "second.yaml", "lock-probe", [safe_prm_stage("route", 200)], out)
 
 
 def _holder(out):

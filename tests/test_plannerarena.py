@@ -8,8 +8,7 @@ import sqlite3
 
 import numpy as np
 import pytest
-import yaml
-from conftest import CONFIGS
+from pipeline_support import block_world_pipeline, safe_prm_stage
 from surgiplan.plannerarena import Experiment, PlannerRuns, log_text, smoothness, write_database, write_log
 
 pytest.importorskip("ompl", reason="OMPL's own parser makes the database (the ompl extra)")
@@ -43,24 +42,8 @@ def test_the_log_round_trips_through_ompls_own_parser(tmp_path):
 
 
 def test_benchmark_command_writes_what_planner_arena_reads(cli, tmp_path):
-    data = {
-        "name": "arena",
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "beginner",
-                "plugin": "safe_prm",
-                "settings": {"proficiency": "beginner", "milestones": 2000, "seed": 4},
-                "start": "entry",
-                "goal": "target",
-            }
-        ],
-        "output": {"dir": str(tmp_path / "out")},
-    }
-    path = tmp_path / "arena.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    stages = [safe_prm_stage("beginner", 2000, seed=4)]
+    path = block_world_pipeline(tmp_path / "arena.yaml", "arena", stages, tmp_path / "out")
     code, out, err = cli("benchmark", path, "--runs", "3", "--out", tmp_path / "bench")
     assert code == 0, err
     assert "beginner (safe_prm): 3 of 3 solved" in out

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from conftest import CONFIGS, ROOT
-from pipeline_builders import guide_stages
+from pipeline_support import guide_stages
 from surgiplan.guidance import TraineeRecord
 from surgiplan.guidance.metrics import AttemptSamples
 
@@ -227,38 +227,48 @@ def test_cohort_csv_is_0600(cli, tmp_path, record):
 OPENER = """
 import sys, time
 from surgiplan.guidance import TraineeRecord
-start = float(sys.argv[2])
-while time.time() < start:
-    pass
-TraineeRecord(sys.argv[1]).close()
+print("ready", flush=True)
+for path in iter(sys.stdin.readline, ""):  # a record's path and the instant to open it at
+    path, start = path.split()
+    while time.time() < float(start):
+        pass
+    try:
+        TraineeRecord(path).close()
+        print("opened", flush=True)
+    except Exception as exc:
+        print(f"{type(exc).__name__}: {exc}", flush=True)
 """
 
 
 def test_two_processes_opening_a_new_record_at_the_same_instant_both_open_it(tmp_path):
     """A CI run failed here: the second process's switch to WAL met the first's migration and SQLite answered
     'database is locked' at once (the busy timeout does not cover it); 22 of 50 such opens failed before the
-    switch waited for the lock like every write."""
+    switch waited for the lock like every write. Two processes, started once, open six new records: each
+    record at one instant given to both (50 ms ahead, once both have opened the one before)."""
     import time
 
+    processes = [
+        subprocess.Popen(
+            [sys.executable, "-c", OPENER], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        for _ in range(2)
+    ]
     failures = []
-    for i in range(6):
-        path = tmp_path / f"new-{i}" / "record.sqlite"
-        start = time.time() + 0.8
-        processes = [
-            subprocess.Popen(
-                [sys.executable, "-c", OPENER, str(path), str(start)],
-                cwd=ROOT,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                text=True,
-            )
-            for _ in range(2)
-        ]
+    try:
+        assert [p.stdout.readline().strip() for p in processes] == ["ready", "ready"]
+        for i in range(6):
+            path = tmp_path / f"new-{i}" / "record.sqlite"
+            start = time.time() + 0.05
+            for process in processes:
+                process.stdin.write(f"{path} {start!r}\n")
+                process.stdin.flush()
+            failures += [line for p in processes if (line := p.stdout.readline().strip()) != "opened"]
+            db = sqlite3.connect(path)
+            assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+            db.close()
+    finally:
         for process in processes:
-            _, err = process.communicate(timeout=120)
-            if process.returncode:
-                failures.append(err.strip().splitlines()[-1])
-        db = sqlite3.connect(path)
-        assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-        db.close()
+            process.stdin.close()
+            process.wait(timeout=60)
     assert failures == []
+    assert [p.returncode for p in processes] == [0, 0]

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from conftest import CONFIGS, assert_error_record
+from pipeline_support import block_world_pipeline, safe_prm_stage
 from surgiplan.outputs.report import page, write_report
 from surgiplan.outputs.report.data import report_data
 from surgiplan.outputs.report.meshes import _surface, face_owner, pvd_entries, states_mesh
@@ -34,28 +34,10 @@ def _unpack(p) -> np.ndarray:
 
 
 def robot_file(tmp_path: Path, **robot) -> Path:
-    data = {
-        "name": "robot",
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "plan",
-                "plugin": "safe_prm",  # keeps the 4 mm threshold except where no detour exists: red stretches
-                "settings": {"milestones": 800, "seed": 2},
-                "space": {"kind": "r3", "tip_radius": 0.5},
-                "start": "entry",
-                "goal": "target",
-                "clearance_threshold": 4,
-            },
-            {"stage": "execute", "name": "robot", "plugin": "point_robot", "settings": {"speed": 80, **robot}},
-        ],
-        "output": {"dir": str(tmp_path / "out"), "figures": False, "gltf": False},
-    }
-    path = tmp_path / "robot.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    # safe PRM keeps the 4 mm threshold except where no detour exists: red stretches
+    plan = safe_prm_stage("plan", 800, None, seed=2, space={"kind": "r3", "tip_radius": 0.5}, clearance_threshold=4)
+    robot = {"stage": "execute", "name": "robot", "plugin": "point_robot", "settings": {"speed": 80, **robot}}
+    return block_world_pipeline(tmp_path / "robot.yaml", "robot", [plan, robot], tmp_path / "out")
 
 
 def test_every_run_writes_its_report_before_its_record(cli, tmp_path, with_example_plugin):

@@ -17,7 +17,7 @@ import coal
 import numpy as np
 import pytest
 import yaml
-from pipeline_builders import retraction_flap, retraction_pipeline
+from pipeline_support import retraction_flap, retraction_pipeline
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.plugins.fem import StVKModel, StVKSettings
 from surgiplan.plugins.planners.retraction.equilibria import _Chain, _moment, _moment_by_differences, relieve

@@ -1,7 +1,8 @@
 """Pipelines several tests (and the crash walk) build: one builder each, so a change of a plugin's settings is
 made in one place.
 
-- :func:`recommended_stage`: the recommended path (safe PRM from ``entry`` to ``target`` of block_world);
+- :func:`safe_prm_stage`: a safe PRM ``plan`` stage to ``target`` of block_world;
+- :func:`recommended_stage`: the recommended path (that stage, ``recommended``, from ``entry``);
 - :func:`guide_stages`: that and a synthetic trainee's attempt at it;
 - :func:`block_world_pipeline`: stages in a pipeline document on block_world, written as a file;
 - :func:`retraction_pipeline`: the retraction planner (paper 002) on a flap anchored along x = 0 with a bar
@@ -17,21 +18,44 @@ import yaml
 BLOCK_WORLD = Path(__file__).resolve().parent.parent / "configs" / "scenes" / "block_world.yaml"
 
 
+def safe_prm_stage(
+    name: str,
+    milestones: int,
+    proficiency: str | None = "beginner",
+    *,
+    seed: int = 1,
+    start: str | list[float] = "entry",
+    k: int | None = None,
+    artifact: Path | None = None,
+    **keys: Any,
+) -> dict[str, Any]:
+    """A ``plan`` stage ``name``: safe PRM with ``milestones`` (``proficiency``: the planner's default when
+    None; ``k`` when given) from ``start`` to ``target``, stored as ``artifact`` when given; ``keys``: more of
+    the stage's keys (``space``, ``clearance_threshold``)."""
+    settings = {
+        **({"proficiency": proficiency} if proficiency else {}),
+        "milestones": milestones,
+        **({"k": k} if k else {}),
+        "seed": seed,
+    }
+    return {
+        "stage": "plan",
+        "name": name,
+        "plugin": "safe_prm",
+        "settings": settings,
+        "start": start,
+        "goal": "target",
+        **({"artifact": str(artifact)} if artifact else {}),
+        **keys,
+    }
+
+
 def recommended_stage(
     proficiency: str = "beginner", milestones: int = 300, k: int | None = None, artifact: Path | None = None
 ) -> dict[str, Any]:
     """A ``plan`` stage ``recommended``: safe PRM (seed 1) from ``entry`` to ``target``, stored as ``artifact``
     when given."""
-    settings = {"proficiency": proficiency, "milestones": milestones, **({"k": k} if k else {}), "seed": 1}
-    return {
-        "stage": "plan",
-        "name": "recommended",
-        "plugin": "safe_prm",
-        "settings": settings,
-        "start": "entry",
-        "goal": "target",
-        **({"artifact": str(artifact)} if artifact else {}),
-    }
+    return safe_prm_stage("recommended", milestones, proficiency, k=k, artifact=artifact)
 
 
 def block_world_pipeline(path: Path, name: str, stages: list[dict[str, Any]], out: Path, **extra) -> Path:
