@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,6 +109,26 @@ class AxisHardware:
             rated_torque=self.rated_torque,
             peak_torque=self.peak_torque,
         )
+
+
+class HandMotion:
+    """Where a simulated trainee's hand holds the axes: ``joints`` (one row per time, one column per axis) at
+    ``times`` (s after ``start``, a clock time; None: not started, where the first row is), linear in between and
+    held beyond the ends. Called with a clock time it gives the axes' positions, with an array of times one row per
+    time (the substeps of an integration, in one go)."""
+
+    def __init__(self, times, joints, start: float | None = None) -> None:
+        self.times = np.asarray(times, dtype=float)
+        joints = np.asarray(joints, dtype=float)
+        self.columns = [np.ascontiguousarray(joints[:, k]) for k in range(joints.shape[1])]
+        self.start = start
+
+    def __call__(self, t) -> np.ndarray:
+        u = np.asarray(t, dtype=float) - self.start if self.start is not None else np.zeros(np.shape(t))
+        out = np.empty((*u.shape, len(self.columns)))
+        for k, column in enumerate(self.columns):
+            out[..., k] = np.interp(u, self.times, column)
+        return out
 
 
 class DriveSimulator(
@@ -223,7 +242,7 @@ class DriveSimulator(
         #: real time: the time of the frame being handled (a SYNC's arrival), else None (the clock's now)
         self._event_time: float | None = None
         #: simulation only: where a hand holds the unpowered axes at time t (see move_by_hand)
-        self.hand: Callable[[float], np.ndarray] | None = None
+        self.hand: HandMotion | None = None
         self.memories = [Memory(memory / f"{device or 'drive'}_{a.name}.json" if memory else None) for a in axes]
         self.lss: list[LssSlave] = []
         #: the bus's bit rate (a drive switched to another by LSS is off the bus)
@@ -289,47 +308,21 @@ class DriveSimulator(
             self.vel[:] = 0.0
             self.t = t
             return
-        m = self.model
-        steps = m.substeps(span)
-        dt = span / steps
-        powered = powered_mask.astype(float)
         mode = self.mode
         monitored = (state == OE) & self.alive & ((mode == cia402.PP) | (mode == cia402.CSP))
-        # the commands of every substep at once; the integration itself is sequential
-        # the loop compares the position at the start of each step with the command there
-        if steps == 1:
-            command, rate = self.reference.at(self.t)
-            command, rate = command[None], rate[None]
-        else:
-            command, rate = self.reference.at(self.t + dt * np.arange(steps)[:, None])
-        pos, vel, over_time = self.pos, self.vel, self.over_time
-        cpu, vmax, peak, load, window = self.cpu, self.vmax, self.peak, self.load, self.window
-        tripped = np.zeros(len(pos), dtype=bool)
         torque_mode = powered_mask & (mode == cia402.CST)
+        hand = None
         if torque_mode.any():
             # cyclic synchronous torque: the drive's torque (none while quick-stopping) and the hand's
             limit = np.minimum(self.max_torque, np.abs(self.target_torque))
             drive = np.clip(self.target_torque, -limit, limit) * (state == OE) * torque_mode
             self.torque_actual = drive
             drive_torque = drive * self.torque_unit
+            hand = self.hand
         else:
-            self.torque_actual = np.zeros(len(pos))
-        for k in range(steps):
-            if torque_mode.any():
-                external = load * self.inertia
-                if self.hand is not None:
-                    where = np.asarray(self.hand(self.t + dt * k), dtype=float)
-                    external = external + self.hand_stiffness * (where - pos) - self.hand_damping * vel
-                p_t, v_t = m.torque_step(pos, vel, drive_torque + external, self.inertia, self.viscous,
-                                         self.coulomb, dt)  # fmt: skip
-                pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
-                pos, vel = np.where(torque_mode, p_t, pos), np.where(torque_mode, v_t, vel)
-            else:
-                pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
-            # following error (position modes): outside the window 0x6065 for longer than 0x6066
-            over_time = (over_time + dt) * (monitored & (np.abs(command[k] - pos) > window))
-            tripped |= over_time > self.window_time
-        self.pos, self.vel, self.over_time = pos, vel, over_time
+            self.torque_actual = drive_torque = np.zeros(len(self.pos))
+        tripped = self.model.integrate(self, self.t, span, self.reference, powered_mask.astype(float), torque_mode,
+                                       monitored, drive_torque, hand)  # fmt: skip
         self.t = t
         for i in np.flatnonzero(tripped & monitored):
             self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
@@ -362,7 +355,7 @@ class DriveSimulator(
             while (timer := self.scheduler.pop_due(now)) is not None:
                 timer.action()
 
-    def move_by_hand(self, motion: Callable[[float], np.ndarray] | None, stiffness=None, damping=None) -> None:
+    def move_by_hand(self, motion: HandMotion | None, stiffness=None, damping=None) -> None:
         """Simulation only: while an axis is unpowered (its drive not enabled, as when a trainee moves the
         instrument by hand, the observe mode of a guide stage), its position follows ``motion(t)`` (units per
         axis, ``t`` the clock's time); the encoders, TPDOs and SDO reads report it. None lets go.

@@ -44,7 +44,7 @@ from surgiplan.errors import SurgiplanError
 from ..bus import ArmedFaults, BusSettings, open_bus
 from ..clock import RealTimeClock
 from ..control import SWITCH_INTERVAL
-from .drives import DriveSimulator, axis_hardware, simulated_devices
+from .drives import DriveSimulator, HandMotion, axis_hardware, simulated_devices
 from .motor import MotorModel
 
 
@@ -109,20 +109,13 @@ def read_hand(path: str, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def hold_hand(simulator: DriveSimulator, times: np.ndarray, joints: np.ndarray, stiffness, damping) -> None:
     """The trainee's hand on the drives (:meth:`DriveSimulator.move_by_hand`), its time 0 the first SYNC."""
-    n = len(simulator.axes)
-    started: list[float] = []
+    hand = HandMotion(times, joints)
 
     def first_sync(*_frame) -> None:
-        if not started:
-            started.append(simulator.clock.now())
+        if hand.start is None:
+            hand.start = simulator.clock.now()
 
     simulator.network.subscribe(0x80, first_sync)
-    columns = [np.ascontiguousarray(joints[:, k]) for k in range(n)]
-
-    def hand(t: float) -> np.ndarray:
-        u = t - started[0] if started else 0.0
-        return np.array([np.interp(u, times, column) for column in columns])
-
     simulator.move_by_hand(hand, stiffness, damping)
 
 
