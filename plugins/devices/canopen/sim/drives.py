@@ -336,7 +336,7 @@ class DriveSimulator(
         self._thread.start()
         set_realtime_priority(priority, self._thread.native_id)
         hub = getattr(self.network.bus, "_hub", None)
-        if hub is not None:
+        if hub is not None and hub.thread is not None:
             set_realtime_priority(priority, hub.thread.native_id)
 
     def _loop(self) -> None:
