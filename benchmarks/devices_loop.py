@@ -265,13 +265,20 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
 
 def scheduling_floor(seconds: float) -> list[dict]:
     """What the machine gives any 1 kHz loop: a bare single-thread Python loop sleeping to each 1 ms deadline
-    (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling and under SCHED_FIFO."""
-    from surgiplan.plugins.devices.canopen.clock import RealTimeClock, restore_priority, set_realtime_priority
+    (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling (the kernel's default slice, then the
+    short slice the control loop's threads ask for at ordinary priority) and under SCHED_FIFO."""
+    from surgiplan.plugins.devices.canopen.clock import (
+        LOOP_SLICE,
+        RealTimeClock,
+        restore_priority,
+        set_realtime_priority,
+    )
 
     rows = []
-    for policy in ("ordinary", f"SCHED_FIFO {PRIORITY}"):
+    short = f"ordinary, {LOOP_SLICE * 1e3:g} ms slice"
+    for policy in ("ordinary", short, f"SCHED_FIFO {PRIORITY}"):
         try:
-            previous = set_realtime_priority(PRIORITY if policy != "ordinary" else None)
+            previous = None if policy == "ordinary" else set_realtime_priority(None if policy == short else PRIORITY)
         except OSError as exc:
             rows.append({"loop": f"bare 1 kHz sleep loop, {policy}", "error": str(exc)})
             continue
