@@ -39,7 +39,7 @@ from surgiplan.units import PositiveLength
 from surgiplan.validation import file_length_scale, input_path
 
 from ..canopen.realtime import realtime_section
-from ..canopen.sim.drives import HandMotion
+from ..canopen.sim.motor import HandMotion
 from .assist import AssistLoop, AssistSettings, assistance_level, proficiency_of
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
 

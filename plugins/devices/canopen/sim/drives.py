@@ -44,7 +44,7 @@ from .communication import TICK, Communication
 from .faults import FaultInjection
 from .lss import UNCONFIGURED, LayerSettings, LssSlave
 from .modes import OperatingModes
-from .motor import MotorModel
+from .motor import HandMotion, MotorModel
 from .node import DriveNode
 from .objects import ObjectDictionary
 from .reference import Reference
@@ -109,26 +109,6 @@ class AxisHardware:
             rated_torque=self.rated_torque,
             peak_torque=self.peak_torque,
         )
-
-
-class HandMotion:
-    """Where a simulated trainee's hand holds the axes: ``joints`` (one row per time, one column per axis) at
-    ``times`` (s after ``start``, a clock time; None: not started, where the first row is), linear in between and
-    held beyond the ends. Called with a clock time it gives the axes' positions, with an array of times one row per
-    time (the substeps of an integration, in one go)."""
-
-    def __init__(self, times, joints, start: float | None = None) -> None:
-        self.times = np.asarray(times, dtype=float)
-        joints = np.asarray(joints, dtype=float)
-        self.columns = [np.ascontiguousarray(joints[:, k]) for k in range(joints.shape[1])]
-        self.start = start
-
-    def __call__(self, t) -> np.ndarray:
-        u = np.asarray(t, dtype=float) - self.start if self.start is not None else np.zeros(np.shape(t))
-        out = np.empty((*u.shape, len(self.columns)))
-        for k, column in enumerate(self.columns):
-            out[..., k] = np.interp(u, self.times, column)
-        return out
 
 
 class DriveSimulator(
@@ -308,23 +288,9 @@ class DriveSimulator(
             self.vel[:] = 0.0
             self.t = t
             return
-        mode = self.mode
-        monitored = (state == OE) & self.alive & ((mode == cia402.PP) | (mode == cia402.CSP))
-        torque_mode = powered_mask & (mode == cia402.CST)
-        hand = None
-        if torque_mode.any():
-            # cyclic synchronous torque: the drive's torque (none while quick-stopping) and the hand's
-            limit = np.minimum(self.max_torque, np.abs(self.target_torque))
-            drive = np.clip(self.target_torque, -limit, limit) * (state == OE) * torque_mode
-            self.torque_actual = drive
-            drive_torque = drive * self.torque_unit
-            hand = self.hand
-        else:
-            self.torque_actual = drive_torque = np.zeros(len(self.pos))
-        tripped = self.model.integrate(self, self.t, span, self.reference, powered_mask.astype(float), torque_mode,
-                                       monitored, drive_torque, hand)  # fmt: skip
+        tripped = self.model.integrate(self, self.t, span)
         self.t = t
-        for i in np.flatnonzero(tripped & monitored):
+        for i in np.flatnonzero(tripped):
             self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
         self._windows(t)
 

@@ -41,6 +41,29 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .. import cia402
+from .statemachine import OE, QS
+
+
+class HandMotion:
+    """Where a simulated trainee's hand holds the axes: ``joints`` (one row per time, one column per axis) at
+    ``times`` (s after ``start``, a clock time; None: not started, where the first row is), linear in between and
+    held beyond the ends (as ``np.interp``). Called with a clock time it gives the axes' positions, with an array
+    of times one row per time. The motor model pulls axes in torque mode toward it (:meth:`MotorModel.integrate`)."""
+
+    def __init__(self, times, joints, start: float | None = None) -> None:
+        self.times = np.ascontiguousarray(times, dtype=float)
+        self.joints = np.ascontiguousarray(joints, dtype=float)
+        self.start = start
+
+    def __call__(self, t) -> np.ndarray:
+        u = np.asarray(t, dtype=float) - self.start if self.start is not None else np.zeros(np.shape(t))
+        out = np.empty((*u.shape, self.joints.shape[1]))
+        rows, where = out.reshape(-1, self.joints.shape[1]), u.reshape(-1)
+        for k in range(len(where)):
+            _hand_at(self.times, self.joints, where[k], rows[k])
+        return out
+
 
 @dataclass
 class MotorModel:
@@ -67,42 +90,88 @@ class MotorModel:
         """How many integration steps cover ``span`` seconds (steps of at most ``substep``)."""
         return max(1, int(np.ceil(span / self.substep - 1e-9)))
 
-    def integrate(self, axes, t0: float, span: float, reference, powered, torque_mode, monitored, drive_torque,
-                  hand) -> np.ndarray:  # fmt: skip
-        """Move ``axes`` (the simulator: its ``pos``, ``vel`` and following-error timers ``over_time``, changed in
-        place) from time ``t0`` through ``span`` seconds; returns per axis whether its following error outlasted
-        0x6066 (``window_time``) in a substep. ``powered`` (0.0 or 1.0: the brake holds where 0.0),
-        ``torque_mode`` (cyclic synchronous torque, powered) and ``monitored`` (a position mode, enabled) per
-        axis; ``drive_torque``: the drives' joint torques (torque mode); ``hand``: where the hand pulls the axes
-        in torque mode (a :class:`.drives.HandMotion`: joint positions at an array of times), or None."""
+    def integrate(self, axes, t0: float, span: float) -> np.ndarray:
+        """Move the simulator's axes (``axes``: its ``pos``, ``vel``, following-error timers ``over_time`` and
+        ``torque_actual``, changed in place) from time ``t0`` through ``span`` seconds, as their state (powered in
+        OPERATION ENABLED and QUICK STOP ACTIVE, unless dead), mode, reference and targets say; returns per axis
+        whether its following error (a position mode, enabled) outlasted 0x6066 (``window_time``) in a substep."""
         steps = self.substeps(span)
-        dt = span / steps
+        hand = axes.hand
         pulled = hand is not None
-        where = hand(t0 + dt * np.arange(steps)) if pulled else _NO_HAND  # at each substep's start
         return _integrate(
-            axes.pos, axes.vel, axes.over_time, t0, dt, steps,
-            reference.t, reference.p, reference.v, reference.a,
-            powered, torque_mode, monitored, axes.cpu, axes.vmax, axes.peak, axes.load, axes.window,
-            axes.window_time, drive_torque, axes.inertia, axes.viscous, axes.coulomb,
-            where, axes.hand_stiffness, axes.hand_damping, pulled,
+            axes.pos, axes.vel, axes.over_time, axes.torque_actual, t0, span / steps, steps,
+            axes.reference.t, axes.reference.p, axes.reference.v, axes.reference.a,
+            axes.state, axes.alive, axes.mode, axes.target_torque, axes.max_torque, axes.torque_unit,
+            axes.cpu, axes.vmax, axes.peak, axes.load, axes.window, axes.window_time,
+            axes.inertia, axes.viscous, axes.coulomb, axes.hand_stiffness, axes.hand_damping,
+            hand.times if pulled else _NO_TABLE[0], hand.joints if pulled else _NO_TABLE[1],
+            hand.start if pulled and hand.start is not None else 0.0, pulled, pulled and hand.start is not None,
             self.position_gain, self.velocity_gain, self.damping,
         )  # fmt: skip
 
 
-_NO_HAND = np.zeros((1, 1))
+_NO_TABLE = (np.zeros(1), np.zeros((1, 1)))
+_PP, _CSP, _CST = int(cia402.PP), int(cia402.CSP), int(cia402.CST)
 
 
 @njit(cache=True, nogil=True)
-def _integrate(pos, vel, over_time, t0, dt, steps, ref_t, ref_p, ref_v, ref_a, powered, torque_mode, monitored,
-               cpu, vmax, peak, load, window, window_time, drive_torque, inertia, viscous, coulomb, hand, hand_k,
-               hand_c, pulled, position_gain, velocity_gain, damping):  # pragma: no cover  # fmt: skip
+def _hand_at(times, joints, u, out):  # pragma: no cover
+    """``out`` = the table's row at ``u``, interpolated per column: ``np.interp``'s arithmetic (the same answers to
+    the bit: ``times`` increasing, held at the ends)."""
+    n = times.shape[0]
+    if u > times[n - 1]:
+        out[:] = joints[n - 1]
+        return
+    if u < times[0]:
+        out[:] = joints[0]
+        return
+    j = np.searchsorted(times, u, side="right") - 1  # times[j] <= u < times[j + 1] (j = n - 1 at the end)
+    if j == n - 1 or times[j] == u:
+        out[:] = joints[j]
+        return
+    for k in range(joints.shape[1]):
+        slope = (joints[j + 1, k] - joints[j, k]) / (times[j + 1] - times[j])
+        out[k] = slope * (u - times[j]) + joints[j, k]
+        if np.isnan(out[k]):
+            out[k] = slope * (u - times[j + 1]) + joints[j + 1, k]
+            if np.isnan(out[k]) and joints[j, k] == joints[j + 1, k]:
+                out[k] = joints[j, k]
+
+
+@njit(cache=True, nogil=True)
+def _integrate(pos, vel, over_time, torque_actual, t0, dt, steps, ref_t, ref_p, ref_v, ref_a, state, alive, mode,
+               target_torque, max_torque, torque_unit, cpu, vmax, peak, load, window, window_time, inertia, viscous,
+               coulomb, hand_k, hand_c, hand_times, hand_joints, hand_start, pulled, started, position_gain,
+               velocity_gain, damping):  # pragma: no cover  # fmt: skip
     """:meth:`MotorModel.integrate`'s substeps (the arithmetic, operation for operation, of the numpy model it
     replaced: the same answers to the bit)."""
     n = pos.shape[0]
+    powered = np.zeros(n)
+    monitored = np.zeros(n, dtype=np.bool_)
+    torque_mode = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        on = (state[i] == OE or state[i] == QS) and alive[i]
+        powered[i] = 1.0 if on else 0.0  # 0.0: the brake holds
+        monitored[i] = state[i] == OE and alive[i] and (mode[i] == _PP or mode[i] == _CSP)
+        torque_mode[i] = on and mode[i] == _CST
+    # cyclic synchronous torque: the drive's torque within 0x6072 (none while quick-stopping), as a joint torque
+    drive_torque = np.zeros(n)
+    any_torque = torque_mode.any()
+    for i in range(n):
+        if any_torque:
+            limit = min(max_torque[i], abs(target_torque[i]))
+            drive = min(max(target_torque[i], -limit), limit) * (1.0 if state[i] == OE else 0.0)
+            torque_actual[i] = drive * (1.0 if torque_mode[i] else 0.0)
+            drive_torque[i] = torque_actual[i] * torque_unit[i]
+        else:
+            torque_actual[i] = 0.0
+    hand = np.zeros(n)
     tripped = np.zeros(n, dtype=np.bool_)
     segments = ref_t.shape[1]
     for k in range(steps):
         t = t0 + dt * k
+        if pulled and any_torque:  # where the hand pulls at the substep's start
+            _hand_at(hand_times, hand_joints, t - hand_start if started else 0.0, hand)
         for i in range(n):
             # the reference at the substep's start: the last segment begun by then
             count = 0
@@ -118,7 +187,7 @@ def _integrate(pos, vel, over_time, t0, dt, steps, ref_t, ref_p, ref_v, ref_a, p
             if torque_mode[i]:
                 external = load[i] * inertia[i]
                 if pulled:
-                    external = external + hand_k[i] * (hand[k, i] - p) - hand_c[i] * w
+                    external = external + hand_k[i] * (hand[i] - p) - hand_c[i] * w
                 torque = drive_torque[i] + external
                 w = w + (torque - viscous[i] * w) / inertia[i] * dt
                 slip = coulomb[i] / inertia[i] * dt
@@ -139,18 +208,20 @@ def _integrate(pos, vel, over_time, t0, dt, steps, ref_t, ref_p, ref_v, ref_a, p
                 over_time[i] = over_time[i] + dt
             else:
                 over_time[i] = 0.0
-            if over_time[i] > window_time[i]:
+            if monitored[i] and over_time[i] > window_time[i]:
                 tripped[i] = True
     return tripped
 
 
 def _compile() -> None:
-    """Compile :func:`_integrate` (or load it from numba's cache) for the types the simulator passes, on import:
-    a drives' process pays it at start-up, not at its first SYNC."""
-    one, yes, segments = np.ones(1), np.ones(1, dtype=np.bool_), np.ones((1, 4))
-    axes = (one, one, one, one, one, one, one, one, one, one)  # cpu .. coulomb
-    _integrate(one.copy(), one.copy(), one.copy(), 0.0, 1e-3, 1, segments, segments, segments, segments, one, yes, yes,
-               *axes, _NO_HAND, one, one, False, 1.0, 1.0, 1.0)  # fmt: skip
+    """Compile the kernels (or load them from numba's cache) for the types the simulator passes, on import: a
+    drives' process pays it at start-up, not at its first SYNC."""
+    one, yes, whole = np.ones(1), np.ones(1, dtype=np.bool_), np.ones(1, dtype=np.int64)
+    segments = np.ones((1, 4))
+    HandMotion(one, np.ones((1, 1)), 0.0)(0.0)
+    axes = (one,) * 14  # target_torque .. hand_c
+    _integrate(one.copy(), one.copy(), one.copy(), one.copy(), 0.0, 1e-3, 1, segments, segments, segments, segments,
+               whole, yes, whole, *axes, _NO_TABLE[0], _NO_TABLE[1], 0.0, False, False, 1.0, 1.0, 1.0)  # fmt: skip
 
 
 _compile()

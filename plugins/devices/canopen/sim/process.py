@@ -45,8 +45,8 @@ from surgiplan.errors import SurgiplanError
 from ..bus import ArmedFaults, BusSettings, open_bus
 from ..clock import RealTimeClock
 from ..control import SWITCH_INTERVAL
-from .drives import DriveSimulator, HandMotion, axis_hardware, simulated_devices
-from .motor import MotorModel
+from .drives import DriveSimulator, axis_hardware, simulated_devices
+from .motor import HandMotion, MotorModel
 
 
 def _option(text: str) -> tuple[str, object]:
