@@ -65,8 +65,12 @@ def pipeline_file(tmp: Path, settings: dict) -> Path:
     return path
 
 
-def attempt(tmp: Path, plan, space, settings: dict) -> dict:
-    """One attempt of the source as the guide stage runs it: its metrics and the assistance summary."""
+def attempt(tmp: Path, plan, space, settings: dict, drives_pid: int | None = None) -> dict:
+    """One attempt of the source as the guide stage runs it: its metrics and the assistance summary; in real time
+    also how long the drives took to answer each SYNC (:func:`devices_loop.answer_latencies`) and, with the drives'
+    process id, their CPU time during the loop."""
+    from devices_loop import answer_latencies, process_cpu
+
     spec = load_pipeline(pipeline_file(tmp, settings)).stages[1]
     critical = intervals(list(plan.critical_regions))
     guide = Guide(space, plan.path, space.scene, threshold_value(plan.clearance_threshold), critical, spec.guidance)
@@ -76,18 +80,23 @@ def attempt(tmp: Path, plan, space, settings: dict) -> dict:
     source.open(GuideContext(context, plan.path, guide.tips, space, space.scene, guide.threshold, critical))
     compute = []
     stopped = None
+    drives_cpu = process_cpu(drives_pid)
     try:
         for sample in source.samples():
             guide.measure(sample)
     except SourceStopped as exc:
         stopped = str(exc)
     finally:
+        drives_cpu = process_cpu(drives_pid) - drives_cpu
         compute = list(source.assist.compute_s) if source.assist is not None else []
+        realtime = source.device.clock.realtime
+        nodes = [a.node_id for a in source.device.master.axes]
+        answers = answer_latencies(list(source.device.bus.frames), nodes) if realtime else np.zeros(0)
         source.close()
     guide.finish()
     metrics = guide.metrics()
     return {"metrics": metrics, "assistance": source.assistance, "compute": compute, "stopped": stopped,
-            "completed": guide.reached_goal}  # fmt: skip
+            "completed": guide.reached_goal, "answers": answers, "drives_cpu_s": drives_cpu}  # fmt: skip
 
 
 def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) -> dict:
@@ -112,16 +121,26 @@ def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) 
     extra += list(map(str, model.damping))
     # the drives stand for hardware: under SCHED_FIFO below the loop wherever allowed, as in bench_devices
     drives = DRIVES_PRIORITY if fifo_allowed() else None
-    with drives_process(joints[0], drives, extra) as (bus, _pid):
+    with drives_process(joints[0], drives, extra) as (bus, pid):
         live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0, "bus": bus, "hand": None}
         if priority is not None:
             live["realtime_priority"] = priority
-        out = attempt(tmp, plan, space, {"assist": ON, **live})
-    return {**out["assistance"], "stopped": out["stopped"]}
+        out = attempt(tmp, plan, space, {"assist": ON, **live}, drives_pid=pid)
+    cpu = {"drives_cpu_per_sync_ms": 1e3 * out["drives_cpu_s"] / max(1, len(out["answers"]))}
+    return {**out["assistance"], **answered(out), **cpu, "stopped": out["stopped"]}
+
+
+def answered(out: dict) -> dict:
+    """How long the drives took to answer each SYNC of an attempt (at the master, all four TPDOs; ms)."""
+    from devices_loop import latency_summary
+
+    return latency_summary(out["answers"], 1.0 / REALTIME_RATE)
 
 
 def realtime_row(configuration: str, assistance: dict) -> dict:
-    keys = ("cycle_rate_hz", "missed_syncs", "cycles", "ended", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms")
+    keys = ("cycle_rate_hz", "missed_syncs", "cycles", "ended", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms",
+            "sync_to_tpdos_p50_ms", "sync_to_tpdos_p99_ms", "sync_to_tpdos_max_ms", "answers_later_than_a_period",
+            "drives_cpu_per_sync_ms")  # fmt: skip
     return {"drives": configuration, **{k: assistance.get(k) for k in keys}, "stopped": assistance.get("stopped")}
 
 
@@ -130,7 +149,8 @@ def realtime_loops(tmp: Path, plan, space) -> list[dict]:
     priority, then SCHED_FIFO where allowed)."""
     live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0}
     thread = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
-    rows = [realtime_row("in-process thread (virtual bus)", {**thread["assistance"], "stopped": thread["stopped"]})]
+    in_process = {**thread["assistance"], **answered(thread), "stopped": thread["stopped"]}
+    rows = [realtime_row("in-process thread (virtual bus)", in_process)]
     rows.append(
         realtime_row(
             "other process (loopback bus), loop at ordinary priority", realtime_elsewhere(tmp, plan, space, 0, None)

@@ -74,6 +74,33 @@ def drives_process(initial, priority: int | None = None, extra=()):
             process.wait(timeout=10)
 
 
+def answer_latencies(frames, node_ids) -> np.ndarray:
+    """Per SYNC in a master's frame log (time s, COB-ID, data), how long until the master had every drive's
+    TPDO1 answering it (s): the drives' answer as the loop sees it (their work, both hosts' scheduling, the hub).
+    Each drive answers every SYNC with one TPDO1 (synchronous, OPERATIONAL), so the k-th of a node's answers
+    after the log's first SYNC answers the k-th SYNC."""
+    syncs = np.array([t for t, cob, _ in frames if cob == 0x080])
+    if not len(syncs):
+        return np.zeros(0)
+    answers = [np.array([t for t, cob, _ in frames if cob == 0x180 + node and t >= syncs[0]]) for node in node_ids]
+    count = min(len(syncs), *(len(a) for a in answers))
+    if count == 0:
+        return np.zeros(0)
+    return np.max([a[:count] for a in answers], axis=0) - syncs[:count]
+
+
+def latency_summary(latencies: np.ndarray, period: float) -> dict:
+    """p50 / p99 / max of :func:`answer_latencies` (ms), and how many answers took longer than a period."""
+    if not len(latencies):
+        return {}
+    return {
+        "sync_to_tpdos_p50_ms": round(percentile(latencies, 50) * 1e3, 3),
+        "sync_to_tpdos_p99_ms": round(percentile(latencies, 99) * 1e3, 3),
+        "sync_to_tpdos_max_ms": round(float(latencies.max()) * 1e3, 3),
+        "answers_later_than_a_period": int(np.sum(latencies > period)),
+    }
+
+
 def fifo_allowed() -> bool:
     """Whether this process may run threads under SCHED_FIFO (Linux, CAP_SYS_NICE)."""
     try:
@@ -161,6 +188,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
     rows = []
     for rate in rates:
         periods, work, missed, missing, completed, cycles, load, worst = [], [], 0, 0, 0, 0, [], []
+        answers: list[np.ndarray] = []  # per run: SYNC -> every TPDO at the master (s)
         lateness, missed_per_run, durations = [], [], []
         stolen = steal_ticks()
         loop_cpu = drives_cpu = execute_cpu = 0.0
@@ -181,7 +209,9 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
                 execute_cpu += time.process_time() - before_execute
                 drives_cpu += process_cpu(pid) - before_cpu
-                syncs += sum(1 for f in device.bus.frames[before_frames:] if f[1] == 0x080)
+                run_frames = device.bus.frames[before_frames:]
+                syncs += sum(1 for f in run_frames if f[1] == 0x080)
+                answers.append(answer_latencies(run_frames, [a.node_id for a in device.master.axes]))
                 if report.metrics.get("refused"):  # e.g. a fault while holding before it: a run that did not run
                     error = report.message
                     print(f"  {mode} {rate} Hz run {k}: refused: {report.message}", flush=True)
@@ -249,6 +279,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             # the report) over the cycles
             "master_cpu_per_cycle_with_preparation_ms": round(execute_cpu / cycles * 1e3, 3) if cycles else None,
             "drives_cpu_per_sync_ms": round(drives_cpu / syncs * 1e3, 3) if syncs and mode != THREAD else None,
+            **latency_summary(np.concatenate(answers) if answers else np.zeros(0), 1.0 / rate),
             "drives_priority": (f"SCHED_FIFO {DRIVES_PRIORITY}" if fifo_allowed() else "ordinary")
             if mode != THREAD
             else None,
@@ -265,13 +296,20 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
 
 def scheduling_floor(seconds: float) -> list[dict]:
     """What the machine gives any 1 kHz loop: a bare single-thread Python loop sleeping to each 1 ms deadline
-    (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling and under SCHED_FIFO."""
-    from surgiplan.plugins.devices.canopen.clock import RealTimeClock, restore_priority, set_realtime_priority
+    (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling (the kernel's default slice, then the
+    short slice the control loop's threads ask for at ordinary priority) and under SCHED_FIFO."""
+    from surgiplan.plugins.devices.canopen.clock import (
+        LOOP_SLICE,
+        RealTimeClock,
+        restore_priority,
+        set_realtime_priority,
+    )
 
     rows = []
-    for policy in ("ordinary", f"SCHED_FIFO {PRIORITY}"):
+    short = f"ordinary, {LOOP_SLICE * 1e3:g} ms slice"
+    for policy in ("ordinary", short, f"SCHED_FIFO {PRIORITY}"):
         try:
-            previous = set_realtime_priority(PRIORITY if policy != "ordinary" else None)
+            previous = None if policy == "ordinary" else set_realtime_priority(None if policy == short else PRIORITY)
         except OSError as exc:
             rows.append({"loop": f"bare 1 kHz sleep loop, {policy}", "error": str(exc)})
             continue

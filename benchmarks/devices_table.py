@@ -31,8 +31,9 @@ def readme_table(data: dict | None = None) -> str:
         "the gimbal's gap path there and back)",
         "",
         "| drives | rate | runs completed / without a missed cycle | cycle jitter p50 / p99 / max | missed cycles "
-        "| master CPU per cycle | drives CPU per SYNC | bus load (worst case) | held |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| master CPU per cycle | drives CPU per SYNC | SYNC → all TPDOs p50 / p99 / max | bus load (worst case) "
+        "| held |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     loops = [r for r in rows if r["section"] == "control_loop"]
     for r in loops:
@@ -42,11 +43,16 @@ def readme_table(data: dict | None = None) -> str:
         drives_cpu = (
             f"{r['drives_cpu_per_sync_ms']} ms" if r["drives_cpu_per_sync_ms"] is not None else "(same process)"
         )
+        answers = (
+            f"{r['sync_to_tpdos_p50_ms']} / {r['sync_to_tpdos_p99_ms']} / {r['sync_to_tpdos_max_ms']} ms"
+            if "sync_to_tpdos_p50_ms" in r
+            else "—"
+        )
         lines.append(
             f"| {where} | {r['rate_hz']:g} Hz | {r['runs_completed']} / {r.get('runs_without_missed', '—')} | "
             f"{r.get('jitter_p50_ms', '—')} / {r.get('jitter_p99_ms', '—')} / {r.get('jitter_max_ms', '—')} ms | "
             f"{r['missed_cycles']} of {r['cycles']:,} | {r['master_cpu_per_cycle_ms']} ms | "
-            f"{drives_cpu} | {r['bus_load_percent']} % ({r['bus_load_worst_case_percent']} %) | "
+            f"{drives_cpu} | {answers} | {r['bus_load_percent']} % ({r['bus_load_worst_case_percent']} %) | "
             f"{'yes' if r['held'] else 'no'} |"
         )
 

@@ -8,6 +8,8 @@ import socket
 import subprocess
 import sys
 import textwrap
+import threading
+import time
 from pathlib import Path
 
 import can
@@ -108,6 +110,82 @@ def test_the_hosts_shutdown_is_a_bus_error_on_the_others():
     with pytest.raises(can.CanOperationError, match="the hub closed"):
         peer.recv(2.0)
     peer.shutdown()
+
+
+class Receiving:
+    """A thread receiving on ``bus`` until stopped (as the simulated drives' thread does): what it got, in order."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self.got: list[can.Message] = []
+        self.error: Exception | None = None
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        for _ in range(100_000):  # bounded: 0.05 s a turn at most, a few minutes in all
+            if self.stop.is_set():
+                return
+            try:
+                msg = self.bus.recv(0.05)
+            except can.CanOperationError as exc:
+                self.error = exc
+                return
+            if msg is not None:
+                self.got.append(msg)
+
+    def wait_for(self, count: int, timeout: float = 5.0) -> list[can.Message]:
+        deadline = time.monotonic() + timeout
+        while len(self.got) < count and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return list(self.got)
+
+
+def test_a_host_without_a_hub_thread_relays_every_frame_while_it_receives():
+    """``hub_thread=False``: no thread of the hub's own; the thread receiving on the hosting bus accepts the others
+    and relays their frames (to itself and to each other, in order), and its own frames go out from send()."""
+    port = free_port()
+    host = can.Bus(interface="loopback", channel=port, hub_thread=False)
+    receiving = Receiving(host)
+    joined = []
+    try:
+        assert host.role == "host" and host._hub.thread is None
+        assert not [t for t in threading.enumerate() if t.name.startswith("loopback-can-hub")]
+        joined = [can.Bus(interface="loopback", channel=port, hub="join", connect_timeout=2.0) for _ in range(2)]
+        before = time.time()
+        for i in range(50):
+            joined[0].send(frame(0x181, bytes([i])))
+        after = time.time()
+        got = receiving.wait_for(50)
+        assert [bytes(m.data) for m in got] == [bytes([i]) for i in range(50)]
+        assert all(before <= m.timestamp <= after for m in got)  # the time each was sent
+        assert [bytes(joined[1].recv(2.0).data) for _ in range(50)] == [bytes([i]) for i in range(50)]
+        host.send(frame(0x80))
+        assert [joined[k].recv(2.0).arbitration_id for k in (0, 1)] == [0x80, 0x80]
+        assert joined[0].recv(0.05) is None and len(receiving.got) == 50  # nobody got a frame twice, nor its own
+    finally:
+        started = time.monotonic()
+        host.shutdown()  # wakes the receiving thread at once, with the bus error
+        receiving.thread.join(2.0)
+        assert not receiving.thread.is_alive() and time.monotonic() - started < 1.0
+        assert isinstance(receiving.error, can.CanOperationError)
+        for bus in joined:
+            bus.shutdown()
+
+
+def test_a_host_without_a_hub_thread_receives_its_own_frames_while_it_waits():
+    port = free_port()
+    with can.Bus(interface="loopback", channel=port, hub_thread=False, receive_own_messages=True) as host:
+        receiving = Receiving(host)
+        try:
+            time.sleep(0.05)  # waiting in the hub's select, not on the queue its own frames go to
+            host.send(frame(0x80))
+            got = receiving.wait_for(1, timeout=1.0)
+            assert [(m.arbitration_id, m.is_rx) for m in got] == [(0x80, False)]
+        finally:
+            receiving.stop.set()
+            receiving.thread.join(2.0)
 
 
 DRIVE = textwrap.dedent(

@@ -130,6 +130,33 @@ def test_monitored_bus_logs_frames_both_ways_and_goes_bus_off_when_told():
         peer.shutdown()
 
 
+def test_a_sent_frame_is_logged_with_the_time_it_was_handed_to_the_interface():
+    """Taken before the send: a thread preempted while sending (the drives answering in between) still logs its
+    SYNC before their answers, one by one and in a batch."""
+    clock = {"t": 1.0}
+
+    class Slow(can.BusABC):  # the interface: time passes while it sends
+        def __init__(self) -> None:
+            super().__init__(channel="slow")
+
+        def send(self, msg, timeout=None) -> None:
+            clock["t"] += 0.5
+
+        def send_batch(self, messages) -> None:
+            clock["t"] += 0.5
+
+        def _recv_internal(self, timeout):
+            return None, False
+
+    bus = MonitoredBus(Slow(), lambda: clock["t"], ArmedFaults([], lambda: clock["t"]))
+    try:
+        bus.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+        bus.send_batch([can.Message(arbitration_id=0x80, data=b"", is_extended_id=False)] * 2)
+        assert [f[0] for f in bus.frames] == [1.0, 1.5, 1.5]
+    finally:
+        bus.shutdown()
+
+
 def test_monitored_bus_ignores_echoes_of_its_own_frames():
     """Interfaces such as udp_multicast loop a sender's frames back: they are not traffic twice."""
     clock = lambda: 0.0  # noqa: E731

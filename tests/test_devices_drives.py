@@ -218,3 +218,63 @@ def test_a_drive_without_sync_quick_stops_by_itself_and_says_so(gimbal):
         assert last_sync + timeout < entered[-1] <= last_sync + timeout + 0.01 + 1e-9
         emcy = frames(gimbal, 0x80 + axis.node_id, last_sync)
         assert struct.unpack_from("<H", emcy[0][2])[0] == cia402.EMCY_SYNC_LOST
+
+
+def test_the_hand_is_interpolated_exactly_as_numpy_interpolates():
+    """HandMotion (the compiled interpolation the motor model pulls torque-mode axes with) against np.interp, bit
+    for bit: inside, on the knots, at and beyond both ends, repeated times, before it starts (its first row)."""
+    from surgiplan.plugins.devices.canopen.sim.motor import HandMotion
+
+    rng = np.random.default_rng(3)
+    times = np.cumsum(rng.uniform(0.0, 0.02, 200))
+    times[50] = times[49]  # a repeated time: np.interp takes the later row
+    joints = rng.normal(size=(200, 4))
+    hand = HandMotion(times, joints, start=10.0)
+    u = np.concatenate([rng.uniform(times[0] - 0.5, times[-1] + 0.5, 500), times, [times[0], times[-1]]])
+    clock = 10.0 + u
+    expected = np.stack([np.interp(clock - 10.0, times, joints[:, k]) for k in range(4)], axis=1)
+    assert np.array_equal(hand(clock), expected)  # an array of clock times: one row per time
+    assert np.array_equal(hand(clock[7]), expected[7])  # one clock time: the axes' positions
+    on_knots = HandMotion(times, joints, start=0.0)(times)  # each knot's row; the repeated time's later one
+    assert np.array_equal(on_knots, joints[np.r_[:49, 50, 50:200]])
+    assert np.array_equal(HandMotion(times, joints)(123.0), joints[0])  # not started: where it begins
+
+
+def test_the_drives_kernels_compile_nothing_after_import():
+    """In a fresh process: importing the motor model compiles its kernels (or loads them from numba's cache) for
+    the types the simulator passes, so that drives in torque mode with a hand, and in position mode, compile no
+    other specialisation (a drives' process would pay it at a SYNC)."""
+    import json
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        """
+        import json
+        import can
+        from surgiplan.plugins.devices.canopen.bus import ArmedFaults
+        from surgiplan.plugins.devices.canopen.clock import SimulatedClock
+        from surgiplan.plugins.devices.canopen.sim import motor
+        from surgiplan.plugins.devices.canopen.sim.drives import AxisHardware, DriveSimulator
+        from surgiplan.plugins.devices.canopen.sim.statemachine import OE
+
+        before = [len(motor._integrate.signatures), len(motor._hand_at.signatures)]
+        clock = SimulatedClock()
+        bus = can.Bus(interface="virtual", channel="kernels")
+        axes = [AxisHardware(k + 1, 1e4, 100.0, 50.0) for k in range(4)]
+        sim = DriveSimulator(bus, axes, motor.MotorModel(), clock, ArmedFaults([], clock.now), None)
+        sim.state[:] = OE
+        for mode, hand in ((10, motor.HandMotion([0.0, 1.0], [[0.0] * 4, [0.1] * 4], 0.0)), (8, None)):
+            sim.mode[:] = mode
+            sim.move_by_hand(hand, 1.0, 0.1)
+            sim.advance(clock.now() + 0.0123)
+            clock.sleep(0.0123)
+        sim.close()
+        print(json.dumps({"before": before, "after": [len(motor._integrate.signatures),
+                                                        len(motor._hand_at.signatures)]}))
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["before"] == [1, 1] and result["after"] == [1, 1]

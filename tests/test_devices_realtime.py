@@ -126,3 +126,31 @@ def test_realtime_priority_puts_the_loop_and_the_feedback_under_sched_fifo(block
         receive = [t.native_id for t in device.master.network.notifier._readers]
         assert receive and all(os.sched_getscheduler(tid) == os.SCHED_FIFO for tid in receive)
         assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the caller's thread only while a trajectory runs
+
+
+def test_at_ordinary_priority_the_loops_threads_ask_for_a_short_slice(block_world, tmp_path):
+    """Without realtime_priority the loop's threads stay ordinary (SCHED_OTHER) and ask EEVDF for the shortest slice
+    (clock.LOOP_SLICE), so that their wake-up preempts a task that has run longer; the caller's thread only while a
+    trajectory runs, as it was afterwards."""
+    import os
+
+    from surgiplan.plugins.devices.canopen.clock import LOOP_SLICE, restore_priority, sched_attr, set_realtime_priority
+
+    before = sched_attr()
+    asked = set_realtime_priority(None)
+    granted = sched_attr()
+    restore_priority(asked)
+    if before is None or granted is None or granted.runtime != round(LOOP_SLICE * 1e9):
+        pytest.skip(f"this kernel grants no slice to an ordinary thread ({os.uname().release})")
+    assert sched_attr() == before
+    space = gimbal_space(block_world)
+    path = gimbal_path(space, GAP_TIPS)
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "simulation": {"sync_timeout": 0.5}}
+    with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+        threads = [device.controller._hold_thread.native_id, device.simulator._thread.native_id]
+        threads += [t.native_id for t in device.master.network.notifier._readers]
+        for tid in threads:
+            attr = sched_attr(tid)
+            assert attr.policy == os.SCHED_OTHER and attr.runtime == round(LOOP_SLICE * 1e9)
+        assert device.execute(Trajectory(path, space, "test")).status == "completed"
+        assert sched_attr() == before  # the caller's thread asked while the trajectory ran, and gave it back

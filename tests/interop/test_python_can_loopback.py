@@ -59,8 +59,8 @@ def test_direction_flag_and_channel_as_virtual_sets_them():
 
 @pytest.mark.parametrize("reader", ["host", "join"])
 def test_a_frame_read_late_carries_the_time_it_was_sent(reader):
-    """A frame is stamped when it goes on the bus (through the hub), not when the application gets round to
-    reading it."""
+    """A frame is stamped with the time it went on the bus (its sender's), not when the hub relayed it or the
+    application got round to reading it."""
     port = free_port()
     with can.Bus(port, interface="loopback") as host, can.Bus(port, interface="loopback") as joined:
         sender, receiver = (joined, host) if reader == "host" else (host, joined)
@@ -70,10 +70,7 @@ def test_a_frame_read_late_carries_the_time_it_was_sent(reader):
         time.sleep(0.5)
         msg = receiver.recv(2.0)
         read = time.time()
-    if reader == "join":  # the host sent it: the hub stamped it within send()
-        assert before <= msg.timestamp <= after
-    else:  # the joined bus sent it: the hub stamped it as it relayed it, a moment after
-        assert before <= msg.timestamp <= after + 0.2
+    assert before <= msg.timestamp <= after  # its sender's time, whoever relayed it when
     assert read - msg.timestamp >= 0.3
 
 

@@ -271,7 +271,9 @@ class MonitoredBus(can.BusABC):
     """The master's view of the bus: logs every frame on it and applies the receive-side faults.
 
     Every frame the master sends or receives is logged with the clock's time
-    (the frames on the wire, for the bus load); received frames may then be
+    (the frames on the wire, for the bus load): a sent frame's taken as it is
+    handed to the interface, before the send (a thread preempted in between must
+    not log a SYNC after the drives' answers to it); received frames may then be
     dropped (``frame_loss``); after ``bus_off`` every send raises
     ``can.CanOperationError`` as a bus-off controller would.
     """
@@ -292,11 +294,11 @@ class MonitoredBus(can.BusABC):
         super().__init__(channel=getattr(inner, "channel_info", "can"))
         self.channel_info = f"monitored {inner.channel_info}"
 
-    def _log(self, msg: can.Message) -> None:
+    def _log(self, msg: can.Message, now: float | None = None) -> None:
         if msg.is_error_frame or msg.is_remote_frame:
             return
         with self.log_lock:
-            self.frames.append((self.now(), msg.arbitration_id, bytes(msg.data)))
+            self.frames.append((self.now() if now is None else now, msg.arbitration_id, bytes(msg.data)))
 
     def _check_bus_off(self) -> None:
         if self.bus_off is not None:
@@ -308,8 +310,9 @@ class MonitoredBus(can.BusABC):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_bus_off()
+        now = self.now()
         self.inner.send(msg, timeout)
-        self._log(msg)
+        self._log(msg, now)
 
     @property
     def send_batch(self):
@@ -321,8 +324,8 @@ class MonitoredBus(can.BusABC):
 
         def send_batch(messages: list[can.Message]) -> None:
             self._check_bus_off()
-            inner(messages)
             now = self.now()
+            inner(messages)
             with self.log_lock:
                 self.frames.extend((now, m.arbitration_id, bytes(m.data)) for m in messages)
 

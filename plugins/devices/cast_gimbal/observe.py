@@ -39,6 +39,7 @@ from surgiplan.units import PositiveLength
 from surgiplan.validation import file_length_scale, input_path
 
 from ..canopen.realtime import realtime_section
+from ..canopen.sim.motor import HandMotion
 from .assist import AssistLoop, AssistSettings, assistance_level, proficiency_of
 from .device import CastGimbalDevice, CastGimbalDeviceSettings
 
@@ -192,13 +193,9 @@ class CastGimbalObserver(PoseSource):
             times, joints = motion
             start = self.device.clock.now()
             self.hand_end = float(times[-1])
-
-            def hand(t: float, times=times, joints=joints, start=start) -> np.ndarray:
-                u = t - start
-                return np.array([np.interp(u, times, joints[:, k]) for k in range(joints.shape[1])])
-
             hand_model = s.hand or HandModel()
-            self.device.simulator.move_by_hand(hand, hand_model.stiffness, hand_model.damping)
+            self.device.simulator.move_by_hand(HandMotion(times, joints, start), hand_model.stiffness,
+                                               hand_model.damping)  # fmt: skip
             self.origin = start
         else:
             self.origin = self.device.clock.now()

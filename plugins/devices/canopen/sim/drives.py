@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,7 +44,7 @@ from .communication import TICK, Communication
 from .faults import FaultInjection
 from .lss import UNCONFIGURED, LayerSettings, LssSlave
 from .modes import OperatingModes
-from .motor import MotorModel
+from .motor import HandMotion, MotorModel
 from .node import DriveNode
 from .objects import ObjectDictionary
 from .reference import Reference
@@ -223,7 +222,7 @@ class DriveSimulator(
         #: real time: the time of the frame being handled (a SYNC's arrival), else None (the clock's now)
         self._event_time: float | None = None
         #: simulation only: where a hand holds the unpowered axes at time t (see move_by_hand)
-        self.hand: Callable[[float], np.ndarray] | None = None
+        self.hand: HandMotion | None = None
         self.memories = [Memory(memory / f"{device or 'drive'}_{a.name}.json" if memory else None) for a in axes]
         self.lss: list[LssSlave] = []
         #: the bus's bit rate (a drive switched to another by LSS is off the bus)
@@ -289,49 +288,9 @@ class DriveSimulator(
             self.vel[:] = 0.0
             self.t = t
             return
-        m = self.model
-        steps = m.substeps(span)
-        dt = span / steps
-        powered = powered_mask.astype(float)
-        mode = self.mode
-        monitored = (state == OE) & self.alive & ((mode == cia402.PP) | (mode == cia402.CSP))
-        # the commands of every substep at once; the integration itself is sequential
-        # the loop compares the position at the start of each step with the command there
-        if steps == 1:
-            command, rate = self.reference.at(self.t)
-            command, rate = command[None], rate[None]
-        else:
-            command, rate = self.reference.at(self.t + dt * np.arange(steps)[:, None])
-        pos, vel, over_time = self.pos, self.vel, self.over_time
-        cpu, vmax, peak, load, window = self.cpu, self.vmax, self.peak, self.load, self.window
-        tripped = np.zeros(len(pos), dtype=bool)
-        torque_mode = powered_mask & (mode == cia402.CST)
-        if torque_mode.any():
-            # cyclic synchronous torque: the drive's torque (none while quick-stopping) and the hand's
-            limit = np.minimum(self.max_torque, np.abs(self.target_torque))
-            drive = np.clip(self.target_torque, -limit, limit) * (state == OE) * torque_mode
-            self.torque_actual = drive
-            drive_torque = drive * self.torque_unit
-        else:
-            self.torque_actual = np.zeros(len(pos))
-        for k in range(steps):
-            if torque_mode.any():
-                external = load * self.inertia
-                if self.hand is not None:
-                    where = np.asarray(self.hand(self.t + dt * k), dtype=float)
-                    external = external + self.hand_stiffness * (where - pos) - self.hand_damping * vel
-                p_t, v_t = m.torque_step(pos, vel, drive_torque + external, self.inertia, self.viscous,
-                                         self.coulomb, dt)  # fmt: skip
-                pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
-                pos, vel = np.where(torque_mode, p_t, pos), np.where(torque_mode, v_t, vel)
-            else:
-                pos, vel = m.step(pos, vel, command[k], rate[k], dt, powered, cpu, vmax, peak, load)
-            # following error (position modes): outside the window 0x6065 for longer than 0x6066
-            over_time = (over_time + dt) * (monitored & (np.abs(command[k] - pos) > window))
-            tripped |= over_time > self.window_time
-        self.pos, self.vel, self.over_time = pos, vel, over_time
+        tripped = self.model.integrate(self, self.t, span)
         self.t = t
-        for i in np.flatnonzero(tripped & monitored):
+        for i in np.flatnonzero(tripped):
             self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
         self._windows(t)
 
@@ -343,7 +302,7 @@ class DriveSimulator(
         self._thread.start()
         set_realtime_priority(priority, self._thread.native_id)
         hub = getattr(self.network.bus, "_hub", None)
-        if hub is not None:
+        if hub is not None and hub.thread is not None:
             set_realtime_priority(priority, hub.thread.native_id)
 
     def _loop(self) -> None:
@@ -362,7 +321,7 @@ class DriveSimulator(
             while (timer := self.scheduler.pop_due(now)) is not None:
                 timer.action()
 
-    def move_by_hand(self, motion: Callable[[float], np.ndarray] | None, stiffness=None, damping=None) -> None:
+    def move_by_hand(self, motion: HandMotion | None, stiffness=None, damping=None) -> None:
         """Simulation only: while an axis is unpowered (its drive not enabled, as when a trainee moves the
         instrument by hand, the observe mode of a guide stage), its position follows ``motion(t)`` (units per
         axis, ``t`` the clock's time); the encoders, TPDOs and SDO reads report it. None lets go.

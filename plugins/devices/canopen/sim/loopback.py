@@ -14,8 +14,10 @@ The channel is a TCP port on 127.0.0.1 (or ``HOST:PORT`` with a loopback
 host: 127.0.0.0/8, ::1 or ``localhost``); any other host is refused. The
 first bus opened on a channel hosts the hub in a daemon thread of its process
 (``hub="auto"``, the default; ``"host"`` insists on hosting, ``"join"`` on
-joining one); the buses opened later connect to it. Every frame one bus sends
-reaches every other bus on the channel, in order; a bus does not receive its
+joining one; ``hub_thread=False``: no thread, the hosting bus's receiver
+relays while it waits in ``recv``); the buses opened later connect to it.
+Every frame one bus sends reaches every other bus on the channel, in order;
+a bus does not receive its
 own frames unless ``receive_own_messages=True`` (as SocketCAN). When the
 host's bus shuts down the hub closes and the other buses' ``recv`` raise
 ``can.CanOperationError`` saying so, as a bus whose cable was pulled.
@@ -23,10 +25,11 @@ host's bus shuts down the hub closes and the other buses' ``recv`` raise
 As python-can's built-in interfaces: a received frame's ``channel`` is the
 channel the bus was opened with (so ``can.logger`` writes files that
 ``can.LogReader`` and ``can.player`` read back); its ``timestamp`` is the
-moment it went on the bus, i.e. through the hub (every bus sees the same
-frames in the same order at the same times, as the controllers on a real
-bus do), not the moment the application reads it; a bus's own frames
-(``receive_own_messages``) come back with ``is_rx=False``. Receiving on a
+moment it went on the bus: its sender's time (one clock: the same machine),
+never earlier than the frame before it, put on it once by the hub (every bus
+sees the same frames in the same order at the same times, as the controllers
+on a real bus do), not the moment the hub or the application reads it; a
+bus's own frames (``receive_own_messages``) come back with ``is_rx=False``. Receiving on a
 bus that is shut down raises ``can.CanOperationError``, and a thread
 waiting in ``recv`` is woken with it when another thread shuts the bus
 down. python-can's own interface tests run against this interface in
@@ -38,13 +41,7 @@ Why not an existing transport: python-can's ``udp_multicast`` sends to a
 modules); python-can-remote (0.3.0) targets python-can 3, carries its own
 websocket implementation and listens on all interfaces by default.
 
-Wire format (little endian), one record per frame: ``<dIBB`` (time stamp,
-s since the epoch: the sender's, then the hub's as it relays the frame;
-arbitration id, flags, data length) then
-the data bytes (0-64). Flags: 1 extended id, 2 remote, 4 error, 8 CAN FD, 16
-bit-rate switch, 32 error-state indicator. Every socket operation has a time-out; a peer that does not read
-its frames for ``send_timeout`` seconds is disconnected rather than allowed
-to stall the bus.
+The wire format and the hub: :mod:`.loopback_hub`.
 """
 
 from __future__ import annotations
@@ -53,9 +50,7 @@ import errno
 import ipaddress
 import queue
 import select
-import selectors
 import socket
-import struct
 import threading
 import time
 from collections import deque
@@ -64,15 +59,7 @@ from typing import Any
 import can
 
 from ..bus import BusError
-
-HEADER = struct.Struct("<dIBB")
-#: a record's time stamp (its first field)
-_STAMP = struct.Struct("<d")
-#: what the hub sends a bus once it is on the bus: frames sent after the bus's constructor returned reach it
-GREETING = b"SPCANHUB\x01"
-_EXTENDED, _REMOTE, _ERROR, _FD, _BRS, _ESI = 1, 2, 4, 8, 16, 32
-#: a record can never be longer than this; anything else on the socket is not this protocol
-_MAX_DATA = 64
+from .loopback_hub import GREETING, Hub, Reader, decode, encode
 
 
 class LoopbackError(can.CanInitializationError, BusError):
@@ -119,194 +106,8 @@ def parse_channel(channel: Any) -> tuple[str, int]:
     return str(address), port
 
 
-def encode(msg: can.Message) -> bytes:
-    flags = (
-        (_EXTENDED if msg.is_extended_id else 0)
-        | (_REMOTE if msg.is_remote_frame else 0)
-        | (_ERROR if msg.is_error_frame else 0)
-        | (_FD if msg.is_fd else 0)
-        | (_BRS if msg.bitrate_switch else 0)
-        | (_ESI if msg.error_state_indicator else 0)
-    )
-    data = bytes(msg.data) if msg.data is not None else b""
-    if len(data) > _MAX_DATA:
-        raise can.CanOperationError(f"a CAN frame carries at most {_MAX_DATA} bytes, got {len(data)}")
-    length = msg.dlc if msg.is_remote_frame else len(data)
-    # the time it is sent (what a message carries in .timestamp is not: a replayed log's time, or nothing); the
-    # hub stamps it again as it relays it
-    return HEADER.pack(time.time(), msg.arbitration_id, flags, length) + (b"" if msg.is_remote_frame else data)
-
-
-class _Reader:
-    """Splits a byte stream into frame records."""
-
-    def __init__(self) -> None:
-        self.buffer = bytearray()
-
-    def feed(self, chunk: bytes) -> None:
-        self.buffer += chunk
-
-    def records(self) -> list[bytes]:
-        out = []
-        buffer = self.buffer
-        offset = 0
-        while len(buffer) - offset >= HEADER.size:
-            _, _, flags, length = HEADER.unpack_from(buffer, offset)
-            if length > _MAX_DATA:
-                raise can.CanOperationError("loopback CAN hub: malformed record (a peer that is not a CAN bus?)")
-            size = HEADER.size + (0 if flags & _REMOTE else length)
-            if len(buffer) - offset < size:
-                break
-            out.append(bytes(buffer[offset : offset + size]))
-            offset += size
-        if offset:
-            del buffer[:offset]
-        return out
-
-
-def decode(record: bytes, channel: Any, is_rx: bool = True) -> can.Message:
-    """A record as the :class:`can.Message` a bus on ``channel`` receives (``is_rx=False``: its own frame)."""
-    timestamp, arbitration_id, flags, length = HEADER.unpack_from(record)
-    remote = bool(flags & _REMOTE)
-    return can.Message(
-        timestamp=timestamp,  # when it went through the hub (own frames of a joined bus: when sent)
-        arbitration_id=arbitration_id,
-        is_extended_id=bool(flags & _EXTENDED),
-        is_remote_frame=remote,
-        is_error_frame=bool(flags & _ERROR),
-        is_fd=bool(flags & _FD),
-        bitrate_switch=bool(flags & _BRS),
-        error_state_indicator=bool(flags & _ESI),
-        dlc=length,
-        data=None if remote else record[HEADER.size :],
-        channel=channel,
-        is_rx=is_rx,
-    )
-
-
 def _family(host: str) -> int:
     return socket.AF_INET6 if ":" in host else socket.AF_INET
-
-
-class _Hub:
-    """The hub a hosting bus runs: accepts the other buses and relays every record to every peer."""
-
-    def __init__(self, listener: socket.socket, deliver, send_timeout: float, name: str) -> None:
-        self.listener = listener
-        self.deliver = deliver  # records to the hosting bus itself
-        self.send_timeout = send_timeout
-        self.lock = threading.Lock()
-        #: one sender at a time: records from several threads must not interleave on a socket
-        self.send_lock = threading.Lock()
-        self.peers: dict[socket.socket, _Reader] = {}
-        self.selector = selectors.DefaultSelector()
-        self.selector.register(listener, selectors.EVENT_READ)
-        #: close() writes to it: the hub thread leaves its select at once, not after its time-out
-        self._wake_r, self._wake_w = socket.socketpair()
-        self.selector.register(self._wake_r, selectors.EVENT_READ)
-        self.closed = threading.Event()
-        self._last = 0.0  # the latest time stamp put on the bus
-        self.thread = threading.Thread(target=self._run, name=f"loopback-can-hub {name}", daemon=True)
-        self.thread.start()
-
-    def broadcast(self, records: list[bytes], source: socket.socket | None, own=None) -> None:
-        """Put records on the bus: stamped now (the hub is the wire: every bus sees them in one order, at times
-        that never go back), queued for the hosting bus (``own``: its own, when it receives them) and written to
-        every peer but their ``source``, in one write each."""
-        with self.lock:
-            peers = [p for p in self.peers if p is not source]
-        failed = []
-        with self.send_lock:
-            now = self._last = max(time.time(), self._last)
-            stamped = [_STAMP.pack(now) + record[_STAMP.size :] for record in records]
-            queue_to = self.deliver if source is not None else own
-            if queue_to is not None:
-                for record in stamped:
-                    queue_to(record)
-            data = b"".join(stamped)
-            for peer in peers:
-                try:
-                    peer.sendall(data)
-                except OSError:  # it hung up or stopped reading for send_timeout: it leaves the bus
-                    failed.append(peer)
-        for peer in failed:
-            self._drop(peer)
-
-    def _drop(self, peer: socket.socket) -> None:
-        with self.lock:
-            if self.peers.pop(peer, None) is None:
-                return
-        try:
-            self.selector.unregister(peer)
-        except (KeyError, ValueError):
-            pass
-        peer.close()
-
-    def _run(self) -> None:
-        while not self.closed.is_set():
-            try:
-                events = self.selector.select(timeout=0.1)
-            except (OSError, ValueError):  # closed under us
-                break
-            for key, _ in events:
-                sock = key.fileobj
-                if sock is self._wake_r or self.closed.is_set():
-                    break
-                if sock is self.listener:
-                    try:
-                        peer, _ = self.listener.accept()
-                    except OSError:
-                        continue
-                    peer.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    peer.settimeout(self.send_timeout)
-                    with self.send_lock:  # on the bus from here: no broadcast falls between the two
-                        with self.lock:
-                            self.peers[peer] = _Reader()
-                        try:
-                            peer.sendall(GREETING)
-                        except OSError:
-                            pass
-                    self.selector.register(peer, selectors.EVENT_READ)
-                    continue
-                try:
-                    chunk = sock.recv(65536)
-                except (OSError, TimeoutError):
-                    chunk = b""
-                if not chunk:
-                    self._drop(sock)
-                    continue
-                reader = self.peers.get(sock)
-                if reader is None:
-                    continue
-                reader.feed(chunk)
-                try:
-                    records = reader.records()
-                except can.CanOperationError:
-                    self._drop(sock)
-                    continue
-                if records:  # in order, with one write per peer for what arrived together
-                    self.broadcast(records, sock)
-
-    def close(self) -> None:
-        self.closed.set()
-        try:
-            self._wake_w.send(b"\0")
-        except OSError:
-            pass
-        self.thread.join(timeout=2.0)
-        with self.lock:
-            peers = list(self.peers)
-            self.peers.clear()
-        for peer in peers:
-            try:
-                peer.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            peer.close()
-        self.selector.close()
-        self.listener.close()
-        self._wake_r.close()
-        self._wake_w.close()
 
 
 class LoopbackBus(can.BusABC):
@@ -318,6 +119,10 @@ class LoopbackBus(can.BusABC):
     :param connect_timeout: how long ``join`` waits for a hub to accept (s).
     :param send_timeout: a peer that does not take a frame within this time is disconnected (s).
     :param bitrate: the nominal bit rate (only reported: nothing is slowed down).
+    :param hub_thread: a hosting bus relays in a thread of its own (the default); False: in the thread that
+        receives on it, while it waits in ``recv`` (no thread of its own: a frame reaches a process whose one
+        thread always receives, as the simulated drives' does, without a hand-over between threads; nobody
+        receiving, nothing is relayed).
     """
 
     def __init__(
@@ -329,21 +134,23 @@ class LoopbackBus(can.BusABC):
         connect_timeout: float = 2.0,
         send_timeout: float = 1.0,
         bitrate: int = 1_000_000,
+        hub_thread: bool = True,
         **kwargs: object,
     ) -> None:
         # first what shutdown() cleans up: it runs when the constructor fails half-way, too
         self._closing = threading.Event()
-        self._hub: _Hub | None = None
+        self._hub: Hub | None = None
         self._sock: socket.socket | None = None
         #: the host's received records and (both roles) our own: (record, is_rx); None wakes a receiver to close
         self._rx: queue.SimpleQueue[tuple[bytes, bool] | None] = queue.SimpleQueue()
-        #: a joined bus: one thread at a time reads the socket; shutdown() closes it once none is reading
+        #: one thread at a time reads the socket (joined) or serves the hub (hosted without its thread); shutdown()
+        #: closes them once none is
         self._recv_lock = threading.Lock()
         #: a joined bus: written to wake a thread waiting in select (an own frame queued, or shutdown)
         self._wake_r: socket.socket | None = None
         self._wake_w: socket.socket | None = None
         self._send_lock = threading.Lock()
-        self._reader = _Reader()
+        self._reader = Reader()
         self._pending: deque[bytes] = deque()
         self._hub_closed = False
         if channel is None:
@@ -363,9 +170,8 @@ class LoopbackBus(can.BusABC):
                 listener = self._try_listen(required=hub == "host")
             if listener is not None:
                 rx = self._rx  # not self: the hub thread must not keep the bus alive (python-can's __del__ cleanup)
-                self._hub = _Hub(
-                    listener, lambda record: rx.put((record, True)), self.send_timeout, self._address_text()
-                )
+                self._hub = Hub(listener, lambda record: rx.put((record, True)), self.send_timeout,
+                                 self._address_text(), thread=bool(hub_thread))  # fmt: skip
                 self.role = "host"
             else:
                 self._sock = self._join(float(connect_timeout))
@@ -450,6 +256,8 @@ class LoopbackBus(can.BusABC):
             rx = self._rx
             # our own frames (receive_own_messages) are queued as the hub stamps them: transmitted, not received
             self._hub.broadcast(records, None, (lambda r: rx.put((r, False))) if self.receive_own_messages else None)
+            if self.receive_own_messages and self._hub.thread is None:
+                self._hub.wake()  # a receiver serving the hub waits in its select, not on the queue
             return
         with self._send_lock:
             try:
@@ -479,6 +287,8 @@ class LoopbackBus(can.BusABC):
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         if self._closing.is_set():
             raise self._closed_error()
+        if self._sock is None and self._hub.thread is None:  # the host without a hub thread: serve it here
+            return self._recv_serving(timeout), False
         if self._sock is None:  # the host: the hub thread queues what the others send
             try:
                 item = self._rx.get(timeout=timeout) if timeout is None or timeout > 0 else self._rx.get_nowait()
@@ -490,6 +300,28 @@ class LoopbackBus(can.BusABC):
             return None, False  # another thread is receiving for the whole time-out
         try:
             return self._recv_joined(deadline), False
+        finally:
+            self._recv_lock.release()
+
+    def _recv_serving(self, timeout: float | None) -> can.Message | None:
+        """The host without a hub thread: what is queued (frames of others the hub relayed, our own), else serve
+        the hub (it queues what it relays) until a frame, the time-out or shutdown."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        if not self._recv_lock.acquire(timeout=-1 if deadline is None else max(0.0, timeout)):
+            return None  # another thread is receiving (serving) for the whole time-out
+        try:
+            while True:  # until a frame, the deadline or shutdown: each turn is one round of the hub
+                try:
+                    return self._queued(self._rx.get_nowait())
+                except queue.Empty:
+                    pass
+                if self._closing.is_set():
+                    raise self._closed_error()
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining < 0:
+                    return None
+                if not self._hub.serve(remaining) and self._rx.empty():
+                    raise self._closed_error()
         finally:
             self._recv_lock.release()
 
@@ -553,8 +385,12 @@ class LoopbackBus(can.BusABC):
                 self._wake_w.send(b"\0")  # wakes a thread waiting in a joined bus's select
             except OSError:
                 pass
-        if self._hub is not None:
-            self._hub.close()
+        hub = self._hub
+        if hub is not None and hub.thread is not None:
+            hub.close()
+        elif hub is not None:  # a receiver serving it leaves at once; it closes below, once none does
+            hub.closed.set()
+            hub.wake()
         if self._sock is not None:
             try:
                 self._sock.shutdown(socket.SHUT_RDWR)
@@ -563,6 +399,8 @@ class LoopbackBus(can.BusABC):
         # close the sockets once no thread reads them (the wake-up above makes a reader leave at once)
         locked = self._recv_lock.acquire(timeout=2.0)
         try:
+            if hub is not None and hub.thread is None:
+                hub.close()
             for sock in (self._sock, self._wake_r, self._wake_w):
                 if sock is not None:
                     sock.close()

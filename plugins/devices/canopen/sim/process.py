@@ -6,8 +6,9 @@ time on the bus you name, as real drives would be: outside the process of the
 master, reached only through CAN frames. A pipeline then talks to them with
 exactly the settings it would use for hardware. The default interface is
 surgiplan's ``loopback`` (a python-can interface: a hub on 127.0.0.1 that
-this process hosts; no CAN hardware or kernel module needed, and nothing
-leaves the machine)::
+this process hosts, relayed by the drives' own thread as it receives, so that
+a SYNC reaches the drives without a hand-over between threads; no CAN
+hardware or kernel module needed, and nothing leaves the machine)::
 
     surgiplan-sim-drives --device cast_gimbal --channel 43113 --initial 0 0.6 0.12 0
 
@@ -45,7 +46,7 @@ from ..bus import ArmedFaults, BusSettings, open_bus
 from ..clock import RealTimeClock
 from ..control import SWITCH_INTERVAL
 from .drives import DriveSimulator, axis_hardware, simulated_devices
-from .motor import MotorModel
+from .motor import HandMotion, MotorModel
 
 
 def _option(text: str) -> tuple[str, object]:
@@ -66,7 +67,10 @@ def build_simulator(args: argparse.Namespace) -> DriveSimulator:
             f"no CiA 402 device plugin named '{args.device}' (installed: {', '.join(sorted(devices))})"
         )
     cls = devices[args.device]
-    settings = {"bus": {"interface": args.interface, "channel": args.channel, "options": dict(args.option)}}
+    options = dict(args.option)
+    if args.interface == "loopback":  # hosting the hub: the drives' thread relays as it receives (one thread)
+        options.setdefault("hub_thread", False)
+    settings = {"bus": {"interface": args.interface, "channel": args.channel, "options": options}}
     if args.node_ids:
         settings["node_ids"] = args.node_ids
     settings["simulation"] = {}
@@ -109,20 +113,13 @@ def read_hand(path: str, n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def hold_hand(simulator: DriveSimulator, times: np.ndarray, joints: np.ndarray, stiffness, damping) -> None:
     """The trainee's hand on the drives (:meth:`DriveSimulator.move_by_hand`), its time 0 the first SYNC."""
-    n = len(simulator.axes)
-    started: list[float] = []
+    hand = HandMotion(times, joints)
 
     def first_sync(*_frame) -> None:
-        if not started:
-            started.append(simulator.clock.now())
+        if hand.start is None:
+            hand.start = simulator.clock.now()
 
     simulator.network.subscribe(0x80, first_sync)
-    columns = [np.ascontiguousarray(joints[:, k]) for k in range(n)]
-
-    def hand(t: float) -> np.ndarray:
-        u = t - started[0] if started else 0.0
-        return np.array([np.interp(u, times, column) for column in columns])
-
     simulator.move_by_hand(hand, stiffness, damping)
 
 
@@ -171,8 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     # by reference counting (no collection at all was seen in 12 s at 1 kHz once frozen)
     gc.collect()
     gc.freeze()
-    # the hub's thread and the drives' share the GIL: one that wants it waits at most this long, not Python's 5 ms
-    # (a SYNC waiting in the hub behind a drive's work)
+    # a thread that wants the GIL (a hub's thread, asked for with --option hub_thread=true) waits at most this long
+    # behind the drives' work, not Python's 5 ms
     sys.setswitchinterval(SWITCH_INTERVAL)
     print("ready", flush=True)
     try:
