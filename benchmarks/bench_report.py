@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, live_view, wait_for  # noqa: E402
 from common import package_version, save, table  # noqa: E402
+from pipeline_support import point_robot_pipeline  # noqa: E402
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
 ENV = {**os.environ, "SURGIPLAN_PLUGIN_PACKAGES": "surgiplan,surgiplan-hello"}
@@ -140,32 +141,8 @@ def load_times(browser: Browser, out: Path) -> dict:
 
 
 def robot(tmp: Path, name: str) -> Path:
-    data = {
-        "name": name,
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "plan",
-                "plugin": "safe_prm",  # keeps the 4 mm threshold except where no detour exists: red stretches
-                "settings": {"milestones": 800, "seed": 2},
-                "space": {"kind": "r3", "tip_radius": 0.5},
-                "start": "entry",
-                "goal": "target",
-            },
-            {
-                "stage": "execute",
-                "name": "robot",
-                "plugin": "point_robot",
-                "settings": {"speed": 30, "lag": 0.05, "rate": 200, "tool_radius": 0.5, "realtime": True},
-            },
-        ],
-        "output": {"dir": str(tmp / name), "figures": False, "gltf": False},
-    }
-    path = tmp / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    settings = {"speed": 30, "lag": 0.05, "rate": 200, "tool_radius": 0.5, "realtime": True}
+    return point_robot_pipeline(tmp / f"{name}.yaml", name, tmp / name, settings)
 
 
 def stage_metrics(out: Path) -> dict:

@@ -5,6 +5,8 @@ made in one place.
 - :func:`recommended_stage`: the recommended path (that stage, ``recommended``, from ``entry``);
 - :func:`guide_stages`: that and a synthetic trainee's attempt at it;
 - :func:`block_world_pipeline`: stages in a pipeline document on block_world, written as a file;
+- :func:`point_robot_pipeline`: a safe PRM plan (4 mm threshold, red stretches where no detour exists) and the
+  ``point_robot`` executing it, on block_world;
 - :func:`retraction_pipeline`: the retraction planner (paper 002) on a flap anchored along x = 0 with a bar
   above it, as a whole pipeline document."""
 
@@ -60,17 +62,27 @@ def recommended_stage(
 
 def block_world_pipeline(path: Path, name: str, stages: list[dict[str, Any]], out: Path, **extra) -> Path:
     """Write the pipeline ``name`` of ``stages`` on block_world (mm) to ``path``, output in ``out`` without
-    figures or glTF; ``extra``: more top-level keys (``record``). Returns ``path``."""
+    figures or glTF; ``extra``: more top-level keys (``record``), or ``output`` in place of that one. Returns
+    ``path``."""
     data = {
         "name": name,
         "length_unit": "mm",
         "scene": str(BLOCK_WORLD),
         "pipeline": stages,
         "output": {"dir": str(out), "figures": False, "gltf": False},
-        **extra,
     }
+    data.update(extra)
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
+
+
+def point_robot_pipeline(path: Path, name: str, out: Path, robot: dict[str, Any], **extra) -> Path:
+    """Write :func:`block_world_pipeline` ``name``: a safe PRM ``plan`` (800 milestones, seed 2, a 0.5 mm tip,
+    the 4 mm threshold kept except where no detour exists, so the path has red stretches) and an ``execute``
+    stage ``robot`` (the ``point_robot`` device with settings ``robot``) following it. Returns ``path``."""
+    plan = safe_prm_stage("plan", 800, None, seed=2, space={"kind": "r3", "tip_radius": 0.5}, clearance_threshold=4)
+    execute = {"stage": "execute", "name": "robot", "plugin": "point_robot", "path_from": "plan", "settings": robot}
+    return block_world_pipeline(path, name, [plan, execute], out, **extra)
 
 
 def guide_stages(seed: int, trainee: str | None = None, milestones: int = 300) -> list[dict[str, Any]]:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import CONFIGS, assert_error_record
-from pipeline_support import block_world_pipeline, safe_prm_stage
+from pipeline_support import point_robot_pipeline
 from surgiplan.outputs.report import page, write_report
 from surgiplan.outputs.report.data import report_data
 from surgiplan.outputs.report.meshes import _surface, face_owner, pvd_entries, states_mesh
@@ -34,10 +34,7 @@ def _unpack(p) -> np.ndarray:
 
 
 def robot_file(tmp_path: Path, **robot) -> Path:
-    # safe PRM keeps the 4 mm threshold except where no detour exists: red stretches
-    plan = safe_prm_stage("plan", 800, None, seed=2, space={"kind": "r3", "tip_radius": 0.5}, clearance_threshold=4)
-    robot = {"stage": "execute", "name": "robot", "plugin": "point_robot", "settings": {"speed": 80, **robot}}
-    return block_world_pipeline(tmp_path / "robot.yaml", "robot", [plan, robot], tmp_path / "out")
+    return point_robot_pipeline(tmp_path / "robot.yaml", "robot", tmp_path / "out", {"speed": 80, **robot})
 
 
 def test_every_run_writes_its_report_before_its_record(cli, tmp_path, with_example_plugin):

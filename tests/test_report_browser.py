@@ -29,6 +29,7 @@ from browser_support import (
     wait_for,
 )
 from conftest import CONFIGS
+from pipeline_support import point_robot_pipeline
 from surgiplan import registry
 
 SURGIPLAN = [sys.executable, "-m", "surgiplan.cli"]
@@ -68,34 +69,8 @@ def _example_env():
 
 
 def robot_pipeline(tmp: Path, name: str, realtime: bool, speed: float = 60.0) -> Path:
-    data = {
-        "name": name,
-        "length_unit": "mm",
-        "scene": str(CONFIGS / "scenes" / "block_world.yaml"),
-        "pipeline": [
-            {
-                "stage": "plan",
-                "name": "plan",
-                "plugin": "safe_prm",  # keeps the 4 mm threshold except where no detour exists: red stretches
-                "settings": {"milestones": 800, "seed": 2},
-                "space": {"kind": "r3", "tip_radius": 0.5},
-                "start": "entry",
-                "goal": "target",
-                "clearance_threshold": 4,
-            },
-            {
-                "stage": "execute",
-                "name": "robot",
-                "plugin": "point_robot",
-                "path_from": "plan",
-                "settings": {"speed": speed, "lag": 0.05, "rate": 200, "tool_radius": 0.5, "realtime": realtime},
-            },
-        ],
-        "output": {"dir": str(tmp / "out")},
-    }
-    path = tmp / f"{name}.yaml"
-    path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return path
+    robot = {"speed": speed, "lag": 0.05, "rate": 200, "tool_radius": 0.5, "realtime": realtime}
+    return point_robot_pipeline(tmp / f"{name}.yaml", name, tmp / "out", robot, output={"dir": str(tmp / "out")})
 
 
 @pytest.fixture(scope="module")
