@@ -169,25 +169,28 @@ def event_driven(session: Session) -> dict[int, Finding]:
     return out
 
 
-@PDO.case("3.12", "the inhibit time keeps event-driven TPDOs apart; the last value still goes")
-def inhibit(session: Session) -> dict[int, Finding]:
-    inhibit_s = 0.1
+def _map_statusword_tpdos(
+    session: Session, trans: int, what: str, **timing: int
+) -> tuple[dict[int, int], dict[int, str]]:
+    """Map every drive's event-driven TPDO (:func:`_tpdo_n`) to its statusword with transmission type ``trans``
+    and ``timing`` (``inhibit_time``, ``event_timer``). Returns each node's TPDO number, and the nodes whose
+    drive refused the mapping with why (the refusal is the finding; ``what`` names the timing in it)."""
     n_of = {node_id: _tpdo_n(session, node_id) for node_id in session.ids}
     problems_of = {}
     for node_id in session.ids:
         try:
-            _map(
-                session,
-                node_id,
-                False,
-                n_of[node_id],
-                [_statusword_var(session, node_id)],
-                255,
-                inhibit_time=round(inhibit_s * 1e4),
-                event_timer=0,
-            )
+            _map(session, node_id, False, n_of[node_id], [_statusword_var(session, node_id)], trans, **timing)
         except Exception as exc:  # the drive's refusal is the finding
-            problems_of[node_id] = f"mapping TPDO{n_of[node_id]} with an inhibit time: {exc}"
+            problems_of[node_id] = f"mapping TPDO{n_of[node_id]} with {what}: {exc}"
+    return n_of, problems_of
+
+
+@PDO.case("3.12", "the inhibit time keeps event-driven TPDOs apart; the last value still goes")
+def inhibit(session: Session) -> dict[int, Finding]:
+    inhibit_s = 0.1
+    n_of, problems_of = _map_statusword_tpdos(
+        session, 255, "an inhibit time", inhibit_time=round(inhibit_s * 1e4), event_timer=0
+    )
     _start_all(session, {n: cia.tpdo(n_of[n], n) for n in session.ids})
     time.sleep(inhibit_s)
     mark, start = session.recorder.mark(), time.monotonic()
@@ -227,22 +230,9 @@ def inhibit(session: Session) -> dict[int, Finding]:
 @PDO.case("3.13", "the event timer sends an unchanged event-driven TPDO every period", ctt="3.5")
 def event_timer(session: Session) -> dict[int, Finding]:
     period = 0.05
-    n_of = {node_id: _tpdo_n(session, node_id) for node_id in session.ids}
-    problems_of = {}
-    for node_id in session.ids:
-        try:
-            _map(
-                session,
-                node_id,
-                False,
-                n_of[node_id],
-                [_statusword_var(session, node_id)],
-                254,
-                event_timer=round(period * 1000),
-                inhibit_time=0,
-            )
-        except Exception as exc:  # the drive's refusal is the finding
-            problems_of[node_id] = f"mapping TPDO{n_of[node_id]} with an event timer: {exc}"
+    n_of, problems_of = _map_statusword_tpdos(
+        session, 254, "an event timer", event_timer=round(period * 1000), inhibit_time=0
+    )
     _start_all(session)
     mark, start = session.recorder.mark(), time.monotonic()
     time.sleep(12 * period)
