@@ -22,8 +22,8 @@ def test_landmark_distances_are_scipys_dijkstra():
         points, graph = _random_roadmap_graph(rng, n=300)
         _, labels = connected_components(graph, directed=False)
         far = landmark_distances(
-            graph.indptr.astype(np.int32),
-            graph.indices.astype(np.int32),
+            graph.indptr.astype(np.uint32),
+            graph.indices.astype(np.uint32),
             graph.data.astype(float),
             points,
             labels.astype(np.int64),
@@ -73,13 +73,8 @@ def test_hundreds_of_queries_match_the_plain_implementation(block_world, level):
     if level == "beginner":
         assert repaired >= 10  # the repair is exercised, not only the search in R
     # the same queries with the landmarks dropped: the straight-line bound alone
-    with_landmarks = roadmap.kernel_arrays
-    roadmap.kernel_arrays = (
-        *with_landmarks[:7],
-        roadmap.free_far[:, :0],  # no columns, the landmarks' type (astar.search_records)
-        roadmap.safe_far[:, :0],
-        *with_landmarks[9:],
-    )
+    arrays = roadmap.arrays
+    roadmap.arrays = arrays._replace(free=arrays.free._replace(landmarks=0), safe=arrays.safe._replace(landmarks=0))
     plain = [prm_query.query(roadmap, start, goal).settled for start, goal in pairs]
     assert np.sum(settled) < 0.8 * np.sum(plain)
 
