@@ -75,8 +75,8 @@ _STAMP, _COST, _HEURISTIC, _PARENT = 0, 1, 2, 3
 CACHE_LINE = 64
 #: the mark of a milestone in another component than the landmark (no distance)
 UNREACHED = 65535
-#: a landmark bound that never wins (a landmark no target link can use)
-_NO_BOUND = 1 << 40
+#: a landmark bound that never wins (a landmark no target link can use); the bounds are int32 lanes
+_NO_BOUND = 1 << 24
 
 
 class Graph(NamedTuple):
@@ -172,9 +172,9 @@ def _landmark_bounds(marks, landmarks, quantum, target, goal_node, targets, cost
         if lowest == np.inf:
             low[j] = -_NO_BOUND
             high[j] = _NO_BOUND
-        else:
-            low[j] = int(np.floor(lowest)) - 2
-            high[j] = int(np.ceil(highest)) + 2
+        else:  # a bound clipped to the lanes' range is only weaker
+            low[j] = min(np.floor(lowest) - 2, _NO_BOUND)
+            high[j] = max(np.ceil(highest) + 2, -_NO_BOUND)
 
 
 @njit(cache=True, nogil=True)
@@ -202,14 +202,15 @@ def search(graph, source, target, start, goal, direct_cost, work):
     generation[0] += 1.0
     gen = generation[0]
     goal_at = goal.point if target == goal_node else points[target]
-    low = np.empty(landmarks, dtype=np.int64)
-    high = np.empty(landmarks, dtype=np.int64)
+    low = np.empty(landmarks, dtype=np.int32)
+    high = np.empty(landmarks, dtype=np.int32)
     _landmark_bounds(marks, landmarks, quantum, target, goal_node, goal_targets, goal_costs, goal_use, low, high)
 
     # The search's steps as closures: compiled into its own code with the arrays they use, where a call passing
     # arrays costs more than what it does (numba passes each array as seven words and counts references to it)
     window_size = head.shape[0]
     unsigned_landmarks = np.uint64(landmarks)  # an unsigned index needs no test for wrapping around
+    nothing = np.int32(-_NO_BOUND)
 
     def heuristic(v):
         """The larger of the straight-line bound and the landmarks' on v's cost to go (see the module docstring)."""
@@ -217,11 +218,11 @@ def search(graph, source, target, start, goal, direct_cost, work):
         for d in range(dimension):
             diff = points[v, d] - goal_at[d]
             total += diff * diff
-        best = -_NO_BOUND
-        for j in range(unsigned_landmarks):
-            mark = np.int64(marks[v, j])
-            bound = max(low[j] - mark, mark - high[j])
-            best = max(best, bound if mark != UNREACHED else -_NO_BOUND)
+        best = nothing
+        for j in range(unsigned_landmarks):  # int32 lanes, eight to a vector instruction
+            mark = np.int32(marks[v, j])
+            bound = max(np.int32(low[j] - mark), np.int32(mark - high[j]))
+            best = max(best, bound if mark != UNREACHED else nothing)
         return max(np.sqrt(total) * _SHRINK, best * quantum)
 
     def file(e, bucket, window, overflow):
@@ -391,6 +392,23 @@ def bucket_width(edge_cost: np.ndarray, fraction: float = BUCKET_FRACTION) -> fl
     return max(mean * fraction, 1e-12)
 
 
+@njit(cache=True, nogil=True)
+def _mark(far, marks):
+    """Each landmark distance ``far[v, j]`` as its mark into ``marks[v, j]`` (``floor(d / quantum)``, :data:`UNREACHED`
+    for ``inf``); returns the quantum, the longest finite distance over 65,534."""
+    longest = 0.0
+    for v in range(far.shape[0]):
+        for j in range(far.shape[1]):
+            if far[v, j] < np.inf:
+                longest = max(longest, far[v, j])
+    quantum = longest / (UNREACHED - 1) if longest > 0 else 1.0
+    for v in range(far.shape[0]):
+        for j in range(far.shape[1]):
+            d = far[v, j]
+            marks[v, j] = min(np.floor(d / quantum), UNREACHED - 1) if d < np.inf else UNREACHED
+    return quantum
+
+
 def search_graph(indptr, indices, data, points: np.ndarray, far: np.ndarray, delta: float) -> Graph:
     """A roadmap's :class:`Graph`: its CSR rows (as ``uint32``), the milestones' positions ``points`` (scaled,
     float64, shared) and their landmark distances (``far``, (n, L), ``inf`` in another component) as marks, a row
@@ -404,12 +422,7 @@ def search_graph(indptr, indices, data, points: np.ndarray, far: np.ndarray, del
     block = np.zeros(n * width + CACHE_LINE // 2, dtype=np.uint16)
     skip = (-block.ctypes.data % CACHE_LINE) // 2
     marks = block[skip : skip + n * width].reshape(n, width)
-    finite = np.isfinite(far)
-    longest = float(far[finite].max()) if finite.any() else 0.0
-    quantum = longest / (UNREACHED - 1) if longest > 0 else 1.0
-    marks[:, :count] = np.where(
-        finite, np.minimum(np.floor(np.where(finite, far, 0.0) / quantum), UNREACHED - 1), UNREACHED
-    )
+    quantum = _mark(np.ascontiguousarray(far, dtype=np.float64), marks)
     return Graph(
         np.ascontiguousarray(indptr, dtype=np.uint32),
         np.ascontiguousarray(indices, dtype=np.uint32),

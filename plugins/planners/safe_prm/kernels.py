@@ -81,6 +81,14 @@ def _insert(total, p, count, k, out_index, out_distance):
 
 
 @njit(**_FLAGS)
+def _roots(out_distance, count):
+    """The ``count`` nearest's squared distances made distances; returns ``count``."""
+    for slot in range(count):
+        out_distance[slot] = np.sqrt(out_distance[slot])
+    return count
+
+
+@njit(**_FLAGS)
 def _nearest_in_grid(x, points, origin, dims, cell, first, k, s, skip, out_index, out_distance):
     """The at most ``k`` nearest points to ``x`` strictly within ``s`` (point ``skip`` excluded), nearest first,
     into the outputs; returns how many. ``points`` sorted by cell."""
@@ -142,9 +150,7 @@ def _nearest_in_grid(x, points, origin, dims, cell, first, k, s, skip, out_index
         if bound > 0 and bound * bound >= worst:
             break
         ring += 1
-    for slot in range(count):
-        out_distance[slot] = np.sqrt(out_distance[slot])
-    return count
+    return _roots(out_distance, count)
 
 
 @njit(**_FLAGS)
@@ -196,9 +202,7 @@ def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, k, s, skip,
         if bound > 0 and bound * bound >= worst:
             break
         ring += 1
-    for slot in range(count):
-        out_distance[slot] = np.sqrt(out_distance[slot])
-    return count
+    return _roots(out_distance, count)
 
 
 @njit(**_FLAGS)
@@ -240,9 +244,10 @@ def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance,
     starts = np.empty(9, dtype=np.int64)
     ends = np.empty(9, dtype=np.int64)
     kept = np.empty(points.shape[0])
-    kept_index = np.empty(points.shape[0], dtype=np.int64)
+    kept_index = np.empty(points.shape[0], dtype=np.uint64)
     best = np.empty(k)
     guess = s2
+    one, zero = np.uint64(1), np.uint64(0)  # unsigned indices: no test for wrapping around at each access
     for cx in range(nx):
         for cy in range(ny):
             for cz in range(nz):
@@ -265,15 +270,16 @@ def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance,
                 high_z = origin[2] + (cz + 2) * cell if cz < nz - 2 else np.inf
                 for i in range(first[c], first[c + 1]):
                     x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
+                    me = np.uint64(i)
                     while True:
-                        size = 0
+                        size = zero
                         for r in range(runs):
-                            for e in range(starts[r], ends[r]):
+                            for e in range(np.uint64(starts[r]), np.uint64(ends[r])):
                                 a0, a1, a2 = points[e, 0] - x0, points[e, 1] - x1, points[e, 2] - x2
                                 total = a0 * a0 + a1 * a1 + a2 * a2
                                 kept[size] = total
                                 kept_index[size] = e
-                                size += (total < guess) & (e != i)
+                                size += one if (total < guess) & (e != me) else zero
                         if size >= k or guess >= s2:
                             break
                         guess = min(2.0 * guess, s2)
@@ -308,44 +314,47 @@ def k_s_pairs(points, origin, dims, cell, first, k, s):
     else:
         for i in range(n):
             counts[i] = k_s_nearest(points[i], points, origin, dims, cell, first, k, s, i, index[i], distance[i])
-    # bucket every pair by its lower index, then sort and deduplicate each bucket
-    size = np.zeros(n + 1, dtype=np.int64)
-    for i in range(n):
-        for slot in range(counts[i]):
-            size[min(i, index[i, slot]) + 1] += 1
-    for i in range(n):
-        size[i + 1] += size[i]
+    # bucket every pair by its lower index, then sort and deduplicate each bucket (unsigned indices throughout:
+    # no test for wrapping around at each access)
+    m, one = np.uint64(n), np.uint64(1)
+    size = np.zeros(n + 1, dtype=np.uint64)
+    for i in range(m):
+        for slot in range(np.uint64(counts[i])):
+            size[min(i, np.uint64(index[i, slot])) + one] += one
+    for i in range(m):
+        size[i + one] += size[i]
     fill = size[:n].copy()
-    partner = np.empty(size[n], dtype=np.int64)
+    partner = np.empty(size[n], dtype=np.uint64)
     length = np.empty(size[n])
-    for i in range(n):
-        for slot in range(counts[i]):
-            j = index[i, slot]
-            lo, hi = min(i, j), max(i, j)
-            partner[fill[lo]] = hi
-            length[fill[lo]] = distance[i, slot]
-            fill[lo] += 1
+    for i in range(m):
+        for slot in range(np.uint64(counts[i])):
+            j = np.uint64(index[i, slot])
+            lo = min(i, j)
+            at = fill[lo]
+            partner[at] = max(i, j)
+            length[at] = distance[i, slot]
+            fill[lo] = at + one
     pairs = np.empty((size[n], 2), dtype=np.int64)
     lengths = np.empty(size[n])
-    total = 0
-    for lo in range(n):
-        a, b = size[lo], size[lo + 1]
-        for e in range(a + 1, b):  # insertion sort: a bucket holds about 2k entries
+    total = np.uint64(0)
+    for lo in range(m):
+        a, b = size[lo], size[lo + one]
+        for e in range(a + one, b):  # insertion sort: a bucket holds about 2k entries
             v = partner[e]
             w = length[e]
-            f = e - 1
-            while f >= a and partner[f] > v:
-                partner[f + 1] = partner[f]
-                length[f + 1] = length[f]
-                f -= 1
-            partner[f + 1] = v
-            length[f + 1] = w
+            f = e
+            while f > a and partner[f - one] > v:
+                partner[f] = partner[f - one]
+                length[f] = length[f - one]
+                f -= one
+            partner[f] = v
+            length[f] = w
         for e in range(a, b):
-            if e == a or partner[e] != partner[e - 1]:
+            if e == a or partner[e] != partner[e - one]:
                 pairs[total, 0] = lo
                 pairs[total, 1] = partner[e]
                 lengths[total] = length[e]
-                total += 1
+                total += one
     return pairs[:total].copy(), lengths[:total].copy()
 
 

@@ -33,7 +33,7 @@ import numpy as np
 from surgiplan.paths import certify_edges
 
 from .astar import Ends
-from .query_fused import PROJECT, UNDECIDED
+from .query_fused import PROJECT, UNDECIDED, compiled_entry, link_search_repair, measure_link_search_repair
 from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
 
@@ -190,9 +190,9 @@ def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, 
         while True:
             if ends_slack is None:
                 obstacles, tip_radius = roadmap.point_obstacles
-                answer = roadmap.measure_link_search_repair(roadmap.arrays, obstacles, tip_radius, ends, work.arrays)
+                answer = _ENTRIES[measure_link_search_repair](roadmap.arrays, obstacles, tip_radius, ends, work.arrays)
             else:
-                answer = roadmap.link_search_repair(roadmap.arrays, ends, ends_slack, ends_safe, work.arrays)
+                answer = _ENTRIES[link_search_repair](roadmap.arrays, ends, ends_slack, ends_safe, work.arrays)
             if answer[0] != 3:
                 break
             work.grow()  # more entries than the workspace holds: twice as many, and again
@@ -213,6 +213,10 @@ def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, 
 
 
 _APART = "start and goal are in different components of the roadmap R (no collision-free path among the milestones)"
+#: the one-call query's compiled functions for the argument types of every roadmap pair (all are made alike: the
+#: same dtypes, contiguous, writable; :func:`_compile` resolves them on its small one, and the tests check that
+#: others have its types), called without the dispatcher's type resolution (:func:`.query_fused.compiled_entry`)
+_ENTRIES: dict = {}
 
 
 def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOutcome:
@@ -330,6 +334,13 @@ def _compile() -> None:
     roadmap = build_roadmaps(space, milestones=80, k=6, s=0.5, d_thresh=0.05, seed=0)
     ends = np.array([[0.1, 0.1, 0.1], [0.9, 0.9, 0.9]])
     clearance, workspace = space.clearance(ends), space.workspace_slack(ends)
+    work = roadmap.search_workspace.arrays
+    _ENTRIES[link_search_repair] = compiled_entry(
+        link_search_repair, roadmap.arrays, ends, clearance, clearance >= 0.05, work
+    )
+    _ENTRIES[measure_link_search_repair] = compiled_entry(
+        measure_link_search_repair, roadmap.arrays, *roadmap.point_obstacles, ends, work
+    )
     query(roadmap, ends[0], ends[1])
     _query_fused(roadmap, ends, np.minimum(clearance, workspace), clearance >= 0.05, 0.0)
     _query_stepwise(roadmap, ends, clearance, workspace, clearance >= 0.05, 0.0)

@@ -40,7 +40,7 @@ from surgiplan.spaces.base import Space
 from .astar import Workspace, bucket_width, search_graph
 from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
 from .landmarks import BUCKET_FRACTION, FREE_LANDMARKS, ONLY_LANDMARKS, SAFE_LANDMARKS, landmark_distances
-from .query_fused import compiled_entry, link_search_repair, measure_link_search_repair, point_obstacles
+from .query_fused import point_obstacles
 from .query_kernel import Roadmap
 
 
@@ -127,17 +127,6 @@ class RoadmapPair:
         #: the scene's compiled obstacles and the tip radius when the query measures the ends itself, else None
         self.point_obstacles = point_obstacles(self.space)
         self._workspace = Workspace(self.n, len(self.free_graph.indices) + self.n + 64)
-        #: the one-call query's compiled functions for this roadmap's arguments (:func:`.query_fused.compiled_entry`)
-        d = self.space.dimension
-        ends, work = np.zeros((2, d)), self._workspace.arrays
-        self.link_search_repair = compiled_entry(
-            link_search_repair, self.arrays, ends, np.zeros(2), np.ones(2, np.bool_), work
-        )
-        self.measure_link_search_repair = (
-            None
-            if self.point_obstacles is None
-            else compiled_entry(measure_link_search_repair, self.arrays, *self.point_obstacles, ends, work)
-        )
 
     def _renumber(self, order: np.ndarray) -> None:
         """The milestones in the grid's ``order``; the edges renamed and sorted again."""
@@ -276,13 +265,16 @@ def certify_roadmap_edges(
 
 
 def sample_milestones(
-    space: Space, n: int, rng: np.random.Generator, progress_task=None, batch: int | None = None
+    space: Space, n: int, rng: np.random.Generator, progress_task=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` milestones drawn uniformly from C_free (rejection sampling in batches) and their clearances."""
+    """``n`` milestones drawn uniformly from C_free (rejection sampling in batches) and their clearances: the first
+    n free samples of ``rng``'s stream, whatever the batches (each draws the next numbers of the stream). The first
+    batch is n / 2; each next one what the free fraction so far says is still missing, and a twentieth more, so
+    that few samples are measured for nothing."""
     found_q: list[np.ndarray] = []
     found_c: list[np.ndarray] = []
     total = 0
-    batch = batch or max(256, n // 2)
+    batch = max(256, n // 2)
     attempts = 0
     while total < n:
         q = space.sample(rng, batch)
@@ -300,6 +292,7 @@ def sample_milestones(
             raise RuntimeError(
                 f"only {total} of {attempts} samples were free: the free space is too small to sample {n} milestones"
             )
+        batch = max(256, min(int(1.05 * (n - total) * attempts / max(total, 1)), 8 * n))
     return np.concatenate(found_q)[:n], np.concatenate(found_c)[:n]
 
 
