@@ -75,9 +75,11 @@ def test_k_s_grid_finds_the_kd_trees_neighbours(dimension):
     points = rng.uniform(0, 1, (1500, dimension)) * rng.uniform(0.5, 2.0, dimension)
     points[:200] *= 0.2  # a dense corner: uneven cells
     k, s = 12, 0.25
-    grid = Grid.of(points, s)
+    grid, order = Grid.sorting(points, s)
+    np.testing.assert_array_equal(grid.points, points[order])  # the points numbered in the grid's order
+    points = grid.points
     tree = cKDTree(points)
-    pairs, lengths = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, grid.order, k, s)
+    pairs, lengths = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, k, s)
     distance, index = tree.query(points, k=k + 1, distance_upper_bound=s)
     expected = {
         (min(i, int(j)), max(i, int(j)))
@@ -89,7 +91,7 @@ def test_k_s_grid_finds_the_kd_trees_neighbours(dimension):
     np.testing.assert_allclose(lengths, np.linalg.norm(points[pairs[:, 1]] - points[pairs[:, 0]], axis=1), rtol=1e-12)
     queries = rng.uniform(-0.5, 2.5, (300, dimension))  # inside the grid and far outside it
     found, found_distance, counts = k_s_neighbours(
-        queries, grid.points, grid.origin, grid.dims, grid.cell, grid.first, grid.order, k, s
+        queries, grid.points, grid.origin, grid.dims, grid.cell, grid.first, k, s
     )
     distance, index = tree.query(queries, k=k, distance_upper_bound=s)
     for row in range(len(queries)):
@@ -110,7 +112,7 @@ def test_builds_and_queries_compile_nothing():
         from numba.core.registry import CPUDispatcher
         from surgiplan import PlanningProblem, load_scene
         from surgiplan.geometry import compiled
-        from surgiplan.plugins.planners.safe_prm import astar, kernels, landmarks, query_fused, query_kernel
+        from surgiplan.plugins.planners.safe_prm import astar, kernels, landmarks, query, query_fused, query_kernel
         from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
         from surgiplan.plugins.planners.segmented_astar import astar as pathmap_astar
         from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace, R3Space

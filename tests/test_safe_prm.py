@@ -342,7 +342,7 @@ def test_compiled_astar_finds_scipy_dijkstras_paths_and_costs():
     from surgiplan.plugins.planners.safe_prm.landmarks import landmark_distances
 
     def rows(graph):
-        return graph.indptr.astype(np.int32), graph.indices.astype(np.int32), graph.data.astype(float)
+        return graph.indptr.astype(np.uint32), graph.indices.astype(np.uint32), graph.data.astype(float)
 
     rng = np.random.default_rng(7)
     for case in range(4):

@@ -22,8 +22,8 @@ def test_landmark_distances_are_scipys_dijkstra():
         points, graph = _random_roadmap_graph(rng, n=300)
         _, labels = connected_components(graph, directed=False)
         far = landmark_distances(
-            graph.indptr.astype(np.int32),
-            graph.indices.astype(np.int32),
+            graph.indptr.astype(np.uint32),
+            graph.indices.astype(np.uint32),
             graph.data.astype(float),
             points,
             labels.astype(np.int64),
@@ -73,13 +73,8 @@ def test_hundreds_of_queries_match_the_plain_implementation(block_world, level):
     if level == "beginner":
         assert repaired >= 10  # the repair is exercised, not only the search in R
     # the same queries with the landmarks dropped: the straight-line bound alone
-    with_landmarks = roadmap.kernel_arrays
-    roadmap.kernel_arrays = (
-        *with_landmarks[:7],
-        roadmap.free_far[:, :0],  # no columns, the landmarks' type (astar.search_records)
-        roadmap.safe_far[:, :0],
-        *with_landmarks[9:],
-    )
+    arrays = roadmap.arrays
+    roadmap.arrays = arrays._replace(free=arrays.free._replace(landmarks=0), safe=arrays.safe._replace(landmarks=0))
     plain = [prm_query.query(roadmap, start, goal).settled for start, goal in pairs]
     assert np.sum(settled) < 0.8 * np.sum(plain)
 
@@ -132,3 +127,26 @@ def test_the_one_call_query_is_the_stepwise_query(block_world, monkeypatch):
     distance, index = np.empty(len(ends)), np.empty(len(ends), dtype=np.int64)
     nearest(*obstacles, ends, ends, False, np.full(len(ends), np.inf), distance, index)
     np.testing.assert_array_equal(distance - tip, space.clearance(ends))
+
+
+def test_every_roadmap_pair_has_the_types_the_one_call_query_was_compiled_for(block_world):
+    """The one-call query calls its compiled function directly, resolved once for a small roadmap's argument types
+    (query._ENTRIES): every roadmap pair, in R3 and the gimbal space, built or stored and reloaded, has those types."""
+    from surgiplan.plugins.planners.safe_prm import query as prm_query
+    from surgiplan.plugins.planners.safe_prm.query_fused import link_search_repair
+    from surgiplan.spaces import CastGimbalSettings, CastGimbalSpace
+
+    entry = prm_query._ENTRIES[link_search_repair]
+    (key,) = [k for k, compiled in link_search_repair.overloads.items() if compiled.entry_point is entry]
+    gimbal = CastGimbalSpace(
+        block_world,
+        CastGimbalSettings.model_validate({"fulcrum": {"xyz": [0.075, -0.06, 0.12], "rpy": [0, 0, 1.5707963]}}),
+    )
+    for space, level in ((R3Space(block_world), "expert"), (R3Space(block_world), "beginner"), (gimbal, "beginner")):
+        planner = SafePRM(SafePRMSettings(proficiency=level, milestones=300, seed=2))
+        artifact = planner.build(PlanningProblem(block_world, space))
+        reloaded = planner.load_artifact(planner.save_artifact(artifact), PlanningProblem(block_world, space))
+        for roadmap in (artifact.roadmap, reloaded.roadmap):
+            ends = np.zeros((2, space.dimension))
+            arguments = (roadmap.arrays, ends, np.zeros(2), np.ones(2, dtype=bool), roadmap.search_workspace.arrays)
+            assert tuple(link_search_repair.typeof_pyval(a) for a in arguments) == key

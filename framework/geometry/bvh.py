@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .compiled import _FLAGS, _exact, _local, _plain, _point_segment
+from .compiled import _FLAGS, _exact, _local, _plain, _point_segment, unit_box
 
 #: obstacles in a leaf at most
 LEAF = 4
@@ -209,28 +209,10 @@ def distances(packed: tuple, tree: tuple, a: np.ndarray, b: np.ndarray | None, c
 
 def compile_all() -> None:
     """Load (or compile) :func:`nearest` for the argument types the scene passes."""
-    kinds = np.zeros(1, dtype=np.int64)
-    vectors = np.zeros((1, 3))
-    one = np.ones(1)
-    tree = build(vectors - 1.0, vectors + 1.0, one)
-    for segment in (False, True):
-        nearest(
-            kinds,
-            np.eye(3)[None].copy(),
-            vectors,
-            np.ones((1, 3)),
-            vectors,
-            one,
-            vectors - 1.0,
-            vectors + 1.0,
-            *tree,
-            vectors,
-            vectors,
-            segment,
-            one,
-            np.empty(1),
-            np.empty(1, dtype=np.int64),
-        )
+    packed = unit_box()
+    tree = build(packed[6], packed[7], packed[5])
+    for b in (None, np.zeros((1, 3))):  # points, then segments
+        distances(packed, tree, np.zeros((1, 3)), b, 1.0)
 
 
 compile_all()

@@ -337,29 +337,18 @@ def _plain(x) -> np.ndarray:
     return x if x.flags.writeable else x.copy()
 
 
+def unit_box() -> tuple:
+    """One box of half-extent 1 at the origin, packed as :func:`pack` packs a scene: what the kernels (here and in
+    :mod:`.bvh`) are compiled on when their modules are imported."""
+    vectors = np.zeros((1, 3))
+    ones = np.ones((1, 3))
+    return np.zeros(1, dtype=np.int64), np.eye(3)[None].copy(), vectors, ones, vectors, np.ones(1), -ones, ones
+
+
 def compile_all() -> None:
     """Load (or compile) :func:`nearest` for the argument types the scene passes."""
-    kinds = np.zeros(1, dtype=np.int64)
-    rotations = np.eye(3)[None].copy()
-    vectors = np.zeros((1, 3))
-    one = np.ones(1)
-    for segment in (False, True):
-        nearest(
-            kinds,
-            rotations,
-            vectors,
-            np.ones((1, 3)),
-            vectors,
-            one,
-            vectors - 1.0,
-            vectors + 1.0,
-            vectors,
-            vectors,
-            segment,
-            one,
-            np.empty(1),
-            np.empty(1, dtype=np.int64),
-        )
+    for b in (None, np.zeros((1, 3))):  # points, then segments
+        distances(unit_box(), np.zeros((1, 3)), b, 1.0)
 
 
 compile_all()

@@ -1,11 +1,12 @@
 """The safe PRM's graph work compiled with numba: K-S neighbours on a uniform grid, the roadmaps' CSR rows and
 their connected components.
 
-* :func:`grid_build` sorts the milestones (in the space's metric: coordinates times its weights) into cells of a
-  uniform grid; :func:`k_s_neighbours` answers "at most k nearest within s" for any points from it, ring of
-  cells by ring of cells until no unvisited cell can hold a nearer point. The answers are a KD-tree's
-  (``scipy.spatial.cKDTree.query(..., k, distance_upper_bound=s)``, checked in ``tests/test_safe_prm.py``),
-  without building one per roadmap.
+* :func:`grid_build` sorts points (in the space's metric: coordinates times its weights) into the cells of a
+  uniform grid; a roadmap numbers its milestones in that order (:class:`.roadmap.Grid`), so the points of a cell,
+  and of a column of cells, are consecutive. :func:`k_s_neighbours` answers "at most k nearest within s" for any
+  points from it, ring of cells by ring of cells until no unvisited cell can hold a nearer point. The answers are
+  a KD-tree's (``scipy.spatial.cKDTree.query(..., k, distance_upper_bound=s)``, checked in
+  ``tests/test_compiled.py``), without building one per roadmap.
 * :func:`k_s_pairs`: the undirected K-S pairs of the milestones themselves, each once, sorted (lo, hi): the
   candidate edges of Algorithm 1 when every milestone is offered to all its K-S neighbours.
 * :func:`csr_rows`: both directions of the selected edges as CSR rows, entries in the order a stable sort by
@@ -21,12 +22,15 @@ import numpy as np
 from numba import njit
 
 _FLAGS = {"cache": True, "nogil": True}
+#: a milestone's first guess of its k-th nearest neighbour's distance: this times the previous milestone's (a guess
+#: too short costs one more scan of the block; one too long, more candidates to sort)
+_GUESS = 1.2
 
 
 @njit(**_FLAGS)
 def grid_build(points, cell):
     """Cells of side ``cell`` over the points' bounding box: (origin, cells per axis, first entry of each cell in
-    ``order``, the point indices sorted by cell, the points in that order)."""
+    the sorted order, the point indices sorted by cell (stable: within a cell by index))."""
     n, d = points.shape
     origin = np.empty(d)
     dims = np.empty(d, dtype=np.int64)
@@ -56,13 +60,10 @@ def grid_build(points, cell):
         counts[c + 1] += counts[c]
     start = counts.copy()
     order = np.empty(n, dtype=np.int64)
-    for i in range(n):  # stable: within a cell, by point index
+    for i in range(n):
         order[start[which[i]]] = i
         start[which[i]] += 1
-    ordered = np.empty((n, d))
-    for e in range(n):
-        ordered[e] = points[order[e]]
-    return origin, dims, counts, order, ordered
+    return origin, dims, counts, order
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -80,22 +81,27 @@ def _insert(total, p, count, k, out_index, out_distance):
 
 
 @njit(**_FLAGS)
-def _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
+def _roots(out_distance, count):
+    """The ``count`` nearest's squared distances made distances; returns ``count``."""
+    for slot in range(count):
+        out_distance[slot] = np.sqrt(out_distance[slot])
+    return count
+
+
+@njit(**_FLAGS)
+def _nearest_in_grid(x, points, origin, dims, cell, first, k, s, skip, out_index, out_distance):
     """The at most ``k`` nearest points to ``x`` strictly within ``s`` (point ``skip`` excluded), nearest first,
-    into the outputs; returns how many. ``points`` sorted by cell (``points[e]`` is point ``order[e]``)."""
+    into the outputs; returns how many. ``points`` sorted by cell."""
     d = points.shape[1]
     centre = np.empty(d, dtype=np.int64)
     for j in range(d):
         centre[j] = min(max(int(np.floor((x[j] - origin[j]) / cell)), 0), dims[j] - 1)
-    s2 = s * s
-    worst = s2  # a candidate must be nearer than this: s, then the k-th nearest once there are k
+    worst = s * s  # a candidate must be nearer than this: s, then the k-th nearest once there are k
     count = 0
     low = np.empty(d, dtype=np.int64)
     high = np.empty(d, dtype=np.int64)
     at = np.empty(d, dtype=np.int64)
     ring = 0
-    three = d == 3
-    x0, x1, x2 = x[0], x[min(1, d - 1)], x[min(2, d - 1)]
     while True:
         covers_all = True
         for j in range(d):
@@ -115,20 +121,13 @@ def _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, ou
                 index = index * dims[j] + at[j]
             if on_ring:
                 for e in range(first[index], first[index + 1]):
-                    if three:
-                        a0, a1, a2 = points[e, 0] - x0, points[e, 1] - x1, points[e, 2] - x2
-                        total = a0 * a0 + a1 * a1 + a2 * a2
-                    else:
-                        total = 0.0
-                        for j in range(d):
-                            diff = points[e, j] - x[j]
-                            total += diff * diff
-                    if total >= worst:
+                    total = 0.0
+                    for j in range(d):
+                        diff = points[e, j] - x[j]
+                        total += diff * diff
+                    if total >= worst or e == skip:
                         continue
-                    p = order[e]
-                    if p == skip:
-                        continue
-                    count = _insert(total, p, count, k, out_index, out_distance)
+                    count = _insert(total, e, count, k, out_index, out_distance)
                     if count == k:
                         worst = out_distance[k - 1]
             # the next cell of the block (odometer over the clipped ranges)
@@ -151,14 +150,13 @@ def _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, ou
         if bound > 0 and bound * bound >= worst:
             break
         ring += 1
-    for slot in range(count):
-        out_distance[slot] = np.sqrt(out_distance[slot])
-    return count
+    return _roots(out_distance, count)
 
 
 @njit(**_FLAGS)
-def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
-    """:func:`_nearest_in_grid` for three coordinates: the same cells in the same order, unrolled."""
+def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, k, s, skip, out_index, out_distance):
+    """:func:`_nearest_in_grid` for three coordinates: the same cells in the same order, unrolled; a column of
+    cells (along z) is one run of points."""
     nx, ny, nz = dims[0], dims[1], dims[2]
     ox, oy, oz = origin[0], origin[1], origin[2]
     cx = min(max(int(np.floor((x0 - ox) / cell)), 0), nx - 1)
@@ -173,23 +171,22 @@ def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, order, k, s
             for iy in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
                 shell = edge_x or iy == cy - ring or iy == cy + ring
                 base = (ix * ny + iy) * nz
-                # on the ring's shell every z of the block; inside it only its two z faces
-                iz = max(cz - ring, 0) if shell else cz - ring
+                # on the ring's shell every z of the block (one run); inside it only its two z faces
                 step = 1 if shell or ring == 0 else 2 * ring
+                iz = max(cz - ring, 0) if shell else cz - ring
                 while iz <= min(cz + ring, nz - 1):
                     if iz >= 0:
-                        c = base + iz
-                        for e in range(first[c], first[c + 1]):
+                        last = min(cz + ring, nz - 1) if step == 1 else iz
+                        for e in range(first[base + iz], first[base + last + 1]):
                             a0, a1, a2 = points[e, 0] - x0, points[e, 1] - x1, points[e, 2] - x2
                             total = a0 * a0 + a1 * a1 + a2 * a2
-                            if total >= worst:
+                            if total >= worst or e == skip:
                                 continue
-                            p = order[e]
-                            if p == skip:
-                                continue
-                            count = _insert(total, p, count, k, out_index, out_distance)
+                            count = _insert(total, e, count, k, out_index, out_distance)
                             if count == k:
                                 worst = out_distance[k - 1]
+                        if step == 1:
+                            break
                     iz += step
         if cx - ring <= 0 and cy - ring <= 0 and cz - ring <= 0:
             if cx + ring >= nx - 1 and cy + ring >= ny - 1 and cz + ring >= nz - 1:
@@ -205,24 +202,22 @@ def _nearest_in_grid3(x0, x1, x2, points, origin, dims, cell, first, order, k, s
         if bound > 0 and bound * bound >= worst:
             break
         ring += 1
-    for slot in range(count):
-        out_distance[slot] = np.sqrt(out_distance[slot])
-    return count
+    return _roots(out_distance, count)
 
 
 @njit(**_FLAGS)
-def k_s_nearest(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance):
+def k_s_nearest(x, points, origin, dims, cell, first, k, s, skip, out_index, out_distance):
     if points.shape[1] == 3:
         return _nearest_in_grid3(
-            x[0], x[1], x[2], points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance
+            x[0], x[1], x[2], points, origin, dims, cell, first, k, s, skip, out_index, out_distance
         )
-    return _nearest_in_grid(x, points, origin, dims, cell, first, order, k, s, skip, out_index, out_distance)
+    return _nearest_in_grid(x, points, origin, dims, cell, first, k, s, skip, out_index, out_distance)
 
 
 @njit(**_FLAGS)
-def k_s_neighbours(queries, points, origin, dims, cell, first, order, k, s):
+def k_s_neighbours(queries, points, origin, dims, cell, first, k, s):
     """For each query point, its at most ``k`` nearest points within ``s`` (``points``: sorted by cell, as
-    :func:`grid_build` returns them): (indices, distances, counts); rows nearest first, padded with -1 and inf."""
+    :class:`.roadmap.Grid` holds them): (indices, distances, counts); rows nearest first, padded with -1 and inf."""
     m = queries.shape[0]
     index = np.full((m, max(k, 1)), -1, dtype=np.int64)
     distance = np.full((m, max(k, 1)), np.inf)
@@ -230,122 +225,136 @@ def k_s_neighbours(queries, points, origin, dims, cell, first, order, k, s):
     if k == 0 or points.shape[0] == 0:
         return index, distance, counts
     for i in range(m):
-        counts[i] = k_s_nearest(queries[i], points, origin, dims, cell, first, order, k, s, -1, index[i], distance[i])
+        counts[i] = k_s_nearest(queries[i], points, origin, dims, cell, first, k, s, -1, index[i], distance[i])
     return index, distance, counts
 
 
 @njit(**_FLAGS)
-def _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, distance, counts):
-    """The K-S neighbours of every point (three coordinates), cell by cell: the points of a cell's 3 x 3 x 3
-    block are gathered once into a contiguous buffer and scanned for each point of the cell; a point whose k-th
-    nearest might lie beyond the block (or within s beyond it) is answered by :func:`k_s_nearest` instead. The
-    same answers, in rows by point index."""
+def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance, counts):
+    """The K-S neighbours of every point (three coordinates, sorted by cell), cell by cell. A cell's 3 x 3 x 3 block
+    is nine runs of points (columns of three cells along z); each point of the cell keeps, of the block's points,
+    those nearer than a guess of its k-th nearest's distance (:data:`_GUESS` times the previous point's; twice
+    as far in squared distance, up to s, until it keeps k), without a branch (every point is written, the count
+    moves on only for those kept: a branch taken at random for a quarter of them cost more than all the
+    arithmetic), then the k nearest of those, sorted. A point whose k-th nearest might lie beyond the block (or
+    within s beyond it) is answered by :func:`k_s_nearest` instead. The answers of :func:`k_s_nearest` for every
+    point."""
     nx, ny, nz = dims[0], dims[1], dims[2]
     s2 = s * s
-    buffer = np.empty((points.shape[0], 3))
-    ids = np.empty(points.shape[0], dtype=np.int64)
+    starts = np.empty(9, dtype=np.int64)
+    ends = np.empty(9, dtype=np.int64)
+    kept = np.empty(points.shape[0])
+    kept_index = np.empty(points.shape[0], dtype=np.uint64)
     best = np.empty(k)
+    guess = s2
+    one, zero = np.uint64(1), np.uint64(0)  # unsigned indices: no test for wrapping around at each access
     for cx in range(nx):
         for cy in range(ny):
             for cz in range(nz):
                 c = (cx * ny + cy) * nz + cz
                 if first[c] == first[c + 1]:
                     continue
-                size = 0
+                runs = 0
                 for ix in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
                     for iy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
                         base = (ix * ny + iy) * nz
-                        for e in range(first[base + max(cz - 1, 0)], first[base + min(cz + 1, nz - 1) + 1]):
-                            buffer[size, 0], buffer[size, 1], buffer[size, 2] = points[e, 0], points[e, 1], points[e, 2]
-                            ids[size] = order[e]
-                            size += 1
-                covers_all = cx <= 1 and cy <= 1 and cz <= 1 and cx >= nx - 2 and cy >= ny - 2 and cz >= nz - 2
-                for e in range(first[c], first[c + 1]):
-                    i = order[e]
-                    x0, x1, x2 = points[e, 0], points[e, 1], points[e, 2]
-                    out = index[i]
-                    worst = s2
+                        starts[runs] = first[base + max(cz - 1, 0)]
+                        ends[runs] = first[base + min(cz + 1, nz - 1) + 1]
+                        runs += 1
+                # the block's faces on the grid's edge bound nothing (no point lies beyond them)
+                low_x = origin[0] + (cx - 1) * cell if cx > 1 else -np.inf
+                high_x = origin[0] + (cx + 2) * cell if cx < nx - 2 else np.inf
+                low_y = origin[1] + (cy - 1) * cell if cy > 1 else -np.inf
+                high_y = origin[1] + (cy + 2) * cell if cy < ny - 2 else np.inf
+                low_z = origin[2] + (cz - 1) * cell if cz > 1 else -np.inf
+                high_z = origin[2] + (cz + 2) * cell if cz < nz - 2 else np.inf
+                for i in range(first[c], first[c + 1]):
+                    x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
+                    me = np.uint64(i)
+                    while True:
+                        size = zero
+                        for r in range(runs):
+                            for e in range(np.uint64(starts[r]), np.uint64(ends[r])):
+                                a0, a1, a2 = points[e, 0] - x0, points[e, 1] - x1, points[e, 2] - x2
+                                total = a0 * a0 + a1 * a1 + a2 * a2
+                                kept[size] = total
+                                kept_index[size] = e
+                                size += one if (total < guess) & (e != me) else zero
+                        if size >= k or guess >= s2:
+                            break
+                        guess = min(2.0 * guess, s2)
                     count = 0
+                    out = index[i]
                     for b in range(size):
-                        a0, a1, a2 = buffer[b, 0] - x0, buffer[b, 1] - x1, buffer[b, 2] - x2
-                        total = a0 * a0 + a1 * a1 + a2 * a2
-                        if total >= worst or ids[b] == i:
-                            continue
-                        count = _insert(total, ids[b], count, k, out, best)
-                        if count == k:
-                            worst = best[k - 1]
-                    bound = min(
-                        x0 - (origin[0] + (cx - 1) * cell),
-                        origin[0] + (cx + 2) * cell - x0,
-                        x1 - (origin[1] + (cy - 1) * cell),
-                        origin[1] + (cy + 2) * cell - x1,
-                        x2 - (origin[2] + (cz - 1) * cell),
-                        origin[2] + (cz + 2) * cell - x2,
-                    )
-                    if covers_all or (bound > 0 and bound * bound >= worst):
+                        if count < k or kept[b] < best[k - 1]:
+                            count = _insert(kept[b], kept_index[b], count, k, out, best)
+                    worst = best[k - 1] if count == k else s2
+                    bound = min(x0 - low_x, high_x - x0, x1 - low_y, high_y - x1, x2 - low_z, high_z - x2)
+                    if bound * bound >= worst:
                         counts[i] = count
                         for slot in range(count):
                             distance[i, slot] = np.sqrt(best[slot])
+                        guess = min(_GUESS * _GUESS * worst, s2)
                     else:  # the block may miss a nearer point: the ring search from scratch
-                        counts[i] = k_s_nearest(
-                            points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance[i]
-                        )
+                        counts[i] = k_s_nearest(points[i], points, origin, dims, cell, first, k, s, i, out, distance[i])
 
 
 @njit(**_FLAGS)
-def k_s_pairs(points, origin, dims, cell, first, order, k, s):
-    """The undirected pairs (lo, hi) of milestones where one is among the other's K-S neighbours, each once,
-    sorted by lo then hi (``points``: sorted by cell, as :func:`grid_build` returns them), and their lengths
-    (Euclidean, in the points' coordinates)."""
+def k_s_pairs(points, origin, dims, cell, first, k, s):
+    """The undirected pairs (lo, hi) of points where one is among the other's K-S neighbours, each once, sorted by
+    lo then hi (``points``: sorted by cell, as :class:`.roadmap.Grid` holds them), and their lengths (Euclidean,
+    in the points' coordinates)."""
     n = points.shape[0]
     kk = max(k, 1)
     index = np.empty((n, kk), dtype=np.int64)
     distance = np.empty((n, kk))
     counts = np.zeros(n, dtype=np.int64)
     if points.shape[1] == 3 and k > 0:
-        _block_neighbours3(points, origin, dims, cell, first, order, k, s, index, distance, counts)
+        _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance, counts)
     else:
-        for e in range(n):
-            i = order[e]
-            counts[i] = k_s_nearest(points[e], points, origin, dims, cell, first, order, k, s, i, index[i], distance[i])
-    # bucket every pair by its lower index, then sort and deduplicate each bucket
-    size = np.zeros(n + 1, dtype=np.int64)
-    for i in range(n):
-        for slot in range(counts[i]):
-            size[min(i, index[i, slot]) + 1] += 1
-    for i in range(n):
-        size[i + 1] += size[i]
+        for i in range(n):
+            counts[i] = k_s_nearest(points[i], points, origin, dims, cell, first, k, s, i, index[i], distance[i])
+    # bucket every pair by its lower index, then sort and deduplicate each bucket (unsigned indices throughout:
+    # no test for wrapping around at each access)
+    m, one = np.uint64(n), np.uint64(1)
+    size = np.zeros(n + 1, dtype=np.uint64)
+    for i in range(m):
+        for slot in range(np.uint64(counts[i])):
+            size[min(i, np.uint64(index[i, slot])) + one] += one
+    for i in range(m):
+        size[i + one] += size[i]
     fill = size[:n].copy()
-    partner = np.empty(size[n], dtype=np.int64)
+    partner = np.empty(size[n], dtype=np.uint64)
     length = np.empty(size[n])
-    for i in range(n):
-        for slot in range(counts[i]):
-            j = index[i, slot]
-            lo, hi = min(i, j), max(i, j)
-            partner[fill[lo]] = hi
-            length[fill[lo]] = distance[i, slot]
-            fill[lo] += 1
+    for i in range(m):
+        for slot in range(np.uint64(counts[i])):
+            j = np.uint64(index[i, slot])
+            lo = min(i, j)
+            at = fill[lo]
+            partner[at] = max(i, j)
+            length[at] = distance[i, slot]
+            fill[lo] = at + one
     pairs = np.empty((size[n], 2), dtype=np.int64)
     lengths = np.empty(size[n])
-    total = 0
-    for lo in range(n):
-        a, b = size[lo], size[lo + 1]
-        for e in range(a + 1, b):  # insertion sort: a bucket holds about 2k entries
+    total = np.uint64(0)
+    for lo in range(m):
+        a, b = size[lo], size[lo + one]
+        for e in range(a + one, b):  # insertion sort: a bucket holds about 2k entries
             v = partner[e]
             w = length[e]
-            f = e - 1
-            while f >= a and partner[f] > v:
-                partner[f + 1] = partner[f]
-                length[f + 1] = length[f]
-                f -= 1
-            partner[f + 1] = v
-            length[f + 1] = w
+            f = e
+            while f > a and partner[f - one] > v:
+                partner[f] = partner[f - one]
+                length[f] = length[f - one]
+                f -= one
+            partner[f] = v
+            length[f] = w
         for e in range(a, b):
-            if e == a or partner[e] != partner[e - 1]:
+            if e == a or partner[e] != partner[e - one]:
                 pairs[total, 0] = lo
                 pairs[total, 1] = partner[e]
                 lengths[total] = length[e]
-                total += 1
+                total += one
     return pairs[:total].copy(), lengths[:total].copy()
 
 
@@ -378,8 +387,9 @@ def cover_pairs(pairs, reach, clearance, inside, safe, d_thresh):
 
 @njit(**_FLAGS)
 def csr_rows(n, edges, cost, mask, floor):
-    """Both directions of ``edges[mask]`` as CSR (indptr, indices, data): row i lists, in edge order, first the
-    edges (i, j), then the edges (j, i); costs at least ``floor`` (scipy's graph routines drop explicit zeros)."""
+    """Both directions of ``edges[mask]`` as CSR (indptr, indices, data; the indices unsigned, as the searches
+    take them): row i lists, in edge order, first the edges (i, j), then the edges (j, i); costs at least
+    ``floor`` (scipy's graph routines drop explicit zeros)."""
     indptr = np.zeros(n + 1, dtype=np.int64)
     for e in range(edges.shape[0]):
         if mask[e]:
@@ -388,7 +398,7 @@ def csr_rows(n, edges, cost, mask, floor):
     for i in range(n):
         indptr[i + 1] += indptr[i]
     fill = indptr[:n].copy()
-    indices = np.empty(indptr[n], dtype=np.int32)
+    indices = np.empty(indptr[n], dtype=np.uint32)
     data = np.empty(indptr[n])
     for side in range(2):
         for e in range(edges.shape[0]):
@@ -397,7 +407,7 @@ def csr_rows(n, edges, cost, mask, floor):
                 indices[fill[row]] = col
                 data[fill[row]] = max(cost[e], floor)
                 fill[row] += 1
-    return indptr.astype(np.int32), indices, data
+    return indptr.astype(np.uint32), indices, data
 
 
 @njit(**_FLAGS)
@@ -449,9 +459,9 @@ def _compile() -> None:
     """Load (or compile) every kernel for the types the roadmap passes."""
     points = np.zeros((2, 3))
     points[1] = 1.0
-    origin, dims, first, order, ordered = grid_build(points, 1.0)
-    k_s_neighbours(points, ordered, origin, dims, 1.0, first, order, 2, 2.0)
-    pairs, lengths = k_s_pairs(ordered, origin, dims, 1.0, first, order, 2, 2.0)
+    origin, dims, first, _ = grid_build(points, 1.0)
+    k_s_neighbours(points, points, origin, dims, 1.0, first, 2, 2.0)
+    pairs, lengths = k_s_pairs(points, origin, dims, 1.0, first, 2, 2.0)
     mask = np.ones(len(pairs), dtype=np.bool_)
     cover_pairs(pairs, lengths, np.ones(2), np.ones(2), mask[:1].repeat(2), 0.5)
     csr_rows(2, pairs, np.ones(len(pairs)), mask, 1e-15)

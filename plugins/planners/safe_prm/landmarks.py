@@ -8,8 +8,8 @@ is at least ``|d(L, t) - d(L, v)|``: a lower bound that follows the roadmap arou
 straight-line distance cuts through them. :func:`.astar.search` takes the larger of the two bounds, so it
 settles only the nodes that could still lie on a shortest path, far fewer than with the distance alone.
 
-The distances come from :func:`dijkstra`, the query's own bucket search run to exhaustion without a heuristic
-(``tests/test_safe_prm_query.py`` checks them against scipy's Dijkstra). Compiled when the module is imported.
+The distances come from :func:`dijkstra`, run to exhaustion from each landmark (``tests/test_safe_prm_query.py``
+checks them against scipy's Dijkstra). Compiled when the module is imported.
 """
 
 from __future__ import annotations
@@ -17,51 +17,86 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .astar import BUCKETS, search
-
-#: how many landmarks each roadmap gets (R and R_safe): the query's A* settles 5-20x fewer nodes than with the
-#: straight-line bound alone; each costs one Dijkstra at build and 8 bytes per milestone
-LANDMARKS = 8
+#: how many landmarks a roadmap gets. A query searches R once and R_safe once for each stretch it repairs, and a
+#: repair's search is the longer (it goes around what R's path went through): on the block world at 5,000
+#: milestones, 8 for R and 32 for R_safe settle a quarter fewer nodes than 16 and 16, at the same cost of
+#: Dijkstras (R_safe has fewer edges). When R_safe is R (d_thresh 0) its 16 serve both. Each costs one Dijkstra
+#: at build and two bytes of a milestone's row of marks (:func:`.astar.search_graph`: 32 fill a cache line)
+FREE_LANDMARKS = 8
+SAFE_LANDMARKS = 32
+ONLY_LANDMARKS = 16
+#: :func:`dijkstra`'s bucket width, as a fraction of the mean edge cost: an edge shorter than a bucket can
+#: improve a node of the bucket being emptied, which is then expanded again (:func:`.astar.bucket_width`)
+BUCKET_FRACTION = 1.0 / 8.0
+#: :func:`dijkstra`'s buckets (a ring, a power of two): a key beyond the ring's span waits in its slot until
+#: the sweep comes round (bucket counted whole, so it is not taken early)
+_RING = 1 << 12
 
 
 @njit(cache=True, nogil=True)
-def dijkstra(indptr, indices, data, delta, source, out):
-    """The roadmap distance from ``source`` to every node into ``out`` (``inf`` where unreachable):
-    :func:`.astar.search` with no heuristic and a target it never reaches (a virtual goal without links), so it
-    runs until its queue is empty, when every reachable node holds its exact distance (``delta``: the buckets'
-    width, :func:`.astar.bucket_width`)."""
+def dijkstra(indptr, indices, data, delta, source, out, ring_head, entry_node, entry_bucket, entry_next):
+    """The roadmap distance from ``source`` to every node into ``out`` (``inf`` where unreachable), over CSR
+    rows with unsigned indices. Buckets of width ``delta`` in a ring (``ring_head``, -1 when empty, left so);
+    within a bucket nodes come out in any order and one improved after it came out is expanded again, so every
+    node ends with its exact distance once the buckets are empty (an entry older than its node's last
+    improvement is skipped). Returns the entries used, or -1 when ``entry_*`` ran out (call again with more)."""
     n = indptr.shape[0] - 1
-    entries = indices.shape[0] + n + 64
-    node = np.zeros((n + 2, 4))
-    end = np.zeros((n + 2, 2))
-    head = np.full(BUCKETS, -1, dtype=np.int32)
-    generation = np.zeros(1)
-    path = np.empty(n + 2, dtype=np.int64)
-    nothing, no_landmarks = np.empty((n, 0)), np.empty((n, 0), dtype=np.float32)
-    no_links, no_costs, no_use, nowhere = np.empty(0, np.int64), np.empty(0), np.empty(0, np.bool_), np.empty(0)
-    while True:
-        entry_node = np.empty(entries, dtype=np.int32)
-        entry_key = np.empty(entries)
-        entry_next = np.empty(entries, dtype=np.int32)
-        count, _, _ = search(
-            indptr, indices, data, nothing, no_landmarks, 0.0, delta,
-            source, no_links, no_costs, no_use, nowhere,
-            n + 1, no_links, no_costs, no_use, nowhere, np.inf,
-            node, end, head, entry_node, entry_key, entry_next, generation, path,
-        )  # fmt: skip
-        if count >= 0:
-            break
-        entries *= 2  # ran out of entries (re-expansions): again with twice as many
     for v in range(n):
-        out[v] = node[v, 1] if node[v, 0] == generation[0] else np.inf
-    return out
+        out[v] = np.inf
+    mask = ring_head.shape[0] - 1
+    inverse = 1.0 / delta
+    capacity = entry_node.shape[0]
+    out[source] = 0.0
+    entry_node[0] = source
+    entry_bucket[0] = 0
+    entry_next[0] = -1
+    ring_head[0] = 0
+    used = 1
+    pending = 1
+    current = 0
+    while pending > 0:
+        slot = current & mask
+        previous = -1
+        e = ring_head[slot]
+        while e >= 0 and entry_bucket[e] != current:  # entries of a later turn of the ring stay
+            previous = e
+            e = entry_next[e]
+        if e < 0:
+            current += 1
+            continue
+        if previous < 0:
+            ring_head[slot] = entry_next[e]
+        else:
+            entry_next[previous] = entry_next[e]
+        pending -= 1
+        v = entry_node[e]
+        g = out[v]
+        if int(g * inverse) != current:
+            continue  # improved since: a later entry of v holds its distance
+        for k in range(indptr[v], indptr[v + 1]):
+            w = indices[k]
+            c = g + data[k]
+            if c < out[w]:
+                out[w] = c
+                if used == capacity:
+                    for s in range(ring_head.shape[0]):
+                        ring_head[s] = -1
+                    return -1
+                bucket = max(int(c * inverse), current)
+                entry_node[used] = w
+                entry_bucket[used] = bucket
+                entry_next[used] = ring_head[bucket & mask]
+                ring_head[bucket & mask] = used
+                used += 1
+                pending += 1
+    return used
 
 
 @njit(cache=True, nogil=True)
 def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
     """``count`` landmarks of the largest component (farthest strategy) and every node's roadmap distance to
     each: (n, count), ``inf`` where a node cannot reach it; fewer columns when the component is smaller
-    (``delta``: :func:`dijkstra`'s)."""
+    (``indptr``, ``indices``: unsigned; ``delta``: :func:`dijkstra`'s bucket width)."""
     n = scaled.shape[0]
     if n == 0 or count == 0:
         return np.empty((n, 0))
@@ -90,12 +125,22 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
     far = np.empty((n, count))
     column = np.empty(n)
     nearest = np.full(n, np.inf)  # each node's distance to the nearest landmark so far
+    ring_head = np.full(_RING, -1, dtype=np.int32)
+    entries = indices.shape[0] // 4 + n + 64
+    entry_node = np.empty(entries, dtype=np.uint32)
+    entry_bucket = np.empty(entries, dtype=np.int64)
+    entry_next = np.empty(entries, dtype=np.int32)
     landmark = first
     for j in range(count):
-        dijkstra(indptr, indices, data, delta, landmark, column)
-        far[:, j] = column
+        while dijkstra(indptr, indices, data, delta, landmark, column, ring_head, entry_node, entry_bucket,
+                       entry_next) < 0:  # fmt: skip
+            entries *= 2  # ran out of entries (re-expansions): again with twice as many
+            entry_node = np.empty(entries, dtype=np.uint32)
+            entry_bucket = np.empty(entries, dtype=np.int64)
+            entry_next = np.empty(entries, dtype=np.int32)
         landmark, best = -1, -1.0
         for v in range(n):
+            far[v, j] = column[v]
             nearest[v] = min(nearest[v], column[v])
             if labels[v] == largest and nearest[v] > best:
                 landmark, best = v, nearest[v]
@@ -103,8 +148,8 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
 
 
 def _compile() -> None:
-    indptr = np.array([0, 1, 2], dtype=np.int32)
-    indices = np.array([1, 0], dtype=np.int32)
+    indptr = np.array([0, 1, 2], dtype=np.uint32)
+    indices = np.array([1, 0], dtype=np.uint32)
     landmark_distances(indptr, indices, np.ones(2), np.zeros((2, 3)), np.zeros(2, dtype=np.int64), 2, 0.1)
 
 

@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from surgiplan.paths import certify_edges
 
-from .query_fused import PROJECT, UNDECIDED, link_search_repair, measure_link_search_repair
+from .astar import Ends
+from .query_fused import PROJECT, UNDECIDED, compiled_entry, link_search_repair, measure_link_search_repair
 from .query_kernel import SAFE_EDGE, link_ends, search_and_repair
 from .roadmap import RoadmapPair
 
@@ -99,7 +100,7 @@ def _link_ends(
     out = []
     for i in range(len(ends)):
         mine = free & (owner == i)
-        out.append(Links(roadmap.rank[targets[mine]], cost[mine], safe[mine]))
+        out.append(Links(targets[mine], cost[mine], safe[mine]))
     return out
 
 
@@ -109,22 +110,8 @@ def _link_euclidean(
     """:func:`_link_ends` and :func:`_direct` in one compiled call, for a space with Euclidean motions; the space's
     exact check decides only what the covering balls leave open."""
     space = roadmap.space
-    grid = roadmap.grid
     targets, owner, cost, free, keeps, direct, direct_free, direct_keeps, split, undecided = link_ends(
-        ends,
-        ends_slack,
-        ends_safe,
-        d_thresh,
-        grid.points,
-        grid.origin,
-        grid.dims,
-        grid.cell,
-        grid.first,
-        roadmap.search_identity,
-        roadmap.k,
-        roadmap.s,
-        roadmap.search_slack,
-        roadmap.search_safe,
+        roadmap.arrays, ends, ends_slack, ends_safe
     )
     if not undecided:  # the covering balls decided every link (the common case): the entries are the links
         safe_ok = keeps == 1
@@ -134,14 +121,12 @@ def _link_euclidean(
     free_ok = free == 1
     open_free = free == 2
     if open_free.any():
-        free_ok[open_free] = space.motion_is_clear(
-            ends[owner[open_free]], roadmap.search_milestones[targets[open_free]], 0.0
-        )
+        free_ok[open_free] = space.motion_is_clear(ends[owner[open_free]], roadmap.milestones[targets[open_free]], 0.0)
     safe_ok = keeps == 1
     open_safe = (keeps == 2) & free_ok
     if open_safe.any():
         safe_ok[open_safe] = space.motion_is_clear(
-            ends[owner[open_safe]], roadmap.search_milestones[targets[open_safe]], d_thresh
+            ends[owner[open_safe]], roadmap.milestones[targets[open_safe]], d_thresh
         )
     safe_ok &= free_ok
     if direct_free == 2:
@@ -156,8 +141,8 @@ def _link_euclidean(
 
 
 def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: float) -> tuple[int, float] | None:
-    """The nearest safe milestone reachable from q by a collision-free motion (incremental spheres): its search
-    node and the motion's cost."""
+    """The nearest safe milestone reachable from q by a collision-free motion (incremental spheres), and the
+    motion's cost."""
     space = roadmap.space
     safe_index = np.flatnonzero(roadmap.safe)
     if not safe_index.size:
@@ -174,7 +159,7 @@ def _project(roadmap: RoadmapPair, q: np.ndarray, clearance: float, workspace: f
             ok, _ = certify_edges(space, here, targets, np.full(len(inside), min(clearance, workspace)), slack, 0.0)
             if np.any(ok):
                 best = inside[int(np.argmax(ok))]  # nearest first
-                return int(roadmap.rank[best]), float(space.distance(q, roadmap.milestones[best]))
+                return best, float(space.distance(q, roadmap.milestones[best]))
             tried.update(inside)
         if radius > largest:
             return None
@@ -205,15 +190,9 @@ def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, 
         while True:
             if ends_slack is None:
                 obstacles, tip_radius = roadmap.point_obstacles
-                answer = measure_link_search_repair(
-                    ends, obstacles, tip_radius, roadmap.d_thresh, roadmap.linking_arrays, roadmap.kernel_arrays,
-                    work.arrays(),
-                )  # fmt: skip
+                answer = _ENTRIES[measure_link_search_repair](roadmap.arrays, obstacles, tip_radius, ends, work.arrays)
             else:
-                answer = link_search_repair(
-                    ends, ends_slack, ends_safe, roadmap.d_thresh, *roadmap.linking_arrays, *roadmap.kernel_arrays,
-                    work.arrays(),
-                )  # fmt: skip
+                answer = _ENTRIES[link_search_repair](roadmap.arrays, ends, ends_slack, ends_safe, work.arrays)
             if answer[0] != 3:
                 break
             work.grow()  # more entries than the workspace holds: twice as many, and again
@@ -234,14 +213,16 @@ def _query_fused(roadmap: RoadmapPair, ends: np.ndarray, ends_slack, ends_safe, 
 
 
 _APART = "start and goal are in different components of the roadmap R (no collision-free path among the milestones)"
+#: the one-call query's compiled functions for the argument types of every roadmap pair (all are made alike: the
+#: same dtypes, contiguous, writable; :func:`_compile` resolves them on its small one, and the tests check that
+#: others have its types), called without the dispatcher's type resolution (:func:`.query_fused.compiled_entry`)
+_ENTRIES: dict = {}
 
 
 def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOutcome:
     """Algorithms 2-4: the shortest path from start to goal in R, repaired through R_safe where possible."""
     space = roadmap.space
     d_thresh = roadmap.d_thresh
-    n = roadmap.n
-    timings: dict[str, float] = {}
     started = time.perf_counter()
     ends = np.array((start, goal), dtype=float)
     if roadmap.point_obstacles is not None:  # the ends measured, linked, searched and repaired in one call
@@ -257,6 +238,17 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
         if fused is not None:
             fused.timings = {"link_s": linked - started, **fused.timings}
             return fused
+    return _query_stepwise(roadmap, ends, clearance, workspace, ends_safe, started)
+
+
+def _query_stepwise(roadmap: RoadmapPair, ends, clearance, workspace, ends_safe, started: float) -> QueryOutcome:
+    """The query step by step from Python: the links (the space's exact check where the covering balls leave one
+    open), the projection of an end in the risk region, then the search and repair in one compiled call."""
+    space = roadmap.space
+    d_thresh = roadmap.d_thresh
+    n = roadmap.n
+    start, goal = ends
+    timings: dict[str, float] = {}
     if space.euclidean_motions:
         start_links, goal_links, direct_cost, direct_safe = _link_euclidean(
             ends, roadmap, d_thresh, np.minimum(clearance, workspace), ends_safe
@@ -285,26 +277,16 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
 
     started = time.perf_counter()
     scaled = ends * space.coordinate_weights  # the frame of the search (RoadmapPair.scaled, for both at once)
+    every = [np.ones(len(links.targets), dtype=np.bool_) for links in (start_links, goal_links)]
+    start_ends = Ends(start_links.targets, start_links.cost, every[0], scaled[0])
+    goal_ends = Ends(goal_links.targets, goal_links.cost, every[1], scaled[1])
     work = roadmap.search_workspace
     with work.lock:
         while True:
             status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
-                *roadmap.kernel_arrays,
-                start_links.targets,
-                start_links.cost,
-                start_links.safe,
-                scaled[0],
-                goal_links.targets,
-                goal_links.cost,
-                goal_links.safe,
-                scaled[1],
-                ends_safe,
-                direct_cost,
-                direct_safe,
-                source,
-                target,
-                work.arrays(),
-            )
+                roadmap.arrays, start_ends, goal_ends, start_links.safe, goal_links.safe, ends_safe, direct_cost,
+                direct_safe, source, target, work.arrays,
+            )  # fmt: skip
             if status != 3:
                 break
             work.grow()  # more entries than the workspace holds: twice as many, and again
@@ -320,7 +302,7 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
         return QueryOutcome(False, message="no path in R", timings=timings, settled=int(settled))
 
     def configurations(nodes: np.ndarray) -> np.ndarray:
-        out = roadmap.search_milestones[np.minimum(nodes, n - 1)]
+        out = roadmap.milestones[np.minimum(nodes, n - 1)]
         out[nodes == n] = start
         out[nodes == n + 1] = goal
         return out
@@ -334,3 +316,34 @@ def query(roadmap: RoadmapPair, start: np.ndarray, goal: np.ndarray) -> QueryOut
     names = ([LINK] if head else []) + names + ([LINK] if tail else [])
     detours = [configurations(avoided[a:b]) for a, b in itertools.pairwise(offsets.tolist()) if b > a]
     return QueryOutcome(True, path, names, int(repaired), timings=timings, settled=int(settled), detours=detours)
+
+
+def _compile() -> None:
+    """Load (or compile) the query's kernels, when this module is imported, for the types a roadmap pair holds: on
+    a small roadmap pair made as every other is, queried in one call (the ends measured there, and given) and
+    step by step. No query pays it, a fresh clone's first included."""
+    from surgiplan.geometry.shapes import Box
+    from surgiplan.geometry.transforms import Pose
+    from surgiplan.scene import Scene
+    from surgiplan.spaces import R3Space
+
+    from .roadmap import build_roadmaps
+
+    scene = Scene([0, 0, 0], [1, 1, 1], [Box("box", Pose.from_xyz_rpy([0.5, 0.5, 0.5]), size=(0.2, 0.2, 0.2))])
+    space = R3Space(scene)
+    roadmap = build_roadmaps(space, milestones=80, k=6, s=0.5, d_thresh=0.05, seed=0)
+    ends = np.array([[0.1, 0.1, 0.1], [0.9, 0.9, 0.9]])
+    clearance, workspace = space.clearance(ends), space.workspace_slack(ends)
+    work = roadmap.search_workspace.arrays
+    _ENTRIES[link_search_repair] = compiled_entry(
+        link_search_repair, roadmap.arrays, ends, clearance, clearance >= 0.05, work
+    )
+    _ENTRIES[measure_link_search_repair] = compiled_entry(
+        measure_link_search_repair, roadmap.arrays, *roadmap.point_obstacles, ends, work
+    )
+    query(roadmap, ends[0], ends[1])
+    _query_fused(roadmap, ends, np.minimum(clearance, workspace), clearance >= 0.05, 0.0)
+    _query_stepwise(roadmap, ends, clearance, workspace, clearance >= 0.05, 0.0)
+
+
+_compile()

@@ -1,14 +1,14 @@
 """A whole safe-PRM query in one compiled call, for a space whose motions are Euclidean.
 
-:func:`.query.query` did the query in steps: the ends' links (:func:`.query_kernel.link_ends`), their
-bookkeeping in numpy, the search and repair (:func:`.query_kernel.search_and_repair`), then the path's
-configurations, each a call from Python. At 5,000 milestones that glue was as long as the search itself
-(about 100 µs of a 200 µs query, each call paying numba's argument checks and each step allocating).
-:func:`link_search_repair` is those same steps in one call: the links, the search and repair on them, and the
-configurations of the path and of every avoided stretch. It answers only when the covering balls decide every
-link (the common case); otherwise it says so (status 4) and the query takes the general path, which asks the
-space's exact check. The answer is the stepwise one, by construction: the same kernels on the same arrays.
-Compiled when the module is imported.
+The query in steps (:func:`.query.query`) is the ends' links (:func:`.query_kernel.link_ends`), their
+bookkeeping, the search and repair (:func:`.query_kernel.search_and_repair`), then the path's configurations,
+each a call from Python, each paying numba's argument checks and allocating. :func:`link_search_repair` is those
+same steps in one call: the links, the search and repair on them, and the configurations of the path and of
+every avoided stretch. It answers only when the covering balls decide every link (the common case); otherwise it
+says so (status 4) and the query takes the general path, which asks the space's exact check. The answer is the
+stepwise one, by construction: the same kernels on the same arrays. The roadmap comes as one
+:class:`.query_kernel.Roadmap` and the workspace as one :class:`.astar.Work`, so a call unpacks two arguments
+where it unpacked forty. Compiled when the module is imported.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 from surgiplan.geometry.compiled import nearest
 
+from .astar import Ends
 from .query_kernel import link_ends, search_and_repair
 
 #: :func:`link_search_repair`'s status when a link is left to the space's exact check
@@ -38,91 +39,35 @@ def _configurations(nodes, milestones, ends):
 
 
 @njit(cache=True, nogil=True)
-def link_search_repair(
-    ends,
-    ends_slack,
-    ends_safe,
-    d_thresh,
-    points,
-    origin,
-    dims,
-    cell,
-    first,
-    order,
-    k,
-    s,
-    slack,
-    safe,
-    milestones,
-    free_indptr,
-    free_indices,
-    free_data,
-    safe_indptr,
-    safe_indices,
-    safe_data,
-    scaled,
-    free_far,
-    safe_far,
-    safe_scaled,
-    tolerance,
-    delta,
-    search_safe,
-    free_labels,
-    free_count,
-    safe_labels,
-    safe_count,
-    work,
-):
-    """:func:`.query_kernel.link_ends` then :func:`.query_kernel.search_and_repair` from the start to the goal
-    (``ends`` (2, d), unit coordinate weights), the roadmap's arrays as :attr:`.roadmap.RoadmapPair.kernel_arrays`
-    and its grid hold them. Returns (status, path configurations, edge kinds, repairs, settled, configurations of
-    the avoided stretches, their offsets): status as :func:`~.query_kernel.search_and_repair`'s, or
-    :data:`UNDECIDED` (nothing else set) when a link needs the space's exact check."""
-    targets, _, cost, _, keeps, direct, direct_free, direct_keeps, split, undecided = link_ends(
-        ends, ends_slack, ends_safe, d_thresh, points, origin, dims, cell, first, order, k, s, slack, safe
-    )
+def _unanswered(status, ends):
     none = np.empty((0, ends.shape[1]))
-    if undecided:
-        return UNDECIDED, none, np.empty(0, np.uint8), 0, 0, none, np.zeros(1, np.int64)
-    keep = keeps == 1
-    direct_cost = direct if direct_free != 0 else np.inf
-    direct_safe = direct_free != 0 and direct_keeps != 0
-    n = scaled.shape[0]
-    status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
-        free_indptr,
-        free_indices,
-        free_data,
-        safe_indptr,
-        safe_indices,
-        safe_data,
-        scaled,
-        free_far,
-        safe_far,
-        safe_scaled,
-        tolerance,
-        delta,
-        search_safe,
-        free_labels,
-        free_count,
-        safe_labels,
-        safe_count,
-        targets[:split],
-        cost[:split],
-        keep[:split],
-        ends[0],
-        targets[split:],
-        cost[split:],
-        keep[split:],
-        ends[1],
-        ends_safe,
-        direct_cost,
-        direct_safe,
-        n,
-        n + 1,
-        work,
+    return status, none, np.empty(0, np.uint8), 0, 0, none, np.zeros(1, np.int64)
+
+
+@njit(cache=True, nogil=True)
+def link_search_repair(roadmap, ends, ends_slack, ends_safe, work):
+    """:func:`.query_kernel.link_ends` then :func:`.query_kernel.search_and_repair` from the start to the goal
+    (``ends`` (2, d), unit coordinate weights; ``ends_slack``: their clearance, at most their workspace slack;
+    ``ends_safe``: whether each is in C_safe). Returns (status, path configurations, edge kinds, repairs, settled,
+    configurations of the avoided stretches, their offsets): status as :func:`~.query_kernel.search_and_repair`'s,
+    or :data:`UNDECIDED` (nothing else set) when a link needs the space's exact check."""
+    targets, _, cost, _, keeps, direct, direct_free, direct_keeps, split, undecided = link_ends(
+        roadmap, ends, ends_slack, ends_safe
     )
+    if undecided:
+        return _unanswered(UNDECIDED, ends)
+    every = np.ones(targets.shape[0], dtype=np.bool_)
+    keep = keeps == 1
+    start = Ends(targets[:split], cost[:split], every[:split], ends[0])
+    goal = Ends(targets[split:], cost[split:], every[split:], ends[1])
+    n = roadmap.points.shape[0]
+    status, nodes, kinds, repaired, settled, avoided, offsets = search_and_repair(
+        roadmap, start, goal, keep[:split], keep[split:], ends_safe, direct if direct_free != 0 else np.inf,
+        direct_free != 0 and direct_keeps != 0, n, n + 1, work,
+    )  # fmt: skip
     if status != 0:
-        return status, none, kinds, repaired, settled, none, offsets
+        return status, np.empty((0, ends.shape[1])), kinds, repaired, settled, np.empty((0, ends.shape[1])), offsets
+    milestones = roadmap.milestones
     return (
         status,
         _configurations(nodes, milestones, ends),
@@ -135,24 +80,33 @@ def link_search_repair(
 
 
 @njit(cache=True, nogil=True)
-def measure_link_search_repair(ends, obstacles, tip_radius, d_thresh, linking, kernel, work):
+def measure_link_search_repair(roadmap, obstacles, tip_radius, ends, work):
     """:func:`link_search_repair` with the ends' clearance measured in the same call, for a point robot of radius
     ``tip_radius`` among a scene's compiled primitives (``obstacles``: the scene's packed form, what
     :func:`surgiplan.geometry.compiled.nearest` takes first): the scene's signed distance less the radius, the
-    number ``R3Space.clearance`` gives, is the ends' slack (no workspace limit). ``linking``: the arguments of
-    :func:`link_search_repair` from ``points`` to ``milestones``; ``kernel``: the roadmap's
-    :attr:`~.roadmap.RoadmapPair.kernel_arrays`. Status :data:`PROJECT` (nothing else set) when an end is in the
-    risk region: the query projects it, in Python."""
+    number ``R3Space.clearance`` gives, is the ends' slack (no workspace limit). Status :data:`PROJECT` (nothing
+    else set) when an end is in the risk region: the query projects it, in Python."""
     distance = np.empty(2)
     index = np.empty(2, dtype=np.int64)
-    cutoff = np.full(2, np.inf)
-    nearest(*obstacles, ends, ends, False, cutoff, distance, index)
+    nearest(*obstacles, ends, ends, False, np.full(2, np.inf), distance, index)
     clearance = distance - tip_radius
+    d_thresh = roadmap.d_thresh
     ends_safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
     if d_thresh > 0 and not (ends_safe[0] and ends_safe[1]):
-        none = np.empty((0, ends.shape[1]))
-        return PROJECT, none, np.empty(0, np.uint8), 0, 0, none, np.zeros(1, np.int64)
-    return link_search_repair(ends, clearance, ends_safe, d_thresh, *linking, *kernel, work)
+        return _unanswered(PROJECT, ends)
+    return link_search_repair(roadmap, ends, clearance, ends_safe, work)
+
+
+def compiled_entry(dispatcher, *example):
+    """``dispatcher``'s compiled function for the argument types of ``example``, to be called directly: the
+    dispatcher works out every argument's type at every call, which for a query's bundles of forty arrays was most
+    of the call's cost (about 10 us of 13, against 2.5 us to unpack them). The caller passes arguments of exactly
+    those types (the query's always are: the roadmap's own arrays, its workspace, float64 ends). Loaded from
+    numba's cache (compiled at import) when a roadmap is made, never in a query."""
+    key = tuple(dispatcher.typeof_pyval(value) for value in example)
+    if key not in dispatcher.overloads:
+        dispatcher.compile(key)
+    return dispatcher.overloads[key].entry_point
 
 
 def point_obstacles(space) -> tuple | None:
@@ -169,30 +123,3 @@ def point_obstacles(space) -> tuple | None:
     if packed is None or tree is not None:
         return None
     return tuple(packed), float(space.tip_radius)
-
-
-def _compile() -> None:
-    """Load (or compile) the kernel for the types :mod:`.query` passes, when this module is imported: no query
-    pays it."""
-    from .astar import Workspace, search_records
-    from .kernels import csr_rows, grid_build
-    from .landmarks import landmark_distances
-
-    points = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
-    rows = csr_rows(2, np.array([[0, 1]], dtype=np.int64), np.ones(1), np.ones(1, dtype=np.bool_), 1e-15)
-    labels = np.zeros(2, dtype=np.int64)
-    safe = np.ones(2, dtype=np.bool_)
-    scaled, far = search_records(points, landmark_distances(*rows, points, labels, 1, 0.1))
-    origin, dims, first, _, ordered = grid_build(points, 1.0)
-    ends = np.array([[0.0, 0.1, 0.0], [1.0, 0.1, 0.0]])
-    linking = (ordered, origin, dims, 1.0, first, np.arange(2, dtype=np.int64), 2, 2.0, np.ones(2), safe, points)
-    kernel = (*rows, *rows, scaled, far, far, scaled, 1e-9, 0.1, safe, labels, 1, labels, 1)
-    link_search_repair(ends, np.ones(2), safe, 0.0, *linking, *kernel, Workspace(2, 16).arrays())
-    vectors = np.full((1, 3), 5.0)  # one obstacle, as the scene packs it (geometry.compiled.compile_all)
-    obstacles = (np.zeros(1, np.int64), np.eye(3)[None].copy(), vectors, np.ones((1, 3)), vectors, np.ones(1),
-                 vectors - 1.0, vectors + 1.0)  # fmt: skip
-    for d_thresh in (0.0, 0.5):
-        measure_link_search_repair(ends, obstacles, 0.0, d_thresh, linking, kernel, Workspace(2, 16).arrays())
-
-
-_compile()

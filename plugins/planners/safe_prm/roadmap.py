@@ -19,10 +19,13 @@ The learning phase runs over all milestones at once (a batch PRM): the K-S
 neighbours of every milestone come from one compiled query of a uniform grid
 (:mod:`.kernels`; the answers a KD-tree gives), in the space's metric, so the
 graph equals the one Algorithm 1 builds when every milestone is offered to
-all its K-S neighbours regardless of insertion order. The roadmaps' CSR rows
-and connected components are compiled too; the certification is the space's
-(its scene queries compiled for scenes of primitives,
-:mod:`surgiplan.geometry.compiled`).
+all its K-S neighbours regardless of insertion order. The milestones are
+numbered in the grid's cell order, so that milestones close in space (and in
+the roadmap) are close in memory: the neighbour search reads runs of points,
+and a query's search reads few cache lines. The roadmaps' CSR rows,
+connected components and landmark distances are compiled too; the
+certification is the space's (its scene queries compiled for scenes of
+primitives, :mod:`surgiplan.geometry.compiled`).
 """
 
 from __future__ import annotations
@@ -34,36 +37,41 @@ import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
 
-from .astar import Workspace, bucket_width, landmark_tolerance, search_records
+from .astar import Workspace, bucket_width, search_graph
 from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
-from .landmarks import LANDMARKS, landmark_distances
+from .landmarks import BUCKET_FRACTION, FREE_LANDMARKS, ONLY_LANDMARKS, SAFE_LANDMARKS, landmark_distances
 from .query_fused import point_obstacles
+from .query_kernel import Roadmap
 
 
 class Grid(NamedTuple):
-    """The milestones (scaled) sorted into uniform cells: what :mod:`.kernels` searches for K-S neighbours."""
+    """Points (a roadmap's milestones, scaled) sorted into uniform cells: what :mod:`.kernels` searches for K-S
+    neighbours. The points of a cell are consecutive, the cells in order (x, then y, then z)."""
 
     cell: float
     origin: np.ndarray
     dims: np.ndarray
+    #: the first point of each cell (and, last, the number of points)
     first: np.ndarray
-    order: np.ndarray
-    #: the points in ``order``
     points: np.ndarray
 
     @classmethod
-    def of(cls, scaled: np.ndarray, s: float) -> Grid:
+    def sorting(cls, scaled: np.ndarray, s: float) -> tuple[Grid, np.ndarray]:
+        """The grid of the points ``scaled`` and the order that sorts them into it (``points[i]`` is
+        ``scaled[order[i]]``)."""
         cell = grid_cell(scaled, s)
-        return cls(cell, *grid_build(scaled, cell))
+        origin, dims, first, order = grid_build(scaled, cell)
+        return cls(cell, origin, dims, first, np.ascontiguousarray(scaled[order], dtype=float)), order
 
 
 @dataclass
 class RoadmapPair:
     """Milestones, their clearances, and the edges of R and R_safe (a subset of R's).
 
-    ``edges`` (E, 2) index pairs with ``i < j``; ``edge_cost`` the space's
-    distance along each; ``edge_safe`` whether the edge is certified to keep
-    ``d_thresh``; ``safe`` whether each milestone is in C_safe.
+    ``edges`` (E, 2) index pairs with ``i < j``, sorted; ``edge_cost`` the space's distance along each;
+    ``edge_safe`` whether the edge is certified to keep ``d_thresh``; ``safe`` whether each milestone is in
+    C_safe. The milestones are numbered in the order of their :class:`Grid` (given in another order, as a stored
+    roadmap of an earlier version may be, they are renumbered).
     """
 
     space: Space
@@ -78,14 +86,16 @@ class RoadmapPair:
     s: float
     #: edges certified by covering balls alone, for the record
     covered_edges: int = 0
-    #: the grid over the scaled milestones, when the caller has built it already
+    #: the grid over the scaled milestones, when the caller has built it already (milestones in its order)
     grid: Grid | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        #: milestones times the space's coordinate weights: the frame of the metric (and of the search heuristic)
-        self.scaled_milestones = np.ascontiguousarray(self.scaled(self.milestones).reshape(self.n, -1), dtype=float)
         if self.grid is None:
-            self.grid = Grid.of(self.scaled_milestones, self.s)
+            self.grid, order = Grid.sorting(self.scaled(self.milestones).reshape(len(self.milestones), -1), self.s)
+            if np.any(order != np.arange(len(order))):
+                self._renumber(order)
+        #: milestones times the space's coordinate weights: the frame of the metric (and of the search heuristic)
+        self.scaled_milestones = self.grid.points
         self._tree: cKDTree | None = None
         #: how far each milestone's body may move before leaving the workspace (m)
         self.workspace = self.space.workspace_slack(self.milestones) if self.n else np.zeros(0)
@@ -98,60 +108,41 @@ class RoadmapPair:
         edge_safe = np.ascontiguousarray(self.edge_safe, dtype=np.bool_)
         #: the connected component of every milestone in R and in R_safe, and how many there are
         self.free_labels, self.free_count = component_labels(self.n, edges, every)
-        self.safe_labels, self.safe_count = component_labels(self.n, edges, edge_safe)
-        # The searches number the milestones in the grid's cell order (``grid.order[i]`` is the milestone of
-        # search node i, ``rank`` the inverse): neighbours in the roadmap are then mostly neighbours in memory, so
-        # a search touches a few hundred kilobytes in runs instead of scattered cache lines (a query after other
-        # work, as a plan stage's is, runs 20-30 % faster). Paths come back as configurations, so the numbering
-        # never shows.
-        order = self.grid.order
-        #: the search node of every milestone (the inverse of ``grid.order``)
-        self.rank = np.empty(self.n, dtype=np.int64)
-        self.rank[order] = np.arange(self.n)
-        ranked = self.rank[edges]
-        #: the milestones, clearance slack and C_safe flags in search order
-        self.search_milestones = np.ascontiguousarray(self.milestones[order])
-        self.search_slack = np.ascontiguousarray(self.slack[order])
-        self.search_safe = np.ascontiguousarray(self.safe_flags[order])
-        #: both roadmaps as CSR rows (indptr, indices, data) over the search nodes, both directions of every edge
-        self.free_rows = csr_rows(self.n, ranked, cost, every, 1e-15)
-        self.safe_rows = csr_rows(self.n, ranked, cost, edge_safe, 1e-15)
-        free_labels = np.ascontiguousarray(self.free_labels[order])
-        safe_labels = np.ascontiguousarray(self.safe_labels[order])
-        #: every search node's distance to the landmarks of R and of R_safe (the query's A* bounds, :mod:`.landmarks`)
-        delta = bucket_width(cost)
-        free_far = landmark_distances(*self.free_rows, self.grid.points, free_labels, LANDMARKS, delta)
-        safe_far = landmark_distances(*self.safe_rows, self.grid.points, safe_labels, LANDMARKS, delta)
-        # each search reads a node's position and landmarks in one row (:func:`.astar.search_records`)
-        self.free_scaled, self.free_far = search_records(self.grid.points, free_far)
-        self.safe_scaled, self.safe_far = search_records(self.grid.points, safe_far)
-        #: what :func:`.query_kernel.search_and_repair` takes of the roadmap, in its order
-        self.kernel_arrays = (
-            *self.free_rows,
-            *self.safe_rows,
-            self.free_scaled,
-            self.free_far,
-            self.safe_far,
-            self.safe_scaled,
-            max(landmark_tolerance(free_far), landmark_tolerance(safe_far)),
-            delta,
-            self.search_safe,
-            free_labels,
-            int(self.free_count),
-            safe_labels,
-            int(self.safe_count),
-        )
-        #: the search order's identity (:func:`.query_kernel.link_ends` then answers in search nodes)
-        self.search_identity = np.arange(self.n, dtype=np.int64)
+        #: R and R_safe as the searches read them (:class:`.astar.Graph`): CSR rows, both directions of every
+        #: edge, the milestones' positions and their distances to each roadmap's landmarks (:mod:`.landmarks`)
+        if edge_safe.all() and self.safe_flags.all():  # R_safe is R (d_thresh 0: every free motion is safe)
+            self.free_graph = self._graph(edges, cost, every, self.free_labels, ONLY_LANDMARKS)
+            self.safe_labels, self.safe_count, self.safe_graph = self.free_labels, self.free_count, self.free_graph
+        else:
+            self.free_graph = self._graph(edges, cost, every, self.free_labels, FREE_LANDMARKS)
+            self.safe_labels, self.safe_count = component_labels(self.n, edges, edge_safe)
+            self.safe_graph = self._graph(edges, cost, edge_safe, self.safe_labels, SAFE_LANDMARKS)
         grid = self.grid
-        #: what :func:`.query_fused.link_search_repair` takes of the roadmap to link the ends, in its order
-        self.linking_arrays = (
-            grid.points, grid.origin, grid.dims, grid.cell, grid.first, self.search_identity, int(self.k),
-            float(self.s), self.search_slack, self.search_safe, self.search_milestones,
+        #: what the query's kernels take of the roadmap (:mod:`.query_kernel`)
+        self.arrays = Roadmap(
+            self.free_graph, self.safe_graph, self.safe_flags, self.slack, self.free_labels, int(self.free_count),
+            self.safe_labels, int(self.safe_count), grid.points, grid.origin, grid.dims, float(grid.cell), grid.first,
+            int(self.k), float(self.s), float(self.d_thresh), np.ascontiguousarray(self.milestones, dtype=float),
         )  # fmt: skip
         #: the scene's compiled obstacles and the tip radius when the query measures the ends itself, else None
         self.point_obstacles = point_obstacles(self.space)
-        self._workspace = Workspace(self.n, 2 * len(self.free_rows[1]) + self.n + 64)
+        self._workspace = Workspace(self.n, len(self.free_graph.indices) + self.n + 64)
+
+    def _renumber(self, order: np.ndarray) -> None:
+        """The milestones in the grid's ``order``; the edges renamed and sorted again."""
+        rank = np.empty(len(order), dtype=np.int64)
+        rank[order] = np.arange(len(order))
+        self.milestones, self.clearance, self.safe = self.milestones[order], self.clearance[order], self.safe[order]
+        edges = rank[np.asarray(self.edges, dtype=np.int64).reshape(-1, 2)]
+        edges = np.sort(edges, axis=1)
+        by = np.lexsort((edges[:, 1], edges[:, 0]))
+        self.edges, self.edge_cost, self.edge_safe = edges[by], self.edge_cost[by], self.edge_safe[by]
+
+    def _graph(self, edges: np.ndarray, cost: np.ndarray, mask: np.ndarray, labels: np.ndarray, landmarks: int):
+        """The :class:`.astar.Graph` of the roadmap of ``edges[mask]`` (components ``labels``)."""
+        rows = csr_rows(self.n, edges, cost, mask, 1e-15)
+        far = landmark_distances(*rows, self.grid.points, labels, landmarks, bucket_width(cost, BUCKET_FRACTION))
+        return search_graph(*rows, self.grid.points, far, bucket_width(cost))
 
     # ------------------------------------------------------------------ structure
     @property
@@ -177,7 +168,6 @@ class RoadmapPair:
             grid.dims,
             grid.cell,
             grid.first,
-            grid.order,
             self.k,
             self.s,
         )
@@ -275,13 +265,16 @@ def certify_roadmap_edges(
 
 
 def sample_milestones(
-    space: Space, n: int, rng: np.random.Generator, progress_task=None, batch: int | None = None
+    space: Space, n: int, rng: np.random.Generator, progress_task=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` milestones drawn uniformly from C_free (rejection sampling in batches) and their clearances."""
+    """``n`` milestones drawn uniformly from C_free (rejection sampling in batches) and their clearances: the first
+    n free samples of ``rng``'s stream, whatever the batches (each draws the next numbers of the stream). The first
+    batch is n / 2; each next one what the free fraction so far says is still missing, and a twentieth more, so
+    that few samples are measured for nothing."""
     found_q: list[np.ndarray] = []
     found_c: list[np.ndarray] = []
     total = 0
-    batch = batch or max(256, n // 2)
+    batch = max(256, n // 2)
     attempts = 0
     while total < n:
         q = space.sample(rng, batch)
@@ -299,6 +292,7 @@ def sample_milestones(
             raise RuntimeError(
                 f"only {total} of {attempts} samples were free: the free space is too small to sample {n} milestones"
             )
+        batch = max(256, min(int(1.05 * (n - total) * attempts / max(total, 1)), 8 * n))
     return np.concatenate(found_q)[:n], np.concatenate(found_c)[:n]
 
 
@@ -312,16 +306,15 @@ def build_roadmaps(
     rng = np.random.default_rng(seed)
     with progress.task("sampling milestones", total=milestones) as task:
         q, clearance = sample_milestones(space, milestones, rng, task)
-    safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
-    # the body must also stay in the workspace along an edge (the gimbal's tip may leave the box)
-    inside = space.workspace_slack(q)
 
     with progress.task("connecting milestones (K-S)", total=1) as task:
-        scaled = np.ascontiguousarray(q * space.coordinate_weights, dtype=float)
-        grid = Grid.of(scaled, s)
-        pairs, length = k_s_pairs(
-            grid.points, grid.origin, grid.dims, grid.cell, grid.first, grid.order, int(k), float(s)
-        )
+        # the milestones numbered in the grid's order (see the module docstring)
+        grid, order = Grid.sorting(q * space.coordinate_weights, s)
+        q, clearance = q[order], clearance[order]
+        safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
+        # the body must also stay in the workspace along an edge (the gimbal's tip may leave the box)
+        inside = space.workspace_slack(q)
+        pairs, length = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, int(k), float(s))
         # a space with Euclidean motions: the pairs' lengths (measured by the neighbour search, the same numbers
         # space.distance gives) are the motions' speed bounds and the edges' costs
         euclidean = space.euclidean_motions
