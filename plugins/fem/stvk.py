@@ -166,8 +166,8 @@ class StVKElements:
     @staticmethod
     def _det_and_cofactor(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """det F and cof F = J F^-T, components first, by closed forms."""
-        cof = np.empty_like(f)
-        return cofactor(f, cof), cof
+        det, rows = cofactor(f)
+        return det, np.array(rows)
 
     _det = staticmethod(determinant)
 
