@@ -94,7 +94,7 @@ from typing import Literal
 import numpy as np
 
 from .assembly import TangentPattern
-from .line_search import MAX_TRIALS, line_search
+from .line_search import MAX_TRIALS, free_residual, line_search
 from .loads import ExternalLoads
 from .newton_steps import NewtonSteps
 from .stvk import StVKElements
@@ -265,11 +265,11 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
         rest = self.elements.rest
         x = np.array(x0, dtype=float).ravel() - rest  # the unknowns: displacements from the rest positions
         prescribed = np.asarray(prescribed, dtype=bool)
-        free = ~prescribed
-        goal = np.asarray(targets, dtype=float).ravel()[prescribed] - rest[prescribed]
+        held = np.flatnonzero(prescribed)  # their indices: reading and writing them is cheaper than by the mask
+        goal = np.asarray(targets, dtype=float).ravel()[held] - rest[held]
         result = NewtonResult(x + rest, False, 0, np.inf, np.nan, np.inf)
         result.shift = start_shift
-        if not free.any():  # nothing is free: the prescribed positions are the answer (as given, not X + u)
+        if len(held) == len(x):  # nothing is free: the prescribed positions are the answer (as given, not X + u)
             return self._all_prescribed(np.asarray(targets, dtype=float).ravel(), prescribed, result, started)
         energy, grad = self._gradient(x)
         if grad is None:
@@ -287,18 +287,15 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
         reuse_steps = 0
         newton_contraction = options.nominal_contraction  # residual after / before the last Newton corrector step
         pairs: list[tuple[np.ndarray, np.ndarray, float]] = []  # L-BFGS (s, y, 1 / s.y) since the factorisation
-        last_step = 0.0 if np.array_equal(x[prescribed], goal) else np.inf
+        last_step = 0.0 if np.array_equal(x[held], goal) else np.inf
         step_limit = options.step_tol * self.length_scale
         evaluated = None  # (Π, gradient) at x when already computed
+        applied = float(np.abs(self.loads.total_forces).max(initial=0.0))
         while True:
-            pending = goal - x[prescribed]
+            pending = goal - x[held]
             moving = bool(np.any(pending != 0.0))
-            scale = max(
-                float(np.abs(self.loads.total_forces).max(initial=0.0)),
-                float(np.abs(grad[prescribed]).max(initial=0.0)),
-                self.force_floor,
-            )
-            residual = float(np.abs(grad[free]).max(initial=0.0))
+            scale = max(applied, float(np.abs(grad[held]).max(initial=0.0)), self.force_floor)
+            residual = free_residual(grad, held)
             result.residual, result.residual_scale, result.energy = residual, scale, energy
             tolerance = options.residual_tol * scale
             if not newton:
@@ -307,7 +304,7 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
                 if not result.energy_history or result.energy_history[-1] != energy:
                     result.energy_history.append(energy)
                 # forces cannot be resolved below their rounding error: a tolerance under it is unreachable
-                settled = last_step <= step_limit or not free.any()  # nothing free: nothing to settle
+                settled = last_step <= step_limit
                 floor = 0.0
                 if residual > tolerance and settled and factor is not None:
                     floor = self._rounding(factor)
@@ -329,7 +326,7 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
             direction = None
             newton = False
             if not refresh and factor is not None and (given or reuse_steps < options.max_reuse_steps):
-                direction = self._direction(factor, grad, prescribed, pending, pairs)
+                direction = self._direction(factor, grad, held, pending, pairs)
                 newton = given
                 if direction is None and newton:
                     result.message = "no descent direction: the tangent is not positive definite"
@@ -346,13 +343,13 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
                     result.start_factor = factor  # x is still x0
                 result.factorizations += 1
                 reuse_steps, pairs, newton = 0, [], True
-                direction = self._direction(factor, grad, prescribed, pending, pairs)
+                direction = self._direction(factor, grad, held, pending, pairs)
                 if direction is None:  # not a descent direction even with the surrogate
                     result.message = "no descent direction: the tangent is not positive definite"
                     break
             refresh = False
             if moving:
-                fraction, x_new, evaluated = self._cut_to_valid(x, direction, prescribed, goal, pending, result)
+                fraction, x_new, evaluated = self._cut_to_valid(x, direction, held, goal, pending, result)
                 if fraction is None:
                     result.message = (
                         "the prescribed motion cannot be applied without inverting elements "
@@ -365,10 +362,9 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
                         x_new,
                         evaluated,
                         direction,
-                        prescribed,
+                        held,
                         goal,
                         pending,
-                        free,
                         options.predictor_residual * scale,
                     )
                 x = x_new
@@ -376,7 +372,7 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
                 last_step = np.inf
                 refresh = fraction < 1.0
             else:
-                fraction, evaluated = self._line_search(x, energy, grad, direction, free, options, result)
+                fraction, evaluated = self._line_search(x, energy, grad, direction, held, options, result)
                 if fraction is None:
                     if not newton:  # the reused tangent may be to blame: retry with a fresh one
                         refresh = True
@@ -407,13 +403,13 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
             if new_grad is None:  # cannot happen after the checks above; be safe
                 result.message = "a step inverted an element"
                 break
-            new_residual = float(np.abs(new_grad[free]).max(initial=0.0))
+            new_residual = free_residual(new_grad, held)
             result.trace.append(
                 (("newton" if newton else "quasi-newton") + (" predictor" if moving else ""), fraction, new_residual)
             )
             if not moving:
                 if options.history:
-                    self._remember(pairs, step, new_grad - grad, prescribed, options.history)
+                    self._remember(pairs, step, new_grad - grad, held, options.history)
                 contraction = new_residual / residual if residual > 0 else 0.0
                 if newton:
                     # a damped Newton step says little about what a full one near the solution achieves
@@ -423,8 +419,8 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
                     refresh = True
             energy, grad = new_energy, new_grad
         result.x = rest + x
-        if not np.any(goal - x[prescribed]):  # the prescribed dofs reached: exactly their targets, not X + u rounded
-            result.x[prescribed] = np.asarray(targets, dtype=float).ravel()[prescribed]
+        if not np.any(goal - x[held]):  # the prescribed dofs reached: exactly their targets, not X + u rounded
+            result.x[held] = np.asarray(targets, dtype=float).ravel()[held]
         result.gradient = grad
         result.seconds = time.perf_counter() - started
         return result
@@ -448,10 +444,10 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
         result.seconds = time.perf_counter() - started
         return result
 
-    def _line_search(self, x, energy, grad, direction, free, options, result):
+    def _line_search(self, x, energy, grad, direction, held, options, result):
         """:func:`~.line_search.line_search` along ``direction`` on Π (its fraction and (Π, gradient) there)."""
         return line_search(
-            self._gradient, x, energy, grad, direction, free, options, result, self.MAX_LINE_SEARCH_TRIALS
+            self._gradient, x, energy, grad, direction, held, options, result, self.MAX_LINE_SEARCH_TRIALS
         )
 
     #: trials of one line search at most (the bracket shrinks by at least a tenth per trial)
