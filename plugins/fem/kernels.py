@@ -431,6 +431,23 @@ def assembled_tangent(  # pragma: no cover
     return energy, True
 
 
+@njit(cache=True, nogil=True)
+def upright(x, grads, checks, dofs):  # pragma: no cover
+    """Whether det F > 0 (F from the positions ``x`` (3n,)) at every quadrature point and, quadratic, every
+    vertex of every element: :meth:`.stvk.StVKElements.volume_ratio` all positive, without the ratios."""
+    m, n_points, k, _ = grads.shape
+    xe = np.empty((3, k))
+    for el in range(m):
+        _gather(x, dofs, el, xe)
+        for q in range(n_points):
+            if not _determinant(_gradient(xe, grads[el, q], 0.0)) > 0.0:
+                return False
+        for c in range(checks.shape[1]):
+            if not _determinant(_gradient(xe, checks[el, c], 0.0)) > 0.0:
+                return False
+    return True
+
+
 @njit(cache=True, inline="always")
 def _smaller(a, b):  # pragma: no cover
     """min(a, b), NaN when either is (as ``np.min``)."""
