@@ -310,6 +310,46 @@ def _row_products(row, f):  # pragma: no cover
     )
 
 
+@njit(cache=True, inline="always")
+def _tangent_entry(factors, i, j):  # pragma: no cover
+    """Entry (i, j) of block (a, b) of one point's element tangent, without its delta_ij (g_a . S g_b) term:
+    w_gg (F F^T)_ij + mu V (F g_a)_j (F g_b)_i + lam V (F g_a)_i (F g_b)_j + kappa V (q_ai q_bj - ln J q_aj q_bi),
+    the factors pre-scaled by V and the moduli (five multiply-adds)."""
+    w_gg, fft, mu_fg_a, lam_fg_a, kappa_qg_a, swapped_qg_a, fg_b, qg_b = factors
+    return (
+        w_gg * fft[i][j]
+        + mu_fg_a[j] * fg_b[i]
+        + lam_fg_a[i] * fg_b[j]
+        + kappa_qg_a[i] * qg_b[j]
+        - swapped_qg_a[j] * qg_b[i]
+    )
+
+
+@njit(cache=True, inline="always")
+def _tangent_block(factors):  # pragma: no cover
+    """The block's nine entries (rows) by :func:`_tangent_entry`."""
+    return (
+        (_tangent_entry(factors, 0, 0), _tangent_entry(factors, 0, 1), _tangent_entry(factors, 0, 2)),
+        (_tangent_entry(factors, 1, 0), _tangent_entry(factors, 1, 1), _tangent_entry(factors, 1, 2)),
+        (_tangent_entry(factors, 2, 0), _tangent_entry(factors, 2, 1), _tangent_entry(factors, 2, 2)),
+    )
+
+
+@njit(cache=True, inline="always")
+def _add_block(block, w_gsg, data, where, size, row, col):  # pragma: no cover
+    """A final block (of an element with one quadrature point), its delta_ij term ``w_gsg`` included, added into
+    the global values ``data`` at ``where`` (the element's entry (r, c) at ``where[size r + c]``) and mirrored;
+    of a diagonal block (row == col) the upper half."""
+    for i in range(3):
+        for j in range(3):
+            r, c = row + i, col + j
+            if c >= r:
+                value = block[i][j] + w_gsg if i == j else block[i][j]
+                data[where[r * size + c]] += value
+                if c != r:
+                    data[where[c * size + r]] += value
+
+
 @njit(cache=True, nogil=True)
 def assembled_tangent(  # pragma: no cover
     u, grads, weights, checks, lam, mu, kappa, dofs, positions, data, gradient, definite, want_gradient
@@ -409,18 +449,18 @@ def assembled_tangent(  # pragma: no cover
                     qg_b = (qg[b, 0], qg[b, 1], qg[b, 2])
                     w_gg = v_mu * (g_a[0] * g[b, 0] + g_a[1] * g[b, 1] + g_a[2] * g[b, 2])
                     w_gsg = vol * (g_a[0] * sg[b, 0] + g_a[1] * sg[b, 1] + g_a[2] * sg[b, 2])
-                    # the whole 3 x 3 block, also on the diagonal (constant trip counts: unrolled; the lower
-                    # half of a diagonal block is computed and never read)
+                    factors = (w_gg, fft, mu_fg_a, lam_fg_a, kappa_qg_a, swapped_qg_a, fg_b, qg_b)
+                    if n_points == 1:  # the block is final: added straight into the global values, and mirrored
+                        _add_block(_tangent_block(factors), w_gsg, data, positions[el], size, 3 * a, 3 * b)
+                        continue
+                    # the whole 3 x 3 block, also on the diagonal (constant trip counts: unrolled; the lower half
+                    # of a diagonal block is computed and never read)
                     for i in range(3):
                         for j in range(3):
-                            ke[3 * a + i, 3 * b + j] += (
-                                w_gg * fft[i][j]
-                                + mu_fg_a[j] * fg_b[i]
-                                + lam_fg_a[i] * fg_b[j]
-                                + kappa_qg_a[i] * qg_b[j]
-                                - swapped_qg_a[j] * qg_b[i]
-                            )
+                            ke[3 * a + i, 3 * b + j] += _tangent_entry(factors, i, j)
                         ke[3 * a + i, 3 * b + i] += w_gsg
+        if n_points == 1:
+            continue
         for r in range(size):  # mirrored in the local array, then added in one contiguous sweep
             for c in range(r + 1, size):
                 ke[c, r] = ke[r, c]
