@@ -432,9 +432,9 @@ class EquilibriumSolver(NewtonSteps, TangentFactoring):
                     refresh = True
                 else:
                     chord_decades += float(np.log10(max(contraction, 1e-300)))
-                    # the rate of one step says little (they alternate fast and slow); far from the equilibrium
-                    # a fresh tangent is no faster, so only near it
-                    if reuse_steps >= 2 and new_residual <= options.near_residual * scale:
+                    # the rate of one or two steps says little (they alternate fast and slow); far from the
+                    # equilibrium a fresh tangent is no faster, so only near it
+                    if reuse_steps >= 3 and new_residual <= options.near_residual * scale:
                         target = options.residual_tol * scale / options.quasi_newton_margin
                         refresh = self._refactor_pays(
                             new_residual, target, chord_decades / reuse_steps, newton_contraction, options
