@@ -273,9 +273,9 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
 
 
 @njit(cache=True, inline="always")
-def _lowest_eigenvalue(s):  # pragma: no cover
-    """The smallest eigenvalue of a symmetric 3 x 3 matrix (Smith's closed form, as
-    :func:`.stvk.symmetric_eigenvalues`)."""
+def _extreme_eigenvalues(s):  # pragma: no cover
+    """The smallest and the largest eigenvalue of a symmetric 3 x 3 matrix (rows), by Smith's closed form
+    (as :func:`.stvk.symmetric_eigenvalues`: one arccos for both)."""
     q = (s[0][0] + s[1][1] + s[2][2]) / 3.0
     off = s[0][1] ** 2 + s[0][2] ** 2 + s[1][2] ** 2
     d0, d1, d2 = s[0][0] - q, s[1][1] - q, s[2][2] - q
@@ -286,7 +286,7 @@ def _lowest_eigenvalue(s):  # pragma: no cover
     r = 0.5 * (b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
     r = min(max(r, -1.0), 1.0)
     phi = np.arccos(r) / 3.0
-    return q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    return q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q + 2.0 * p * np.cos(phi)
 
 
 @njit(cache=True, inline="always")
@@ -411,7 +411,7 @@ def assembled_tangent(  # pragma: no cover
                 _add_forces(_weighted_piola(f, s, cof, vol, kappa_e * vol * log_j / det), g, dofs, el, gradient)
             swapped = log_j
             if definite:
-                lowest = _lowest_eigenvalue(s)
+                lowest = _extreme_eigenvalues(s)[0]
                 if lowest < 0.0:
                     s = _shifted(s, -lowest)
                 swapped = 0.0
@@ -540,12 +540,8 @@ def state_summary(x, u, grads, weights, checks, lam, mu, kappa, dofs, ratio, str
             if not _finite(s):
                 largest = np.inf
                 continue
-            low = _lowest_eigenvalue(s)
+            low, high = _extreme_eigenvalues(s)
             trace = s[0][0] + s[1][1] + s[2][2]
-            # the highest eigenvalue: the lowest of -S
-            high = -_lowest_eigenvalue(
-                ((-s[0][0], -s[0][1], -s[0][2]), (-s[1][0], -s[1][1], -s[1][2]), (-s[2][0], -s[2][1], -s[2][2]))
-            )
             value = max(abs(low), abs(high))
             if not np.isfinite(value) or not np.isfinite(trace):
                 value = np.inf
