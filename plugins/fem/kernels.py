@@ -7,13 +7,18 @@
   values at once. It replaces a numpy preparation of per-point arrays
   (F F^T, F g_a, F^-T g_a, g_a . S g_b for every element) and a second
   kernel over them: on the 40x4x4 quadratic cantilever a tangent went from
-  about 31 to 19 ms, energy and forces included.
+  about 31 to 19 ms, energy and forces included. An element with one
+  quadrature point (linear) adds each block straight into the global
+  values instead: it is final when computed.
 * :func:`element_tangents` (the element matrices of the numpy path, e.g.
   for a caller that wants them per element): every entry of the upper
   triangle computed once per element block, vectorised over the elements,
   from the per-point arrays the numpy kernel prepares.
 * :func:`energy_and_gradient` (every line-search trial): energy and forces
   element by element.
+* :func:`state_summary` (a solved state's volume ratios, stresses and
+  energy) and :func:`upright` (a warm start's check that no element is
+  inverted), one pass each.
 
 The same closed forms as the numpy kernel (:mod:`.closed_forms` is
 compiled from the same source); tests keep the paths within 1e-12.
@@ -364,6 +369,7 @@ def assembled_tangent(  # pragma: no cover
     the first-level cache; its entries are then added into the global
     tangent's values ``data`` (nnz,) at ``positions`` (m, 3k * 3k), the
     element's entry (r, c) at ``positions[e, 3k r + c]`` (and mirrored).
+    With one point the blocks are added as they are computed.
     Entry (a, i, b, j), as :func:`element_tangents`:
 
         sum_p vol [ mu (g_a . g_b) (F F^T)_ij + delta_ij g_a . S g_b + lam (F g_a)_i (F g_b)_j
