@@ -243,7 +243,7 @@ def test_compiled_assembled_tangent_matches_the_numpy_kernel_and_finite_differen
 def test_compiled_state_summary_matches_the_numpy_methods(cube):
     """A solved state's volume ratios, largest principal stresses and elastic energy in one compiled pass,
     against :meth:`volume_ratio`, :meth:`max_principal_stress` and the numpy energy; inverted and
-    not-a-number states included."""
+    not-a-number states included (and the compiled all-upright check agrees with the ratios)."""
     mesh, kernel = cube
     rng = np.random.default_rng(9)
     x = mesh.nodes @ np.array([[0.8, 0.1, 0.0], [-0.05, 1.1, 0.1], [0.02, 0.0, 1.15]]).T
@@ -263,3 +263,4 @@ def test_compiled_state_summary_matches_the_numpy_methods(cube):
     ratio, _, energy = kernel.summary(broken)
     assert np.array_equal(np.isnan(ratio), np.isnan(kernel.volume_ratio(broken))) and np.isnan(ratio).any()
     assert not energy < np.inf
+    assert kernel.upright(x) and not kernel.upright(crushed) and not kernel.upright(broken)

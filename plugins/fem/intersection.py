@@ -32,6 +32,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+#: orientation determinants below TOL l^3 (m^3, l the longest edge) are rounding noise: coplanar neighbours
+#: must not count as crossing; bounding boxes are padded by PAD times the largest extent of the positions
+TOL, PAD = 1e-10, 1e-12
+
 
 def _orient(a, b, c, d) -> np.ndarray:
     """Six times the signed volume of tetrahedra (a, b, c, d), batched."""
@@ -155,14 +159,8 @@ def self_intersections(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     triangles = np.ascontiguousarray(triangles, dtype=np.int64)
     if len(triangles) == 0:
         return np.empty((0, 2), dtype=np.int64)
-    corners = x[triangles]
-    # determinants below this (m^3) are rounding noise: coplanar neighbours must not count as crossing
-    edge = float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max())
     adjacency = _adjacency(triangles)
-    pad = 1e-12 * float(np.ptp(x, axis=0).max())
-    return crossing_pairs(
-        x, triangles, adjacency.pairs, adjacency.opposite_a, adjacency.opposite_b, adjacency.keys, 1e-10 * edge**3, pad
-    )
+    return crossing_pairs(x, triangles, adjacency.pairs, adjacency.opposite_a, adjacency.opposite_b, TOL, PAD)
 
 
 def self_intersections_numpy(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -172,7 +170,7 @@ def self_intersections_numpy(x: np.ndarray, triangles: np.ndarray) -> np.ndarray
     corners = x[triangles]  # (t, 3, 3)
     # determinants below this (m^3) are rounding noise: coplanar neighbours must not count as crossing
     edge = float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max()) if len(triangles) else 0.0
-    tol = 1e-10 * edge**3
+    tol = TOL * edge**3
     adjacency = _adjacency(triangles)
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     found = []
@@ -187,7 +185,7 @@ def self_intersections_numpy(x: np.ndarray, triangles: np.ndarray) -> np.ndarray
             hit = segments_cross_triangles(x[oa[:, 0]], x[oa[:, 1]], cb[:, 0], cb[:, 1], cb[:, 2], tol)
             hit |= segments_cross_triangles(x[ob[:, 0]], x[ob[:, 1]], ca[:, 0], ca[:, 1], ca[:, 2], tol)
             found.append(adjacency.pairs[check[hit]])
-    pad = 1e-12 * float(np.ptp(x, axis=0).max())
+    pad = PAD * float(np.ptp(x, axis=0).max())
     pairs = candidate_pairs(corners.min(axis=1) - pad, corners.max(axis=1) + pad)
     if len(pairs):
         keys = pairs[:, 0] * adjacency.count + pairs[:, 1]
@@ -223,11 +221,11 @@ def _self_intersections_reference(x: np.ndarray, triangles: np.ndarray) -> np.nd
     x = np.asarray(x, dtype=float).reshape(-1, 3)
     triangles = np.asarray(triangles, dtype=np.int64)
     corners = x[triangles]  # (t, 3, 3)
-    pad = 1e-12 * float(np.ptp(x, axis=0).max())
+    pad = PAD * float(np.ptp(x, axis=0).max())
     pairs = candidate_pairs(corners.min(axis=1) - pad, corners.max(axis=1) + pad)
     # determinants below this (m^3) are rounding noise: coplanar neighbours must not count as crossing
     edge = float(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max())
-    tol = 1e-10 * edge**3
+    tol = TOL * edge**3
     if len(pairs) == 0:
         return pairs
     ta = triangles[pairs[:, 0]]

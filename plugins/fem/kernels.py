@@ -7,13 +7,18 @@
   values at once. It replaces a numpy preparation of per-point arrays
   (F F^T, F g_a, F^-T g_a, g_a . S g_b for every element) and a second
   kernel over them: on the 40x4x4 quadratic cantilever a tangent went from
-  about 31 to 19 ms, energy and forces included.
+  about 31 to 19 ms, energy and forces included. An element with one
+  quadrature point (linear) adds each block straight into the global
+  values instead: it is final when computed.
 * :func:`element_tangents` (the element matrices of the numpy path, e.g.
   for a caller that wants them per element): every entry of the upper
   triangle computed once per element block, vectorised over the elements,
   from the per-point arrays the numpy kernel prepares.
 * :func:`energy_and_gradient` (every line-search trial): energy and forces
   element by element.
+* :func:`state_summary` (a solved state's volume ratios, stresses and
+  energy) and :func:`upright` (a warm start's check that no element is
+  inverted), one pass each.
 
 The same closed forms as the numpy kernel (:mod:`.closed_forms` is
 compiled from the same source); tests keep the paths within 1e-12.
@@ -28,9 +33,14 @@ from numba import njit
 
 from . import closed_forms
 
-#: the numpy kernel's closed forms, compiled for one 3 x 3 matrix
+#: the numpy kernel's closed forms, compiled for one 3 x 3 matrix held as rows of scalars (registers, not memory)
 _determinant = njit(cache=True, inline="always")(closed_forms.determinant)
 _cofactor = njit(cache=True, inline="always")(closed_forms.cofactor)
+
+# The helpers below pass 3 x 3 matrices as rows of scalars (3-tuples of 3-tuples), which LLVM keeps in
+# registers: written into small work arrays instead, every store may alias every later load, and the energy
+# and forces of the paper's flap took 1.8 times as long (0.64 against 0.35 ms for 4,000 linear tetrahedra),
+# the energy alone 2.3 times. Each entry is the same operations in the same order as the numpy kernel's.
 
 
 @njit(cache=True, inline="always")
@@ -42,56 +52,71 @@ def _gather(values, dofs, el, out):  # pragma: no cover
 
 
 @njit(cache=True, inline="always")
-def _gradient(values, g, out, diagonal):  # pragma: no cover
-    """``diagonal`` I + sum_a values[:, a] g[a]^T into ``out`` (3, 3): F = I + grad u from displacements
-    (``diagonal`` 1), grad x from positions or grad u (0); summed starting from the identity's entry."""
-    k = values.shape[1]
-    for i in range(3):
-        for l in range(3):
-            total = diagonal if i == l else 0.0
-            for a in range(k):
-                total += values[i, a] * g[a, l]
-            out[i, l] = total
+def _gradient(values, g, diagonal):  # pragma: no cover
+    """``diagonal`` I + sum_a values[:, a] g[a]^T (rows): F = I + grad u from displacements (``diagonal`` 1),
+    grad x from positions or grad u (0); each entry summed starting from the identity's."""
+    t00 = t11 = t22 = diagonal
+    t01 = t02 = t10 = t12 = t20 = t21 = 0.0
+    for a in range(values.shape[1]):
+        g0, g1, g2 = g[a, 0], g[a, 1], g[a, 2]
+        v0, v1, v2 = values[0, a], values[1, a], values[2, a]
+        t00 += v0 * g0
+        t01 += v0 * g1
+        t02 += v0 * g2
+        t10 += v1 * g0
+        t11 += v1 * g1
+        t12 += v1 * g2
+        t20 += v2 * g0
+        t21 += v2 * g1
+        t22 += v2 * g2
+    return (t00, t01, t02), (t10, t11, t12), (t20, t21, t22)
 
 
 @njit(cache=True, inline="always")
-def _vertices_upright(ue, checks, el, f):  # pragma: no cover
+def _vertices_upright(ue, checks, el):  # pragma: no cover
     """det F > 0 at the vertices of a quadratic element (``checks[el]``: the shape gradients there)."""
     for c in range(checks.shape[1]):
-        _gradient(ue, checks[el, c], f, 1.0)
-        if not _determinant(f) > 0.0:
+        if not _determinant(_gradient(ue, checks[el, c], 1.0)) > 0.0:
             return False
     return True
 
 
 @njit(cache=True, inline="always")
-def _displacement_gradient(ue, g, h, f):  # pragma: no cover
-    """H = grad u (into ``h``) and F = I + H (into ``f``) from the element's displacements and shape gradients."""
-    _gradient(ue, g, h, 0.0)
-    for i in range(3):
-        for l in range(3):
-            f[i, l] = h[i, l] + (1.0 if i == l else 0.0)
+def _displacement_gradient(ue, g):  # pragma: no cover
+    """H = grad u and F = I + H (rows) from the element's displacements and shape gradients."""
+    h = _gradient(ue, g, 0.0)
+    f = (h[0][0] + 1.0, h[0][1], h[0][2]), (h[1][0], h[1][1] + 1.0, h[1][2]), (h[2][0], h[2][1], h[2][2] + 1.0)
+    return h, f
 
 
 @njit(cache=True, inline="always")
-def _strain(h, e_):  # pragma: no cover
-    """Green strain E = (H + H^T + H^T H) / 2 from H without cancellation (into ``e_``); returns tr E, E : E and
+def _strain_entry(h, i, j):  # pragma: no cover
+    """E_ij = (sum_l H_li H_lj + H_ij + H_ji) / 2."""
+    return 0.5 * (h[0][i] * h[0][j] + h[1][i] * h[1][j] + h[2][i] * h[2][j] + h[i][j] + h[j][i])
+
+
+@njit(cache=True, inline="always")
+def _strain(h):  # pragma: no cover
+    """Green strain E = (H + H^T + H^T H) / 2 from H without cancellation (rows), tr E, E : E and
     J - 1 = tr H + (tr^2 H - tr H^2) / 2 + det H (accurate for small strains)."""
-    for i in range(3):
-        for j in range(3):
-            total = 0.0
-            for l in range(3):
-                total += h[l, i] * h[l, j]
-            e_[i, j] = 0.5 * (total + h[i, j] + h[j, i])
-    tr_h = h[0, 0] + h[1, 1] + h[2, 2]
-    square = 0.0
-    e_square = 0.0
-    for i in range(3):
-        for j in range(3):
-            square += h[i, j] * h[j, i]
-            e_square += e_[i, j] * e_[i, j]
+    e = (
+        (_strain_entry(h, 0, 0), _strain_entry(h, 0, 1), _strain_entry(h, 0, 2)),
+        (_strain_entry(h, 1, 0), _strain_entry(h, 1, 1), _strain_entry(h, 1, 2)),
+        (_strain_entry(h, 2, 0), _strain_entry(h, 2, 1), _strain_entry(h, 2, 2)),
+    )
+    tr_h = h[0][0] + h[1][1] + h[2][2]
+    square = (
+        h[0][0] * h[0][0] + h[0][1] * h[1][0] + h[0][2] * h[2][0]
+        + h[1][0] * h[0][1] + h[1][1] * h[1][1] + h[1][2] * h[2][1]
+        + h[2][0] * h[0][2] + h[2][1] * h[1][2] + h[2][2] * h[2][2]
+    )  # fmt: skip
+    e_square = (
+        e[0][0] * e[0][0] + e[0][1] * e[0][1] + e[0][2] * e[0][2]
+        + e[1][0] * e[1][0] + e[1][1] * e[1][1] + e[1][2] * e[1][2]
+        + e[2][0] * e[2][0] + e[2][1] * e[2][1] + e[2][2] * e[2][2]
+    )  # fmt: skip
     excess = tr_h + 0.5 * (tr_h * tr_h - square) + _determinant(h)
-    return e_[0, 0] + e_[1, 1] + e_[2, 2], e_square, excess
+    return e, e[0][0] + e[1][1] + e[2][2], e_square, excess
 
 
 @njit(cache=True, inline="always")
@@ -100,6 +125,45 @@ def _log_volume_ratio(excess, det):  # pragma: no cover
     if abs(excess) < 0.5:
         return np.log1p(excess)
     return np.log(det) if det > 0.0 else np.nan
+
+
+@njit(cache=True, inline="always")
+def _stvk_stress(e, tr, mu, lam):  # pragma: no cover
+    """The StVK part of the second Piola-Kirchhoff stress, S = 2 mu E + lam tr(E) I (rows)."""
+    d = lam * tr
+    return (
+        (2.0 * mu * e[0][0] + d, 2.0 * mu * e[0][1], 2.0 * mu * e[0][2]),
+        (2.0 * mu * e[1][0], 2.0 * mu * e[1][1] + d, 2.0 * mu * e[1][2]),
+        (2.0 * mu * e[2][0], 2.0 * mu * e[2][1], 2.0 * mu * e[2][2] + d),
+    )
+
+
+@njit(cache=True, inline="always")
+def _piola_entry(f, s, cof, vol, penalty, i, j):  # pragma: no cover
+    return vol * (f[i][0] * s[0][j] + f[i][1] * s[1][j] + f[i][2] * s[2][j]) + penalty * cof[i][j]
+
+
+@njit(cache=True, inline="always")
+def _weighted_piola(f, s, cof, vol, penalty):  # pragma: no cover
+    """V P = V (F S) + kappa V ln J F^-T (rows), ``penalty`` = kappa V ln J / det F (so that it multiplies cof F)."""
+    return (
+        (_piola_entry(f, s, cof, vol, penalty, 0, 0), _piola_entry(f, s, cof, vol, penalty, 0, 1),
+         _piola_entry(f, s, cof, vol, penalty, 0, 2)),
+        (_piola_entry(f, s, cof, vol, penalty, 1, 0), _piola_entry(f, s, cof, vol, penalty, 1, 1),
+         _piola_entry(f, s, cof, vol, penalty, 1, 2)),
+        (_piola_entry(f, s, cof, vol, penalty, 2, 0), _piola_entry(f, s, cof, vol, penalty, 2, 1),
+         _piola_entry(f, s, cof, vol, penalty, 2, 2)),
+    )  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _add_forces(p, g, dofs, el, gradient):  # pragma: no cover
+    """The element's nodal forces V P g_a added into ``gradient`` (3n,)."""
+    for a in range(g.shape[0]):
+        g0, g1, g2 = g[a, 0], g[a, 1], g[a, 2]
+        gradient[dofs[el, a, 0]] += p[0][0] * g0 + p[0][1] * g1 + p[0][2] * g2
+        gradient[dofs[el, a, 1]] += p[1][0] * g0 + p[1][1] * g1 + p[1][2] * g2
+        gradient[dofs[el, a, 2]] += p[2][0] * g0 + p[2][1] * g1 + p[2][2] * g2
 
 
 #: elements per block: the block's rows of the inputs (about fifteen of 8 kB each) stay in cache
@@ -192,60 +256,103 @@ def energy_and_gradient(u, grads, weights, checks, lam, mu, kappa, dofs, gradien
     """
     m, n_points, k, _ = grads.shape
     ue = np.empty((3, k))
-    h = np.empty((3, 3))
-    f = np.empty((3, 3))
-    cof = np.empty((3, 3))
-    e_ = np.empty((3, 3))
-    p_ = np.empty((3, 3))
     energy = 0.0
     for el in range(m):
         _gather(u, dofs, el, ue)
-        if not _vertices_upright(ue, checks, el, f):
+        if not _vertices_upright(ue, checks, el):
             return np.inf, False
         for q in range(n_points):
-            _displacement_gradient(ue, grads[el, q], h, f)
-            det = _cofactor(f, cof)
+            g = grads[el, q]
+            h, f = _displacement_gradient(ue, g)
+            det, cof = _cofactor(f)
             if not det > 0.0:
                 return np.inf, False
-            tr, e_square, excess = _strain(h, e_)
+            e, tr, e_square, excess = _strain(h)
             log_j = _log_volume_ratio(excess, det)
             vol = weights[el, q]
             energy += vol * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
-            if not want_gradient:
-                continue
-            # V P = V (F S) + kappa V ln J F^-T,  S = 2 mu E + lam tr E I
-            penalty = kappa[el] * vol * log_j / det
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        s_lj = 2.0 * mu[el] * e_[l, j] + (lam[el] * tr if l == j else 0.0)
-                        total += f[i, l] * s_lj
-                    p_[i, j] = vol * total + penalty * cof[i, j]
-            for a in range(k):
-                for i in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += p_[i, l] * grads[el, q, a, l]
-                    gradient[dofs[el, a, i]] += total
+            if want_gradient:
+                s = _stvk_stress(e, tr, mu[el], lam[el])
+                _add_forces(_weighted_piola(f, s, cof, vol, kappa[el] * vol * log_j / det), g, dofs, el, gradient)
     return energy, True
 
 
 @njit(cache=True, inline="always")
-def _lowest_eigenvalue(s):  # pragma: no cover
-    """The smallest eigenvalue of a symmetric 3 x 3 matrix (Smith's closed form, as
-    :func:`.stvk.symmetric_eigenvalues`)."""
-    q = (s[0, 0] + s[1, 1] + s[2, 2]) / 3.0
-    off = s[0, 1] ** 2 + s[0, 2] ** 2 + s[1, 2] ** 2
-    d0, d1, d2 = s[0, 0] - q, s[1, 1] - q, s[2, 2] - q
+def _extreme_eigenvalues(s):  # pragma: no cover
+    """The smallest and the largest eigenvalue of a symmetric 3 x 3 matrix (rows), by Smith's closed form
+    (as :func:`.stvk.symmetric_eigenvalues`: one arccos for both)."""
+    q = (s[0][0] + s[1][1] + s[2][2]) / 3.0
+    off = s[0][1] ** 2 + s[0][2] ** 2 + s[1][2] ** 2
+    d0, d1, d2 = s[0][0] - q, s[1][1] - q, s[2][2] - q
     p = np.sqrt((d0**2 + d1**2 + d2**2 + 2.0 * off) / 6.0)
     safe = p if p > 0 else 1.0
     b00, b11, b22 = d0 / safe, d1 / safe, d2 / safe
-    b01, b02, b12 = s[0, 1] / safe, s[0, 2] / safe, s[1, 2] / safe
+    b01, b02, b12 = s[0][1] / safe, s[0][2] / safe, s[1][2] / safe
     r = 0.5 * (b00 * (b11 * b22 - b12**2) - b01 * (b01 * b22 - b12 * b02) + b02 * (b01 * b12 - b11 * b02))
     r = min(max(r, -1.0), 1.0)
     phi = np.arccos(r) / 3.0
-    return q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+    return q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q + 2.0 * p * np.cos(phi)
+
+
+@njit(cache=True, inline="always")
+def _shifted(s, shift):  # pragma: no cover
+    """S + shift I (rows)."""
+    return (s[0][0] + shift, s[0][1], s[0][2]), (s[1][0], s[1][1] + shift, s[1][2]), (s[2][0], s[2][1], s[2][2] + shift)
+
+
+@njit(cache=True, inline="always")
+def _outer_rows(f):  # pragma: no cover
+    """F F^T (rows): (F F^T)_ij = F_i . F_j, F_i the rows of F."""
+    return _row_products(f[0], f), _row_products(f[1], f), _row_products(f[2], f)
+
+
+@njit(cache=True, inline="always")
+def _row_products(row, f):  # pragma: no cover
+    return (
+        row[0] * f[0][0] + row[1] * f[0][1] + row[2] * f[0][2],
+        row[0] * f[1][0] + row[1] * f[1][1] + row[2] * f[1][2],
+        row[0] * f[2][0] + row[1] * f[2][1] + row[2] * f[2][2],
+    )
+
+
+@njit(cache=True, inline="always")
+def _tangent_entry(factors, i, j):  # pragma: no cover
+    """Entry (i, j) of block (a, b) of one point's element tangent, without its delta_ij (g_a . S g_b) term:
+    w_gg (F F^T)_ij + mu V (F g_a)_j (F g_b)_i + lam V (F g_a)_i (F g_b)_j + kappa V (q_ai q_bj - ln J q_aj q_bi),
+    the factors pre-scaled by V and the moduli (five multiply-adds)."""
+    w_gg, fft, mu_fg_a, lam_fg_a, kappa_qg_a, swapped_qg_a, fg_b, qg_b = factors
+    return (
+        w_gg * fft[i][j]
+        + mu_fg_a[j] * fg_b[i]
+        + lam_fg_a[i] * fg_b[j]
+        + kappa_qg_a[i] * qg_b[j]
+        - swapped_qg_a[j] * qg_b[i]
+    )
+
+
+@njit(cache=True, inline="always")
+def _tangent_block(factors):  # pragma: no cover
+    """The block's nine entries (rows) by :func:`_tangent_entry`."""
+    return (
+        (_tangent_entry(factors, 0, 0), _tangent_entry(factors, 0, 1), _tangent_entry(factors, 0, 2)),
+        (_tangent_entry(factors, 1, 0), _tangent_entry(factors, 1, 1), _tangent_entry(factors, 1, 2)),
+        (_tangent_entry(factors, 2, 0), _tangent_entry(factors, 2, 1), _tangent_entry(factors, 2, 2)),
+    )
+
+
+@njit(cache=True, inline="always")
+def _add_block(block, w_gsg, data, where, size, row, col):  # pragma: no cover
+    """A final block (of an element with one quadrature point), its delta_ij term ``w_gsg`` included, added into
+    the global values ``data`` at ``where`` (the element's entry (r, c) at ``where[size r + c]``) and mirrored;
+    of a diagonal block (row == col) the upper half."""
+    for i in range(3):
+        for j in range(3):
+            r, c = row + i, col + j
+            if c >= r:
+                value = block[i][j] + w_gsg if i == j else block[i][j]
+                data[where[r * size + c]] += value
+                if c != r:
+                    data[where[c * size + r]] += value
 
 
 @njit(cache=True, nogil=True)
@@ -262,6 +369,7 @@ def assembled_tangent(  # pragma: no cover
     the first-level cache; its entries are then added into the global
     tangent's values ``data`` (nnz,) at ``positions`` (m, 3k * 3k), the
     element's entry (r, c) at ``positions[e, 3k r + c]`` (and mirrored).
+    With one point the blocks are added as they are computed.
     Entry (a, i, b, j), as :func:`element_tangents`:
 
         sum_p vol [ mu (g_a . g_b) (F F^T)_ij + delta_ij g_a . S g_b + lam (F g_a)_i (F g_b)_j
@@ -278,12 +386,6 @@ def assembled_tangent(  # pragma: no cover
     size = 3 * k
     ke = np.empty((size, size))
     ue = np.empty((3, k))
-    h = np.empty((3, 3))
-    f = np.empty((3, 3))
-    cof = np.empty((3, 3))
-    e_ = np.empty((3, 3))
-    s_ = np.empty((3, 3))
-    fft = np.empty((3, 3))
     fg = np.empty((k, 3))
     qg = np.empty((k, 3))
     sg = np.empty((k, 3))
@@ -294,7 +396,7 @@ def assembled_tangent(  # pragma: no cover
     energy = 0.0
     for el in range(m):
         _gather(u, dofs, el, ue)
-        if not _vertices_upright(ue, checks, el, f):
+        if not _vertices_upright(ue, checks, el):
             return np.inf, False
         for r in range(size):
             for c in range(r, size):
@@ -302,57 +404,36 @@ def assembled_tangent(  # pragma: no cover
         mu_e, lam_e, kappa_e = mu[el], lam[el], kappa[el]
         for q in range(n_points):
             g = grads[el, q]
-            _displacement_gradient(ue, g, h, f)
-            det = _cofactor(f, cof)
+            h, f = _displacement_gradient(ue, g)
+            det, cof = _cofactor(f)
             if not det > 0.0:
                 return np.inf, False
-            tr, e_square, excess = _strain(h, e_)
+            e, tr, e_square, excess = _strain(h)
             log_j = _log_volume_ratio(excess, det)
             vol = weights[el, q]
             energy += vol * (0.5 * lam_e * tr * tr + mu_e * e_square + 0.5 * kappa_e * log_j * log_j)
-            for i in range(3):
-                for j in range(3):
-                    s_[i, j] = 2.0 * mu_e * e_[i, j] + (lam_e * tr if i == j else 0.0)
-            if want_gradient:  # the forces: V P = V (F S) + kappa V ln J F^-T
-                penalty = kappa_e * vol * log_j / det
-                for i in range(3):
-                    for j in range(3):
-                        total = 0.0
-                        for l in range(3):
-                            total += f[i, l] * s_[l, j]
-                        fft[i, j] = vol * total + penalty * cof[i, j]  # (V P, in fft until the forces are added)
-                for a in range(k):
-                    for i in range(3):
-                        total = 0.0
-                        for l in range(3):
-                            total += fft[i, l] * g[a, l]
-                        gradient[dofs[el, a, i]] += total
+            s = _stvk_stress(e, tr, mu_e, lam_e)
+            if want_gradient:
+                _add_forces(_weighted_piola(f, s, cof, vol, kappa_e * vol * log_j / det), g, dofs, el, gradient)
             swapped = log_j
             if definite:
-                lowest = _lowest_eigenvalue(s_)
+                lowest = _extreme_eigenvalues(s)[0]
                 if lowest < 0.0:
-                    for i in range(3):
-                        s_[i, i] -= lowest
+                    s = _shifted(s, -lowest)
                 swapped = 0.0
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += f[i, l] * f[j, l]
-                    fft[i, j] = total
+            fft = _outer_rows(f)  # F F^T
             inv_det = 1.0 / det
             for a in range(k):
-                for i in range(3):
-                    t_f = 0.0
-                    t_q = 0.0
-                    t_s = 0.0
-                    for l in range(3):
-                        t_f += f[i, l] * g[a, l]
-                        t_q += cof[i, l] * g[a, l]
-                        t_s += s_[i, l] * g[a, l]
-                    fg[a, i] = t_f
-                    qg[a, i] = t_q * inv_det
-                    sg[a, i] = t_s
+                g0, g1, g2 = g[a, 0], g[a, 1], g[a, 2]
+                fg[a, 0] = f[0][0] * g0 + f[0][1] * g1 + f[0][2] * g2
+                fg[a, 1] = f[1][0] * g0 + f[1][1] * g1 + f[1][2] * g2
+                fg[a, 2] = f[2][0] * g0 + f[2][1] * g1 + f[2][2] * g2
+                qg[a, 0] = (cof[0][0] * g0 + cof[0][1] * g1 + cof[0][2] * g2) * inv_det
+                qg[a, 1] = (cof[1][0] * g0 + cof[1][1] * g1 + cof[1][2] * g2) * inv_det
+                qg[a, 2] = (cof[2][0] * g0 + cof[2][1] * g1 + cof[2][2] * g2) * inv_det
+                sg[a, 0] = s[0][0] * g0 + s[0][1] * g1 + s[0][2] * g2
+                sg[a, 1] = s[1][0] * g0 + s[1][1] * g1 + s[1][2] * g2
+                sg[a, 2] = s[2][0] * g0 + s[2][1] * g1 + s[2][2] * g2
             # pre-scaled rows: each entry of a 3 x 3 block is then five fused multiply-adds
             v_mu, v_lam, v_kappa = vol * mu_e, vol * lam_e, vol * kappa_e
             v_swapped = v_kappa * swapped
@@ -363,21 +444,29 @@ def assembled_tangent(  # pragma: no cover
                     kappa_qg[a, i] = v_kappa * qg[a, i]
                     swapped_qg[a, i] = v_swapped * qg[a, i]
             for a in range(k):
+                # row a's factors and then row b's as scalars: loads the stores into ``ke`` cannot alias
+                g_a = (g[a, 0], g[a, 1], g[a, 2])
+                mu_fg_a = (mu_fg[a, 0], mu_fg[a, 1], mu_fg[a, 2])
+                lam_fg_a = (lam_fg[a, 0], lam_fg[a, 1], lam_fg[a, 2])
+                kappa_qg_a = (kappa_qg[a, 0], kappa_qg[a, 1], kappa_qg[a, 2])
+                swapped_qg_a = (swapped_qg[a, 0], swapped_qg[a, 1], swapped_qg[a, 2])
                 for b in range(a, k):
-                    w_gg = v_mu * (g[a, 0] * g[b, 0] + g[a, 1] * g[b, 1] + g[a, 2] * g[b, 2])
-                    w_gsg = vol * (g[a, 0] * sg[b, 0] + g[a, 1] * sg[b, 1] + g[a, 2] * sg[b, 2])
-                    # the whole 3 x 3 block, also on the diagonal (constant trip counts: unrolled; the lower
-                    # half of a diagonal block is computed and never read)
+                    fg_b = (fg[b, 0], fg[b, 1], fg[b, 2])
+                    qg_b = (qg[b, 0], qg[b, 1], qg[b, 2])
+                    w_gg = v_mu * (g_a[0] * g[b, 0] + g_a[1] * g[b, 1] + g_a[2] * g[b, 2])
+                    w_gsg = vol * (g_a[0] * sg[b, 0] + g_a[1] * sg[b, 1] + g_a[2] * sg[b, 2])
+                    factors = (w_gg, fft, mu_fg_a, lam_fg_a, kappa_qg_a, swapped_qg_a, fg_b, qg_b)
+                    if n_points == 1:  # the block is final: added straight into the global values, and mirrored
+                        _add_block(_tangent_block(factors), w_gsg, data, positions[el], size, 3 * a, 3 * b)
+                        continue
+                    # the whole 3 x 3 block, also on the diagonal (constant trip counts: unrolled; the lower half
+                    # of a diagonal block is computed and never read)
                     for i in range(3):
                         for j in range(3):
-                            ke[3 * a + i, 3 * b + j] += (
-                                w_gg * fft[i, j]
-                                + mu_fg[a, j] * fg[b, i]
-                                + lam_fg[a, i] * fg[b, j]
-                                + kappa_qg[a, i] * qg[b, j]
-                                - swapped_qg[a, j] * qg[b, i]
-                            )
+                            ke[3 * a + i, 3 * b + j] += _tangent_entry(factors, i, j)
                         ke[3 * a + i, 3 * b + i] += w_gsg
+        if n_points == 1:
+            continue
         for r in range(size):  # mirrored in the local array, then added in one contiguous sweep
             for c in range(r + 1, size):
                 ke[c, r] = ke[r, c]
@@ -386,6 +475,23 @@ def assembled_tangent(  # pragma: no cover
         for t in range(size * size):
             data[where[t]] += flat[t]
     return energy, True
+
+
+@njit(cache=True, nogil=True)
+def upright(x, grads, checks, dofs):  # pragma: no cover
+    """Whether det F > 0 (F from the positions ``x`` (3n,)) at every quadrature point and, quadratic, every
+    vertex of every element: :meth:`.stvk.StVKElements.volume_ratio` all positive, without the ratios."""
+    m, n_points, k, _ = grads.shape
+    xe = np.empty((3, k))
+    for el in range(m):
+        _gather(x, dofs, el, xe)
+        for q in range(n_points):
+            if not _determinant(_gradient(xe, grads[el, q], 0.0)) > 0.0:
+                return False
+        for c in range(checks.shape[1]):
+            if not _determinant(_gradient(xe, checks[el, c], 0.0)) > 0.0:
+                return False
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -408,52 +514,40 @@ def state_summary(x, u, grads, weights, checks, lam, mu, kappa, dofs, ratio, str
     a sliver stays resolved), the strain from the displacements ``u`` (3n,) without cancellation.
     """
     m, n_points, k, _ = grads.shape
-    n_checks = checks.shape[1]
     xe = np.empty((3, k))
     ue = np.empty((3, k))
-    h = np.empty((3, 3))
-    f = np.empty((3, 3))
-    cof = np.empty((3, 3))
-    e_ = np.empty((3, 3))
-    s_ = np.empty((3, 3))
     energy = 0.0
     for el in range(m):
         _gather(x, dofs, el, xe)
         _gather(u, dofs, el, ue)
         lowest = np.inf
-        for c in range(n_checks):
-            _gradient(xe, checks[el, c], f, 0.0)
-            lowest = _smaller(lowest, _determinant(f))
+        for c in range(checks.shape[1]):
+            lowest = _smaller(lowest, _determinant(_gradient(xe, checks[el, c], 0.0)))
         largest = 0.0
         for q in range(n_points):
-            _gradient(ue, grads[el, q], h, 0.0)  # H = grad u
-            _gradient(xe, grads[el, q], f, 0.0)  # F = grad x
-            det = _cofactor(f, cof)
+            h = _gradient(ue, grads[el, q], 0.0)  # H = grad u
+            f = _gradient(xe, grads[el, q], 0.0)  # F = grad x
+            det, cof = _cofactor(f)
             lowest = _smaller(lowest, det)
-            tr, e_square, excess = _strain(h, e_)
+            e, tr, e_square, excess = _strain(h)
             log_j = _log_volume_ratio(excess, det)
             energy += weights[el, q] * (0.5 * lam[el] * tr * tr + mu[el] * e_square + 0.5 * kappa[el] * log_j * log_j)
             # S = lam tr E I + 2 mu E + kappa ln J C^-1, C^-1 = F^-1 F^-T = (cof / det)^T (cof / det)
+            s = _stvk_stress(e, tr, mu[el], lam[el])
             penalty = kappa[el] * log_j / (det * det)
-            finite = True
-            for i in range(3):
-                for j in range(3):
-                    total = 0.0
-                    for l in range(3):
-                        total += cof[l, i] * cof[l, j]
-                    s_[i, j] = 2.0 * mu[el] * e_[i, j] + (lam[el] * tr if i == j else 0.0) + penalty * total
-                    if not np.isfinite(s_[i, j]):
-                        finite = False
-            if not finite:
+            s = (
+                (s[0][0] + penalty * _column_product(cof, 0, 0), s[0][1] + penalty * _column_product(cof, 0, 1),
+                 s[0][2] + penalty * _column_product(cof, 0, 2)),
+                (s[1][0] + penalty * _column_product(cof, 1, 0), s[1][1] + penalty * _column_product(cof, 1, 1),
+                 s[1][2] + penalty * _column_product(cof, 1, 2)),
+                (s[2][0] + penalty * _column_product(cof, 2, 0), s[2][1] + penalty * _column_product(cof, 2, 1),
+                 s[2][2] + penalty * _column_product(cof, 2, 2)),
+            )  # fmt: skip
+            if not _finite(s):
                 largest = np.inf
                 continue
-            low = _lowest_eigenvalue(s_)
-            trace = s_[0, 0] + s_[1, 1] + s_[2, 2]
-            # the highest eigenvalue: the lowest of -S
-            for i in range(3):
-                for j in range(3):
-                    s_[i, j] = -s_[i, j]
-            high = -_lowest_eigenvalue(s_)
+            low, high = _extreme_eigenvalues(s)
+            trace = s[0][0] + s[1][1] + s[2][2]
             value = max(abs(low), abs(high))
             if not np.isfinite(value) or not np.isfinite(trace):
                 value = np.inf
@@ -463,3 +557,19 @@ def state_summary(x, u, grads, weights, checks, lam, mu, kappa, dofs, ratio, str
         if not lowest > 0.0:
             energy = np.inf
     return energy
+
+
+@njit(cache=True, inline="always")
+def _column_product(c, i, j):  # pragma: no cover
+    """(C^T C)_ij: the product of columns i and j of C."""
+    return c[0][i] * c[0][j] + c[1][i] * c[1][j] + c[2][i] * c[2][j]
+
+
+@njit(cache=True, inline="always")
+def _finite(s):  # pragma: no cover
+    """Every entry of the 3 x 3 rows ``s`` finite."""
+    return (
+        np.isfinite(s[0][0]) and np.isfinite(s[0][1]) and np.isfinite(s[0][2])
+        and np.isfinite(s[1][0]) and np.isfinite(s[1][1]) and np.isfinite(s[1][2])
+        and np.isfinite(s[2][0]) and np.isfinite(s[2][1]) and np.isfinite(s[2][2])
+    )  # fmt: skip

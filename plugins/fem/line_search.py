@@ -15,7 +15,15 @@ import numpy as np
 MAX_TRIALS = 60
 
 
-def line_search(gradient, x, energy, grad, direction, free, options, result, max_trials: int = MAX_TRIALS):
+def free_residual(gradient: np.ndarray, held: np.ndarray) -> float:
+    """The largest residual force |g| on a free degree of freedom (N); ``held``: the prescribed ones' indices
+    (fewer than the free ones: zeroing them beats gathering the rest)."""
+    forces = np.abs(gradient)
+    forces[held] = 0.0
+    return float(forces.max(initial=0.0))
+
+
+def line_search(gradient, x, energy, grad, direction, held, options, result, max_trials: int = MAX_TRIALS):
     """A step along ``direction`` that decreases Π enough: the accepted fraction and (Π, gradient)
     there, or (``None``, ``None``). Every trial computes the gradient with Π in one pass over the
     elements (the accepted trial's is needed next, and the others' give the slope of Π).
@@ -37,11 +45,11 @@ def line_search(gradient, x, energy, grad, direction, free, options, result, max
     residual force instead.
 
     ``gradient(x)`` gives Π and its gradient at x ((inf, None) where an
-    element is inverted); ``free`` masks the free degrees of freedom;
+    element is inverted); ``held``: the prescribed degrees of freedom's indices;
     ``result.line_search_cuts`` counts the trials after the first.
     """
     slope = float(np.dot(grad, direction))
-    residual = float(np.abs(grad[free]).max(initial=0.0))
+    residual = free_residual(grad, held)
     low, low_value, low_slope = 0.0, energy, slope  # Armijo holds here and Π decreases beyond
     high, high_value, high_slope = 1.0, np.inf, None  # the minimiser lies before here
     best = None  # (fraction, Π, gradient) of the lowest trial that satisfies Armijo
@@ -62,7 +70,7 @@ def line_search(gradient, x, energy, grad, direction, free, options, result, max
         if np.isfinite(value) and abs(value - energy) <= 1e-12 * max(abs(energy), 1e-30) + 1e-300:
             # near the solution Π changes less than its rounding error and cannot judge a step (its
             # noise could pass Armijo's test): accept a step that reduces the residual, and only that
-            if trial_grad is not None and float(np.abs(trial_grad[free]).max(initial=0.0)) < residual:
+            if trial_grad is not None and free_residual(trial_grad, held) < residual:
                 return fraction, (value, trial_grad)
             high, high_value, high_slope = fraction, value, None
             continue

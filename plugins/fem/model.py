@@ -412,7 +412,7 @@ class StVKModel(DeformableModel):
         shift = None
         if initial is not None:
             start = np.asarray(initial.positions, dtype=float)
-            if start.shape == x0.shape and np.all(np.isfinite(start)) and np.all(self.kernel.volume_ratio(start) > 0):
+            if start.shape == x0.shape and np.all(np.isfinite(start)) and self.kernel.upright(start):
                 x0 = start
                 shift = self._shift_hint(initial)
         key = self._factor_key(x0, prescribed, shift)

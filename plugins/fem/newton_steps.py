@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .line_search import free_residual
 from .tangent_factor import CachedFactor
 
 
@@ -21,42 +22,44 @@ class NewtonSteps:
     """How :class:`~.newton.EquilibriumSolver` steps (a mix-in; see the module docstring)."""
 
     @staticmethod
-    def _remember(pairs, step, change, prescribed, history: int) -> None:
-        """Keep the secant pair (s, y) of a corrector step (free dofs) when its curvature s.y is positive."""
+    def _remember(pairs, step, change, held, history: int) -> None:
+        """Keep the secant pair (s, y) of a corrector step (free dofs: ``held`` the prescribed ones' indices)
+        when its curvature s.y is positive."""
         y = change.copy()
-        y[prescribed] = 0.0
+        y[held] = 0.0
         s = step.copy()
-        s[prescribed] = 0.0
+        s[held] = 0.0
         sy = float(s @ y)
         if sy > 1e-12 * float(np.sqrt((s @ s) * (y @ y))):  # otherwise the update would not stay definite
             pairs.append((s, y, 1.0 / sy))
             if len(pairs) > history:
                 pairs.pop(0)
 
-    def _direction(self, factor: CachedFactor, grad, prescribed, pending, pairs) -> np.ndarray | None:
+    def _direction(self, factor: CachedFactor, grad, held, pending, pairs) -> np.ndarray | None:
         """The step (3n,): with the pending prescribed motion, the predictor ``K_ff d_f = -(g_f + K_fc d_c)``;
         else the L-BFGS step on top of the factored tangent (``pairs`` empty: ``K d = -g``, a Newton or
-        chord step). ``None`` when it is not finite or, in the corrector, not a descent direction."""
+        chord step). ``held``: the prescribed dofs' indices. ``None`` when it is not finite or, in the corrector,
+        not a descent direction."""
         moving = bool(np.any(pending != 0.0))
         if moving or not pairs:
             rhs = -grad
             if moving:
                 motion = np.zeros_like(grad)
-                motion[prescribed] = pending
+                motion[held] = pending
                 rhs = rhs - self.pattern.matvec(factor.data, motion)
-            rhs[prescribed] = factor.diagonal[prescribed] * pending  # scaled identity rows: returns the motion
+            rhs[held] = factor.diagonal[held] * pending  # scaled identity rows: returns the motion
             direction = factor.lu.solve(rhs)
-            direction[prescribed] = pending  # exactly, not as rounded by the solve
+            direction[held] = pending  # exactly, not as rounded by the solve
         else:  # the two-loop recursion (Nocedal & Wright, Algorithm 7.4) with H0 = K^-1
             q = grad.copy()
-            q[prescribed] = 0.0
+            q[held] = 0.0
             alphas = []
             for s, y, rho in reversed(pairs):
                 alpha = rho * float(s @ q)
                 q -= alpha * y
                 alphas.append(alpha)
             r = factor.lu.solve(q)
-            r[prescribed] = 0.0
+            r[held] = 0.0
             for (s, y, rho), alpha in zip(pairs, reversed(alphas), strict=True):
                 r += (alpha - rho * float(y @ r)) * s
             direction = -r
@@ -66,7 +69,7 @@ class NewtonSteps:
             return None
         return direction
 
-    def _cut_to_valid(self, x, direction, prescribed, goal, pending, result):
+    def _cut_to_valid(self, x, direction, held, goal, pending, result):
         """The largest fraction (halving from 1) of a predictor step that inverts no element, that state,
         and (Π, gradient) there (computed anyway to test it, and needed next).
 
@@ -76,7 +79,7 @@ class NewtonSteps:
         fraction = 1.0
         while fraction >= 1e-4:
             trial = x + fraction * direction
-            trial[prescribed] = goal - (1.0 - fraction) * pending if fraction < 1.0 else goal
+            trial[held] = goal - (1.0 - fraction) * pending if fraction < 1.0 else goal
             evaluated = self._gradient(trial)
             if evaluated[1] is not None:
                 return fraction, trial, evaluated
@@ -84,7 +87,7 @@ class NewtonSteps:
             result.line_search_cuts += 1
         return None, x, None
 
-    def _split_predictor(self, x, x_full, evaluated, direction, prescribed, goal, pending, free, limit: float):
+    def _split_predictor(self, x, x_full, evaluated, direction, held, goal, pending, limit: float):
         """Half the first predictor step when the whole one would leave a residual force above ``limit`` (N).
 
         ``evaluated``: (Π, gradient) at ``x_full``. Returns (fraction, state, (Π, gradient) at the state if
@@ -99,10 +102,10 @@ class NewtonSteps:
         linear prediction is good, is taken whole.
         """
         energy, grad = evaluated
-        if grad is None or float(np.abs(grad[free]).max(initial=0.0)) <= limit:
+        if grad is None or free_residual(grad, held) <= limit:
             return 1.0, x_full, (energy, grad)
         half = x + 0.5 * direction
-        half[prescribed] = goal - 0.5 * pending
+        half[held] = goal - 0.5 * pending
         if not np.isfinite(self._energy(half)):
             return 1.0, x_full, (energy, grad)
         return 0.5, half, None

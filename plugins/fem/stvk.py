@@ -166,8 +166,8 @@ class StVKElements:
     @staticmethod
     def _det_and_cofactor(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """det F and cof F = J F^-T, components first, by closed forms."""
-        cof = np.empty_like(f)
-        return cofactor(f, cof), cof
+        det, rows = cofactor(f)
+        return det, np.array(rows)
 
     _det = staticmethod(determinant)
 
@@ -181,6 +181,14 @@ class StVKElements:
         dets = [self._det(_matmul(xe, p.grad)) for p in self.points]
         dets += [self._det(_matmul(xe, g)) for g in self._checks]
         return np.min(dets, axis=0) if len(dets) > 1 else dets[0]
+
+    def upright(self, x: np.ndarray) -> bool:
+        """Whether every element has a positive volume ratio at positions x (n, 3) or (3n,): all of
+        :meth:`volume_ratio` positive, by one compiled pass that stops at the first that is not."""
+        from .kernels import upright
+
+        grads, checks, _, dofs = self._compiled_inputs()
+        return bool(upright(np.ascontiguousarray(x, dtype=float).ravel(), grads, checks, dofs))
 
     def _strain(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Green strain E (3, 3, m) and tr E from F (loses eps |F|^2: see :meth:`_strain_h`)."""
