@@ -527,3 +527,41 @@ def test_the_synthetic_hand_stays_inside_the_trainer_box():
     np.testing.assert_array_equal(held[inside], free[inside])  # the walls change nothing inside the box
     np.testing.assert_allclose(held[:, 2], np.minimum(free[:, 2], hi[2]))
     assert len(times) == len(held)
+
+
+def test_a_guide_attempt_runs_as_a_paced_loop_and_gives_the_process_back(tmp_path, monkeypatch):
+    """While the attempt runs, the source's thread and the stage's ask the scheduler for the short slice
+    (scheduling.LOOP_SLICE: a waking one preempts a busy viewer instead of waiting out its slice) and the GIL
+    changes hands within scheduling.SWITCH_INTERVAL (the live feed's sender runs in this process); afterwards the
+    stage's thread and the switch interval are as they were."""
+    import threading
+
+    from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
+    from surgiplan.scheduling import LOOP_SLICE, SWITCH_INTERVAL, restore_priority, sched_attr, set_realtime_priority
+
+    before = sched_attr()
+    granted = sched_attr() if (asked := set_realtime_priority(None)) is not None else None
+    restore_priority(asked)
+    slice_ns = round(LOOP_SLICE * 1e9)
+    seen = []
+    original = SyntheticTrainee.samples
+    stage_thread = threading.get_native_id()
+
+    def watched(self):
+        for i, sample in enumerate(original(self)):
+            if i == 5:
+                seen.append((sched_attr(), sched_attr(stage_thread), sys.getswitchinterval()))
+            yield sample
+
+    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    switch = sys.getswitchinterval()
+    outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
+    assert outcome.results[1].status in ("completed", "incomplete")
+    ((source_attr, stage_attr, interval),) = seen
+    assert interval == SWITCH_INTERVAL and sys.getswitchinterval() == switch
+    if granted is None or granted.runtime != slice_ns:
+        pytest.skip(f"this kernel grants no slice to an ordinary thread ({os.uname().release})")
+    assert source_attr.policy == stage_attr.policy == os.SCHED_OTHER
+    assert source_attr.runtime == stage_attr.runtime == slice_ns
+    assert sched_attr() == before

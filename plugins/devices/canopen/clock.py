@@ -13,93 +13,20 @@ simulated drives run in a thread of their own.
 
 from __future__ import annotations
 
-import ctypes
 import heapq
 import itertools
-import os
-import struct
 import threading
 import time
 from collections.abc import Callable
-from typing import NamedTuple
 
-#: the slice (s) a real-time loop's threads ask of the scheduler at ordinary priority (SCHED_OTHER): Linux's EEVDF
-#: scheduler (6.12 and later) gives a waking task with a short slice an earlier deadline, so that it preempts a
-#: task that has run longer instead of waiting for that one's slice (1.4 ms by default here) to end; its share of
-#: the CPU is unchanged. 0.1 ms is the shortest the kernel grants.
-LOOP_SLICE = 1e-4
-
-#: struct sched_attr, its first version
-_SCHED_ATTR = struct.Struct("<IIQiIQQQ")
-
-
-class SchedAttr(NamedTuple):
-    """A thread's scheduling attributes (Linux's struct sched_attr; ``runtime``: its slice at ordinary priority, ns)."""
-
-    size: int
-    policy: int
-    flags: int
-    nice: int
-    priority: int
-    runtime: int
-    deadline: int
-    period: int
-
-
-#: sched_setattr and sched_getattr (Linux system call numbers per architecture)
-_SCHED_ATTR_CALLS = {"x86_64": (314, 315), "aarch64": (274, 275)}
-
-
-def set_realtime_priority(priority: int | None, thread_id: int = 0) -> tuple[int, int] | SchedAttr | None:
-    """Run a thread (``thread_id``: its native id; 0: the calling thread) under SCHED_FIFO at ``priority``
-    (1-99), as a controller with real-time scheduling runs its control loop (Linux; needs CAP_SYS_NICE).
-    ``priority`` None: ordinary scheduling, an ordinary thread asking for a short slice (:data:`LOOP_SLICE`;
-    where the system has no such request, or the thread is not ordinary, nothing changes).
-
-    Returns what to restore with :func:`restore_priority` (None: nothing changed). Raises PermissionError or
-    OSError where SCHED_FIFO is not allowed.
-    """
-    if priority is None:
-        return _ask_slice(thread_id, LOOP_SLICE)
-    previous = (os.sched_getscheduler(thread_id), os.sched_getparam(thread_id).sched_priority)
-    os.sched_setscheduler(thread_id, os.SCHED_FIFO, os.sched_param(priority))
-    return previous
-
-
-def restore_priority(previous: tuple[int, int] | SchedAttr | None, thread_id: int = 0) -> None:
-    if previous is None:
-        return
-    if isinstance(previous, SchedAttr):  # a slice asked for: the attributes as they were
-        sched_attr(thread_id, previous)
-    else:
-        os.sched_setscheduler(thread_id, previous[0], os.sched_param(previous[1]))
-
-
-def sched_attr(thread_id: int = 0, attr: SchedAttr | None = None) -> SchedAttr | None:
-    """A thread's scheduling attributes (``attr`` None), or set them to ``attr``; None where the system cannot."""
-    calls = _SCHED_ATTR_CALLS.get(os.uname().machine) if hasattr(os, "uname") else None
-    if calls is None:
-        return None
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if attr is not None:
-            done = libc.syscall(calls[0], thread_id, ctypes.create_string_buffer(_SCHED_ATTR.pack(*attr)), 0) == 0
-            return attr if done else None
-        buffer = ctypes.create_string_buffer(_SCHED_ATTR.size)
-        if libc.syscall(calls[1], thread_id, buffer, _SCHED_ATTR.size, 0) != 0:
-            return None
-    except (OSError, AttributeError):
-        return None
-    return SchedAttr(*_SCHED_ATTR.unpack(buffer.raw))
-
-
-def _ask_slice(thread_id: int, slice_s: float) -> SchedAttr | None:
-    """An ordinary thread's slice set to ``slice_s``; returns its attributes before, None if nothing changed."""
-    previous = sched_attr(thread_id)
-    if previous is None or previous.policy != os.SCHED_OTHER:
-        return None
-    wanted = previous._replace(size=_SCHED_ATTR.size, flags=0, runtime=round(slice_s * 1e9))
-    return previous if sched_attr(thread_id, wanted) is not None else None
+from surgiplan.scheduling import (  # noqa: F401  (where the device plugins import them)
+    LOOP_SLICE,
+    SchedAttr,
+    precise_timer_slack,
+    restore_priority,
+    sched_attr,
+    set_realtime_priority,
+)
 
 
 class Timer:
@@ -231,13 +158,7 @@ class RealTimeClock(Clock):
     @staticmethod
     def precise() -> bool:
         """Timer slack 1 us for the calling thread (Linux); False where not available."""
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            return libc.prctl(29, 1000, 0, 0, 0) == 0  # PR_SET_TIMERSLACK, in ns
-        except (OSError, AttributeError):
-            return False
+        return precise_timer_slack()
 
     def now(self) -> float:
         return time.perf_counter() - self._origin

@@ -41,14 +41,12 @@ from typing import Any
 
 import can
 import numpy as np
+from surgiplan.scheduling import SWITCH_INTERVAL
 
 from . import cia402
 from .bus import BusError
 from .clock import Clock, restore_priority, set_realtime_priority
 from .master import DriveMaster, emcy_description
-
-#: the GIL's switch interval (s) while a real-time loop runs (Python's default: 5 ms)
-SWITCH_INTERVAL = 0.0002
 
 
 @dataclass
