@@ -559,7 +559,7 @@ def test_a_guide_attempt_runs_as_a_paced_loop_and_gives_the_process_back(tmp_pat
     outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
     assert outcome.results[1].status in ("completed", "incomplete")
     ((source_attr, stage_attr, interval),) = seen
-    assert interval == SWITCH_INTERVAL and sys.getswitchinterval() == switch
+    assert interval == pytest.approx(SWITCH_INTERVAL, rel=1e-6) and sys.getswitchinterval() == switch
     if granted is None or granted.runtime != slice_ns:
         pytest.skip(f"this kernel grants no slice to an ordinary thread ({os.uname().release})")
     assert source_attr.policy == stage_attr.policy == os.SCHED_OTHER
