@@ -565,3 +565,52 @@ def test_a_guide_attempt_runs_as_a_paced_loop_and_gives_the_process_back(tmp_pat
     assert source_attr.policy == stage_attr.policy == os.SCHED_OTHER
     assert source_attr.runtime == stage_attr.runtime == slice_ns
     assert sched_attr() == before
+
+
+def test_a_guide_attempt_with_a_realtime_priority_runs_under_sched_fifo(tmp_path, monkeypatch):
+    """guidance.realtime_priority: the source's thread and the stage's run under SCHED_FIFO at it while the attempt
+    runs (nothing at ordinary priority, such as a browser rendering the live view, can delay a sample); the stage's
+    thread is ordinary again afterwards. Where SCHED_FIFO is not allowed, the stage fails with a message naming the
+    key, before any sample is taken."""
+    import threading
+
+    from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
+
+    seen = []
+    original = SyntheticTrainee.samples
+    stage_thread = threading.get_native_id()
+
+    def watched(self):
+        for i, sample in enumerate(original(self)):
+            if i == 5:
+                seen.append(
+                    [(os.sched_getscheduler(t), os.sched_getparam(t).sched_priority) for t in (0, stage_thread)]
+                )
+            yield sample
+
+    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    path = guide_pipeline(tmp_path, guidance={"realtime_priority": 7})
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        allowed = False
+    else:
+        allowed = True
+    if allowed:
+        outcome = run_pipeline(load_pipeline(path))
+        assert outcome.results[1].status in ("completed", "incomplete")
+        assert seen == [[(os.SCHED_FIFO, 7), (os.SCHED_FIFO, 7)]]
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER
+    seen.clear()
+
+    def refuse(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    from surgiplan.errors import StageError
+
+    with pytest.raises(StageError, match=r"guidance.realtime_priority 7 \(SCHED_FIFO\) is not allowed here \(Op"):
+        run_pipeline(load_pipeline(path))
+    assert seen == []

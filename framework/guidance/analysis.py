@@ -83,6 +83,10 @@ class GuidanceSettings(StrictModel):
     timeline_rate: PositiveFloat = 50.0
     #: the attempt is stopped when no sample arrives for this long (s)
     silence_timeout: PositiveFloat = Field(default=2.0)
+    #: SCHED_FIFO priority (1-99) of the stage's threads while the attempt runs (Linux; needs CAP_SYS_NICE), as a
+    #: real-time control loop runs: nothing at ordinary priority (a browser rendering the live view on the same
+    #: cores) can delay a sample. None: ordinary priority with the shortest slice (surgiplan.scheduling)
+    realtime_priority: int | None = Field(default=None, ge=1, le=99)
 
 
 @dataclass

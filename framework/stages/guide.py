@@ -115,14 +115,16 @@ _END = object()
 class _Reader:
     """Runs the source's iterator in a thread; samples (stamped on arrival) and its end go through a queue."""
 
-    def __init__(self, iterator, maxsize: int = 10_000) -> None:
+    def __init__(self, iterator, priority: int | None = None, maxsize: int = 10_000) -> None:
         self.queue: queue.Queue = queue.Queue(maxsize=maxsize)
         self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, args=(iterator,), name="guide-source", daemon=True)
+        self.thread = threading.Thread(target=self._run, args=(iterator, priority), name="guide-source", daemon=True)
         self.thread.start()
 
-    def _run(self, iterator) -> None:
-        set_realtime_priority(None)  # this thread's: a short slice and a 1 us timer slack, a paced source wakes on time
+    def _run(self, iterator, priority: int | None) -> None:
+        # this thread's scheduling as the stage's (allowed: the stage's thread asked first) and a 1 us timer slack,
+        # so that a paced source wakes on time
+        set_realtime_priority(priority)
         precise_timer_slack()
         try:
             for sample in iterator:
@@ -326,12 +328,19 @@ class GuideKind(StageKind):
         # one preempts whatever has run longer (a browser rendering the live view) instead of waiting for its
         # slice, and the GIL changes hands within 0.2 ms (the live feed's sender thread encodes and sends in this
         # process)
-        section = paced_section()
-        section.__enter__()
+        try:
+            section = paced_section(settings.realtime_priority)
+            section.__enter__()
+        except OSError as exc:
+            raise StageError(
+                f"guide stage '{spec.name}': guidance.realtime_priority {settings.realtime_priority} (SCHED_FIFO) is "
+                f"not allowed here ({exc.strerror or exc}): run with CAP_SYS_NICE (or as root), or remove the key",
+                location=spec.location,
+            ) from None
         try:
             run.call("open", source.open, gcontext)
             iterator = run.call("samples", source.samples)
-            reader = _Reader(iter(iterator))
+            reader = _Reader(iter(iterator), settings.realtime_priority)
             previous_t = -math.inf
             received = 0
             with context.progress.task("following the instrument (% of the path)", total=100) as task:
