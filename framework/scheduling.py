@@ -112,13 +112,18 @@ def precise_timer_slack() -> bool:
 
 
 @contextlib.contextmanager
-def paced_section(priority: int | None = None, *, pause_collector: bool = False):
+def paced_section(
+    priority: int | None = None, *, pause_collector: bool = False, switch_interval: float | None = SWITCH_INTERVAL
+):
     """Run the body as a loop that keeps real time, on the calling thread:
 
     * with a ``priority``, under SCHED_FIFO at it (raises OSError where not allowed, before anything changes);
       without, a short slice at ordinary priority (:data:`LOOP_SLICE`);
     * the thread's timer slack 1 us (:func:`precise_timer_slack`);
-    * the GIL's switch interval :data:`SWITCH_INTERVAL` (process-wide, restored at exit);
+    * the GIL's switch interval ``switch_interval`` (process-wide, restored at exit; None: Python's). A loop that
+      mostly sleeps wants it short (woken, it waits at most that long for a thread running Python); a loop that
+      computes as long as the other threads wants it long (a short one makes its own work hand the GIL over
+      every 0.2 ms);
     * ``pause_collector``: the cyclic garbage collector off and what exists at entry frozen out of its sight (a full
       collection of a large heap stops every thread of the process for tens of milliseconds); what the loop frees
       goes by reference counting; the collector back on and the heap unfrozen at exit. For bounded loops (a
@@ -133,7 +138,8 @@ def paced_section(priority: int | None = None, *, pause_collector: bool = False)
         if pause_collector:
             gc.disable()
             gc.freeze()
-        sys.setswitchinterval(SWITCH_INTERVAL)
+        if switch_interval is not None:
+            sys.setswitchinterval(switch_interval)
         yield
     finally:
         sys.setswitchinterval(switch)
