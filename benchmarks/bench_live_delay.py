@@ -17,7 +17,7 @@ Both with the stage's threads at ordinary priority (the shortest slice EEVDF gra
 keeps both busy, and only a real-time policy wins every wake-up from it (a C probe at ordinary priority, with or
 without the short slice, wakes more than 2 ms late ~50 times in 10 s beside the page; under SCHED_FIFO, never).
 
-Each attempt's stolen time is recorded (``steal_ticks_*``, /proc/stat, 4 ms ticks here): on this virtual machine the
+Each attempt's stolen time is recorded (``steal_ticks_*``, /proc/stat, in 10 ms ticks): on this virtual machine the
 host sometimes runs other guests on our cores, and then no scheduling inside it is on time.
 
 Counted: samples more than 2 ms late in each case; and paired, sample by sample (the same seed gives the same

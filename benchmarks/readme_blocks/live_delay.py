@@ -57,7 +57,7 @@ def render_live_delay(results: Path) -> str:
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
         f"{sum(r['page_drops'] + r['feed_drops'] for r in runs)} dropped."
         + (
-            " Time the host stole from this virtual machine per run (4 ms ticks, no viewer / viewer): "
+            " Time the host stole from this virtual machine per run (10 ms ticks, no viewer / viewer): "
             + ", ".join(
                 f"{r['scheduling']} {r['run']}: {r['steal_ticks_alone']}/{r['steal_ticks_watched']}" for r in runs
             )
