@@ -134,3 +134,13 @@ def paced_run_arguments(description: str, argv: list[str] | None = None) -> tupl
     parser.add_argument("--quick", action="store_true", help="1 run of 8 s, writes nothing")
     args = parser.parse_args(argv)
     return (1, 8.0, True) if args.quick else (args.runs, args.seconds, False)
+
+
+def steal_ticks() -> int:
+    """The machine's stolen time so far (clock ticks, /proc/stat): time the hypervisor ran other guests while
+    this one had work; a real-time loop cannot be on time through it."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+        return int(fields[8])
+    except (OSError, IndexError, ValueError):
+        return 0

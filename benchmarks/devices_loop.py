@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import table
+from common import steal_ticks, table
 from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
 from devices_table import DRIVES_PRIORITY, PRIORITY, SEPARATE, SEPARATE_RT, THREAD
 from surgiplan import load_scene
@@ -31,16 +31,6 @@ from surgiplan.plugins.devices.canopen.bus import frame_bits, worst_case_bits
 from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def steal_ticks() -> int:
-    """The machine's stolen time so far (clock ticks, /proc/stat): time the hypervisor ran other guests while
-    this one had work; a real-time loop cannot be on time through it."""
-    try:
-        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
-        return int(fields[8])
-    except (OSError, IndexError, ValueError):
-        return 0
 
 
 def percentile(values, q: float) -> float:

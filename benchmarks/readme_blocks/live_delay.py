@@ -56,5 +56,14 @@ def render_live_delay(results: Path) -> str:
         + (f" ({', '.join(f'{c:.1f}' for c in cut)} s after it connected)" if cut else "")
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
         f"{sum(r['page_drops'] + r['feed_drops'] for r in runs)} dropped."
+        + (
+            " Time the host stole from this virtual machine per run (10 ms ticks, no viewer / viewer): "
+            + ", ".join(
+                f"{r['scheduling']} {r['run']}: {r['steal_ticks_alone']}/{r['steal_ticks_watched']}" for r in runs
+            )
+            + "."
+            if all("steal_ticks_alone" in r for r in runs)
+            else ""
+        )
     )
     return section(head, body, tail)
