@@ -50,8 +50,10 @@ def render_live_delay(results: Path) -> str:
     cut = [r["stalled_cut_after_s"] for r in runs if r["stalled_cut_after_s"] is not None]
     tail = (
         f"Target: no sample delayed by more than {late:g} ms by the viewer. " + "; ".join(verdicts) + ". On 2 cores "
-        "the page's software rendering keeps both busy; at ordinary priority the kernel lets it delay a wake-up "
-        "by a few milliseconds now and then (a C probe beside it does the same), under SCHED_FIFO it cannot. "
+        "the page's software rendering keeps both busy: a C probe beside it at ordinary priority wakes more than "
+        "2 ms late now and then, with or without the shortest slice; one under SCHED_FIFO never did. What is left "
+        "under SCHED_FIFO came in runs whose attempts with no viewer were late too: time the host took from "
+        "this virtual machine, which the steal counts below (when recorded) tell apart. "
         f"The stalled client was disconnected in {len(cut)} of {len(runs)} runs"
         + (f" ({', '.join(f'{c:.1f}' for c in cut)} s after it connected)" if cut else "")
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
