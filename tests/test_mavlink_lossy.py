@@ -68,8 +68,10 @@ def test_parameters_fence_rally_and_mission_get_through_thirty_percent_loss_each
     # the loss was real: the vehicle dropped about 30 % of what it sent and of what it received
     sent = vehicle_link["messages_sent"]  # counted before the link drops them
     received = vehicle_link["messages_received"] + vehicle_link["injected_drops_in"]
-    assert vehicle_link["injected_drops_out"] / sent == pytest.approx(LOSS, abs=0.05)
-    assert vehicle_link["injected_drops_in"] / received == pytest.approx(LOSS, abs=0.05)
+    # each message is dropped with probability LOSS: the share dropped is binomial, within 4 standard deviations
+    # (a fixed 0.05 failed one run in five at the ~140 messages a direction this flight sends)
+    for dropped, total in ((vehicle_link["injected_drops_out"], sent), (vehicle_link["injected_drops_in"], received)):
+        assert dropped / total == pytest.approx(LOSS, abs=max(0.05, 4 * math.sqrt(LOSS * (1 - LOSS) / total)))
 
 
 def items(n: int) -> list[MissionItem]:

@@ -1,0 +1,98 @@
+"""The guide stage's attempt as a paced loop (surgiplan.scheduling): the source's thread and the stage's ask the
+scheduler for the shortest slice, or run under SCHED_FIFO at guidance.realtime_priority, and give the process back
+as it was."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import pytest
+from test_guide import guide_pipeline
+
+
+def test_a_guide_attempt_runs_as_a_paced_loop_and_gives_the_process_back(tmp_path, monkeypatch):
+    """While the attempt runs, the source's thread and the stage's ask the scheduler for the short slice
+    (scheduling.LOOP_SLICE: a waking one preempts a busy viewer instead of waiting out its slice); Python's switch
+    interval stays (a short one would hand the GIL to the feed's sender in the middle of a sample's analysis);
+    afterwards the stage's thread is as it was."""
+    import threading
+
+    from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
+    from surgiplan.scheduling import LOOP_SLICE, restore_priority, sched_attr, set_realtime_priority
+
+    before = sched_attr()
+    granted = sched_attr() if (asked := set_realtime_priority(None)) is not None else None
+    restore_priority(asked)
+    slice_ns = round(LOOP_SLICE * 1e9)
+    seen = []
+    original = SyntheticTrainee.samples
+    stage_thread = threading.get_native_id()
+
+    def watched(self):
+        for i, sample in enumerate(original(self)):
+            if i == 5:
+                seen.append((sched_attr(), sched_attr(stage_thread), sys.getswitchinterval()))
+            yield sample
+
+    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    switch = sys.getswitchinterval()
+    outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
+    assert outcome.results[1].status in ("completed", "incomplete")
+    ((source_attr, stage_attr, interval),) = seen
+    assert interval == switch == sys.getswitchinterval()
+    if granted is None or granted.runtime != slice_ns:
+        pytest.skip(f"this kernel grants no slice to an ordinary thread ({os.uname().release})")
+    assert source_attr.policy == stage_attr.policy == os.SCHED_OTHER
+    assert source_attr.runtime == stage_attr.runtime == slice_ns
+    assert sched_attr() == before
+
+
+def test_a_guide_attempt_with_a_realtime_priority_runs_under_sched_fifo(tmp_path, monkeypatch):
+    """guidance.realtime_priority: the source's thread and the stage's run under SCHED_FIFO at it while the attempt
+    runs (nothing at ordinary priority, such as a browser rendering the live view, can delay a sample); the stage's
+    thread is ordinary again afterwards. Where SCHED_FIFO is not allowed, the stage fails with a message naming the
+    key, before any sample is taken."""
+    import threading
+
+    from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
+
+    seen = []
+    original = SyntheticTrainee.samples
+    stage_thread = threading.get_native_id()
+
+    def watched(self):
+        for i, sample in enumerate(original(self)):
+            if i == 5:
+                seen.append(
+                    [(os.sched_getscheduler(t), os.sched_getparam(t).sched_priority) for t in (0, stage_thread)]
+                )
+            yield sample
+
+    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    path = guide_pipeline(tmp_path, guidance={"realtime_priority": 7})
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        allowed = False
+    else:
+        allowed = True
+    if allowed:
+        outcome = run_pipeline(load_pipeline(path))
+        assert outcome.results[1].status in ("completed", "incomplete")
+        assert seen == [[(os.SCHED_FIFO, 7), (os.SCHED_FIFO, 7)]]
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER
+    seen.clear()
+
+    def refuse(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    from surgiplan.errors import StageError
+
+    with pytest.raises(StageError, match=r"guidance.realtime_priority 7 \(SCHED_FIFO\) is not allowed here \(Op"):
+        run_pipeline(load_pipeline(path))
+    assert seen == []
