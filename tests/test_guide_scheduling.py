@@ -11,6 +11,24 @@ import pytest
 from test_guide import guide_pipeline
 
 
+def _at_the_sixth_sample(monkeypatch, probe) -> list:
+    """What ``probe()`` returns in the synthetic trainee's thread as it yields its sixth sample (the attempt under
+    way), appended to the list returned."""
+    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
+
+    seen = []
+    original = SyntheticTrainee.samples
+
+    def watched(self):
+        for i, sample in enumerate(original(self)):
+            if i == 5:
+                seen.append(probe())
+            yield sample
+
+    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    return seen
+
+
 def test_a_guide_attempt_runs_as_a_paced_loop_and_gives_the_process_back(tmp_path, monkeypatch):
     """While the attempt runs, the source's thread and the stage's ask the scheduler for the short slice
     (scheduling.LOOP_SLICE: a waking one preempts a busy viewer instead of waiting out its slice); Python's switch
@@ -19,24 +37,14 @@ def test_a_guide_attempt_runs_as_a_paced_loop_and_gives_the_process_back(tmp_pat
     import threading
 
     from surgiplan import load_pipeline, run_pipeline
-    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
     from surgiplan.scheduling import LOOP_SLICE, restore_priority, sched_attr, set_realtime_priority
 
     before = sched_attr()
     granted = sched_attr() if (asked := set_realtime_priority(None)) is not None else None
     restore_priority(asked)
     slice_ns = round(LOOP_SLICE * 1e9)
-    seen = []
-    original = SyntheticTrainee.samples
     stage_thread = threading.get_native_id()
-
-    def watched(self):
-        for i, sample in enumerate(original(self)):
-            if i == 5:
-                seen.append((sched_attr(), sched_attr(stage_thread), sys.getswitchinterval()))
-            yield sample
-
-    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    seen = _at_the_sixth_sample(monkeypatch, lambda: (sched_attr(), sched_attr(stage_thread), sys.getswitchinterval()))
     switch = sys.getswitchinterval()
     outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
     assert outcome.results[1].status in ("completed", "incomplete")
@@ -57,21 +65,12 @@ def test_a_guide_attempt_with_a_realtime_priority_runs_under_sched_fifo(tmp_path
     import threading
 
     from surgiplan import load_pipeline, run_pipeline
-    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
 
-    seen = []
-    original = SyntheticTrainee.samples
     stage_thread = threading.get_native_id()
-
-    def watched(self):
-        for i, sample in enumerate(original(self)):
-            if i == 5:
-                seen.append(
-                    [(os.sched_getscheduler(t), os.sched_getparam(t).sched_priority) for t in (0, stage_thread)]
-                )
-            yield sample
-
-    monkeypatch.setattr(SyntheticTrainee, "samples", watched)
+    seen = _at_the_sixth_sample(
+        monkeypatch,
+        lambda: [(os.sched_getscheduler(t), os.sched_getparam(t).sched_priority) for t in (0, stage_thread)],
+    )
     path = guide_pipeline(tmp_path, guidance={"realtime_priority": 7})
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
