@@ -137,14 +137,15 @@ def paced_section(
         precise_timer_slack()
         if pause_collector:
             gc.disable()
-            gc.freeze()
+            if not frozen:  # a heap frozen already (a device's, at activation) stays as its owner froze it
+                gc.freeze()
         if switch_interval is not None:
             sys.setswitchinterval(switch_interval)
         yield
     finally:
         sys.setswitchinterval(switch)
         if pause_collector:
-            if gc.get_freeze_count() > frozen and not frozen:  # frozen here, not by someone before
+            if not frozen:  # frozen here, not by someone before
                 gc.unfreeze()
             if collecting:
                 gc.enable()

@@ -30,6 +30,7 @@ expert's position at the same progress along their own recommended path
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import threading
@@ -110,6 +111,14 @@ class GuideSpec(PathStageSpec):
 
 
 _END = object()
+
+
+def _close_quietly(source) -> None:
+    """Close a pose source; never mask the attempt's outcome with a close failure."""
+    try:
+        source.close()
+    except Exception:
+        pass
 
 
 class _Reader:
@@ -330,83 +339,81 @@ class GuideKind(StageKind):
         # releases the GIL on its send within tens of microseconds, and a short interval would make this thread
         # hand the GIL over in the middle of a sample's analysis (measured: SCHED_FIFO with 0.2 ms, the viewer
         # delayed a sample by up to 1.9 ms; with Python's 5 ms, 0.25 ms)
-        try:
-            section = paced_section(settings.realtime_priority, switch_interval=None)
-            section.__enter__()
-        except OSError as exc:
-            raise StageError(
-                f"guide stage '{spec.name}': guidance.realtime_priority {settings.realtime_priority} (SCHED_FIFO) is "
-                f"not allowed here ({exc.strerror or exc}): run with CAP_SYS_NICE (or as root), or remove the key",
-                location=spec.location,
-            ) from None
-        try:
-            run.call("open", source.open, gcontext)
-            iterator = run.call("samples", source.samples)
-            reader = _Reader(iter(iterator), settings.realtime_priority)
-            previous_t = -math.inf
-            received = 0
-            with context.progress.task("following the instrument (% of the path)", total=100) as task:
-                while True:
-                    try:
-                        arrived, item = reader.queue.get(timeout=settings.silence_timeout)
-                    except queue.Empty:
-                        status = GuideStatus.STOPPED
-                        message = (
-                            f"source '{spec.plugin.name}' sent no pose for {settings.silence_timeout:g} s "
-                            f"(guidance.silence_timeout); the attempt is stopped"
-                        )
-                        break
-                    if item is _END:
-                        break
-                    if isinstance(item, SourceStopped):
-                        status, message = GuideStatus.STOPPED, f"source '{spec.plugin.name}' stopped: {item}"
-                        break
-                    if isinstance(item, BaseException):
-                        raise StageError(
-                            f"plugin '{spec.plugin.name}' ({spec.plugin.package} {spec.plugin.version}) failed in "
-                            f"samples of guide stage '{spec.name}': {type(item).__name__}: {item}",
-                            location=spec.location,
-                        ) from item
-                    problem = _check_sample(item, received, previous_t, space)
-                    if problem:
-                        raise _InvalidSample(problem)
-                    received += 1
-                    previous_t = float(item.t)
-                    m, changes = guide.measure(item)
-                    if ghost is not None:
-                        m.ghost = ghost.at(m.progress / max(guide.length, 1e-12))
-                    m.delay = time.perf_counter() - arrived
-                    if live.active:
-                        live.publish(
-                            "tip",
-                            {
-                                "t": m.t,
-                                "tip": m.tip.tolist(),
-                                "deviation": m.deviation,
-                                "clearance": m.clearance,
-                                "progress": m.progress,
-                                "critical": m.critical,
-                                "closest": m.closest.tolist(),
-                                **({"ghost": m.ghost.tolist()} if m.ghost is not None else {}),
-                                # when the sample arrived, on the wall clock (the viewer measures cue latency)
-                                "wall": time.time() - m.delay,
-                            },
-                        )
-                        for what, event in changes:
-                            live.publish(
-                                "event", {"t": m.t, "change": what, **event.to_json(), "message": guide.describe(event)}
-                            )
-                    task.update(100.0 * min(m.progress / max(guide.length, 1e-12), 1.0))
-        except _InvalidSample as exc:
-            return run.invalid(str(exc))
-        finally:
-            section.__exit__(None, None, None)
-            if reader is not None:
-                reader.stop.set()
+        with contextlib.ExitStack() as attempt:
+            attempt.callback(_close_quietly, source)  # last: after the scheduling is given back
             try:
-                source.close()
-            except Exception:  # never mask the attempt's outcome with a close failure
-                pass
+                attempt.enter_context(paced_section(settings.realtime_priority, switch_interval=None))
+            except OSError as exc:
+                raise StageError(
+                    f"guide stage '{spec.name}': guidance.realtime_priority {settings.realtime_priority} "
+                    f"(SCHED_FIFO) is not allowed here ({exc.strerror or exc}): run with CAP_SYS_NICE (or as root), "
+                    "or remove the key",
+                    location=spec.location,
+                ) from None
+            try:
+                run.call("open", source.open, gcontext)
+                iterator = run.call("samples", source.samples)
+                reader = _Reader(iter(iterator), settings.realtime_priority)
+                previous_t = -math.inf
+                received = 0
+                with context.progress.task("following the instrument (% of the path)", total=100) as task:
+                    while True:
+                        try:
+                            arrived, item = reader.queue.get(timeout=settings.silence_timeout)
+                        except queue.Empty:
+                            status = GuideStatus.STOPPED
+                            message = (
+                                f"source '{spec.plugin.name}' sent no pose for {settings.silence_timeout:g} s "
+                                f"(guidance.silence_timeout); the attempt is stopped"
+                            )
+                            break
+                        if item is _END:
+                            break
+                        if isinstance(item, SourceStopped):
+                            status, message = GuideStatus.STOPPED, f"source '{spec.plugin.name}' stopped: {item}"
+                            break
+                        if isinstance(item, BaseException):
+                            raise StageError(
+                                f"plugin '{spec.plugin.name}' ({spec.plugin.package} {spec.plugin.version}) failed in "
+                                f"samples of guide stage '{spec.name}': {type(item).__name__}: {item}",
+                                location=spec.location,
+                            ) from item
+                        problem = _check_sample(item, received, previous_t, space)
+                        if problem:
+                            raise _InvalidSample(problem)
+                        received += 1
+                        previous_t = float(item.t)
+                        m, changes = guide.measure(item)
+                        if ghost is not None:
+                            m.ghost = ghost.at(m.progress / max(guide.length, 1e-12))
+                        m.delay = time.perf_counter() - arrived
+                        if live.active:
+                            live.publish(
+                                "tip",
+                                {
+                                    "t": m.t,
+                                    "tip": m.tip.tolist(),
+                                    "deviation": m.deviation,
+                                    "clearance": m.clearance,
+                                    "progress": m.progress,
+                                    "critical": m.critical,
+                                    "closest": m.closest.tolist(),
+                                    **({"ghost": m.ghost.tolist()} if m.ghost is not None else {}),
+                                    # when the sample arrived, on the wall clock (the viewer measures cue latency)
+                                    "wall": time.time() - m.delay,
+                                },
+                            )
+                            for what, event in changes:
+                                live.publish(
+                                    "event",
+                                    {"t": m.t, "change": what, **event.to_json(), "message": guide.describe(event)},
+                                )
+                        task.update(100.0 * min(m.progress / max(guide.length, 1e-12), 1.0))
+            except _InvalidSample as exc:
+                return run.invalid(str(exc))
+            finally:
+                if reader is not None:
+                    reader.stop.set()
         events = guide.finish()
         if not guide.measurements:
             return run.result(

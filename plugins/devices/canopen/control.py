@@ -32,8 +32,6 @@ targets going, supervised, so that the drives' watchdogs stay quiet.
 
 from __future__ import annotations
 
-import gc
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -41,12 +39,12 @@ from typing import Any
 
 import can
 import numpy as np
-from surgiplan.scheduling import SWITCH_INTERVAL
 
 from . import cia402
 from .bus import BusError
-from .clock import Clock, restore_priority, set_realtime_priority
+from .clock import Clock, set_realtime_priority
 from .master import DriveMaster, emcy_description
+from .realtime import realtime_section
 
 
 @dataclass
@@ -320,29 +318,15 @@ class Controller:
         is a run of missed cycles (see benchmarks/bench_devices.py); a cycle allocates no container
         (its feedback, position and log rows go into arrays made before the first cycle, its frames are
         rewritten in place), and what else it frees goes by reference counting. The GIL's switch
-        interval is :data:`SWITCH_INTERVAL` meanwhile. The process CPU time the loop used (all
+        interval is :data:`surgiplan.scheduling.SWITCH_INTERVAL` meanwhile. The process CPU time the loop used (all
         threads) is in ``ExecutionLog.cpu_s``.
         """
         self.stop_holding()
-        collecting = gc.isenabled()
-        previous = None
-        switch = sys.getswitchinterval()
-        if self.clock.realtime:
-            self.clock.precise()
-            previous = set_realtime_priority(self.priority)
-            if not collect_garbage:
-                gc.disable()
-            # a thread that runs Python keeps the GIL up to the switch interval (5 ms) while the loop, awake,
-            # waits for it: at most SWITCH_INTERVAL instead
-            sys.setswitchinterval(SWITCH_INTERVAL)
         cpu = time.process_time()
-        try:
+        # a thread that runs Python keeps the GIL up to the switch interval (5 ms) while the loop, awake, waits
+        # for it: at most SWITCH_INTERVAL in the section
+        with realtime_section(self.clock, self.priority, pause_collector=not collect_garbage):
             log = self._run(trajectory, on_start)
-        finally:
-            sys.setswitchinterval(switch)
-            if collecting:
-                gc.enable()
-            restore_priority(previous)
         log.cpu_s = time.process_time() - cpu
         return log
 

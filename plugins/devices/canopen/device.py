@@ -47,12 +47,13 @@ import numpy as np
 from surgiplan.devices import Device, ExecutionReport, LifecycleError, Trajectory
 from surgiplan.errors import ConfigError
 from surgiplan.plugins.devices.kinematics.model import KinematicModel
+from surgiplan.scheduling import paced_section
 
 from . import cia402
 from .bus import ArmedFaults, BusError, FrameDropper, MonitoredBus, open_bus
 from .certify import Certificate
 from .clock import Clock, RealTimeClock, SimulatedClock, restore_priority, set_realtime_priority
-from .control import SWITCH_INTERVAL, Controller, ExecutionLog, Supervision
+from .control import Controller, ExecutionLog, Supervision
 from .joints import Joints, axis_configs, check_bus_load, joint_limits, resolve_joints
 from .master import DriveMaster
 from .network import SimulationLink
@@ -406,14 +407,8 @@ class Cia402Device(Device):
         controller = self.controller
         if controller is None or not controller.clock.realtime or controller.priority is None:
             return self._run(trajectory)
-        switch = sys.getswitchinterval()
-        previous = set_realtime_priority(controller.priority)
-        sys.setswitchinterval(SWITCH_INTERVAL)
-        try:
+        with paced_section(controller.priority):
             return self._run(trajectory)
-        finally:
-            sys.setswitchinterval(switch)
-            restore_priority(previous)
 
     def _run(self, trajectory: Trajectory) -> ExecutionReport:
         s = self.settings

@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 from surgiplan.errors import SurgiplanError
+from surgiplan.scheduling import SWITCH_INTERVAL
 
 from ..bus import ArmedFaults, BusSettings, open_bus
 from ..clock import RealTimeClock
-from ..control import SWITCH_INTERVAL
 from .drives import DriveSimulator, axis_hardware, simulated_devices
 from .motor import HandMotion, MotorModel
 
