@@ -41,6 +41,7 @@ from surgiplan import load_pipeline, run_pipeline
 from surgiplan.clearance import intervals, threshold_value
 from surgiplan.guidance import Guide, GuideContext, SourceStopped
 from surgiplan.results import StageContext
+from witness import Witness
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = ROOT / "configs" / "guide_assist.yaml"
@@ -89,14 +90,21 @@ def attempt(tmp: Path, plan, space, settings: dict, drives_pid: int | None = Non
     finally:
         drives_cpu = process_cpu(drives_pid) - drives_cpu
         compute = list(source.assist.compute_s) if source.assist is not None else []
-        realtime = source.device.clock.realtime
+        clock = source.device.clock
         nodes = [a.node_id for a in source.device.master.axes]
-        answers = answer_latencies(list(source.device.bus.frames), nodes) if realtime else np.zeros(0)
+        frames = list(source.device.bus.frames) if clock.realtime else []
+        answers = answer_latencies(frames, nodes) if clock.realtime else np.zeros(0)
         source.close()
+    slowest = None  # the SYNC the drives answered last (perf_counter time s) and how long they took (s)
+    if len(answers):
+        syncs = [t for t, cob, _ in frames if cob == 0x080]
+        k = int(np.argmax(answers))
+        slowest = (clock._origin + syncs[k], float(answers[k]))
     guide.finish()
     metrics = guide.metrics()
     return {"metrics": metrics, "assistance": source.assistance, "compute": compute, "stopped": stopped,
-            "completed": guide.reached_goal, "answers": answers, "drives_cpu_s": drives_cpu}  # fmt: skip
+            "completed": guide.reached_goal, "answers": answers, "drives_cpu_s": drives_cpu,
+            "slowest": slowest}  # fmt: skip
 
 
 def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) -> dict:
@@ -127,7 +135,7 @@ def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) 
             live["realtime_priority"] = priority
         out = attempt(tmp, plan, space, {"assist": ON, **live}, drives_pid=pid)
     cpu = {"drives_cpu_per_sync_ms": 1e3 * out["drives_cpu_s"] / max(1, len(out["answers"]))}
-    return {**out["assistance"], **answered(out), **cpu, "stopped": out["stopped"]}
+    return {**out["assistance"], **answered(out), **cpu, "stopped": out["stopped"], "slowest": out["slowest"]}
 
 
 def answered(out: dict) -> dict:
@@ -137,33 +145,60 @@ def answered(out: dict) -> dict:
     return latency_summary(out["answers"], 1.0 / REALTIME_RATE)
 
 
-def realtime_row(configuration: str, assistance: dict) -> dict:
+def realtime_row(configuration: str, run: int, assistance: dict, witness: Witness) -> dict:
+    """One real-time attempt's row, with what the stall witness saw meanwhile and while the drives' slowest answer
+    was awaited (a late wake-up of a SCHED_FIFO-99 process then: the machine stalled, not the drives)."""
     keys = ("cycle_rate_hz", "missed_syncs", "cycles", "ended", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms",
             "sync_to_tpdos_p50_ms", "sync_to_tpdos_p99_ms", "sync_to_tpdos_max_ms", "answers_later_than_a_period",
             "drives_cpu_per_sync_ms")  # fmt: skip
-    return {"drives": configuration, **{k: assistance.get(k) for k in keys}, "stopped": assistance.get("stopped")}
+    row = {"drives": configuration, "run": run, **{k: assistance.get(k) for k in keys}}
+    row["stopped"] = assistance.get("stopped")
+    row.update(witness.summary())
+    slowest = assistance.get("slowest")
+    if slowest is not None:
+        t, took = slowest
+        overlapping = [late for d, late in witness.late if d < t + took and d + late > t]
+        row["witness_late_during_slowest_answer_ms"] = round(1e3 * max(overlapping, default=0.0), 3)
+    return row
 
 
-def realtime_loops(tmp: Path, plan, space) -> list[dict]:
-    """The real-time attempts: the drives in a thread of this process, and in a process of their own (ordinary
-    priority, then SCHED_FIFO where allowed)."""
+def realtime_loops(tmp: Path, plan, space, runs: int) -> list[dict]:
+    """The real-time attempts, ``runs`` of each configuration, each beside the stall witness: the drives in a
+    thread of this process, and in a process of their own (ordinary priority, then SCHED_FIFO where allowed)."""
+    from devices_loop import fifo_allowed
+
     live = {"control_rate": REALTIME_RATE, "clock": "realtime", "max_duration": 8.0}
-    thread = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
-    in_process = {**thread["assistance"], **answered(thread), "stopped": thread["stopped"]}
-    rows = [realtime_row("in-process thread (virtual bus)", in_process)]
-    rows.append(
-        realtime_row(
-            "other process (loopback bus), loop at ordinary priority", realtime_elsewhere(tmp, plan, space, 0, None)
-        )
-    )
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    except OSError as exc:
-        print(f"no SCHED_FIFO here ({exc}): skipped", flush=True)
-        return rows
-    fifo = realtime_elsewhere(tmp, plan, space, 0, 30)
-    rows.append(realtime_row("other process (loopback bus), SCHED_FIFO 30 (drives 20)", fifo))
+    configurations = [
+        ("in-process thread (virtual bus)", None),
+        ("other process (loopback bus), loop at ordinary priority",
+         lambda: realtime_elsewhere(tmp, plan, space, 0, None)),
+    ]  # fmt: skip
+    if fifo_allowed():
+        configurations.append(
+            ("other process (loopback bus), SCHED_FIFO 30 (drives 20)",
+             lambda: realtime_elsewhere(tmp, plan, space, 0, 30))
+        )  # fmt: skip
+    else:
+        print("no SCHED_FIFO here: its configuration is skipped", flush=True)
+    rows = []
+    for run in range(runs):
+        for name, elsewhere in configurations:
+            with Witness() as witness:
+                if elsewhere is None:
+                    out = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
+                    assistance = {**out["assistance"], **answered(out), "stopped": out["stopped"],
+                                  "slowest": out["slowest"]}  # fmt: skip
+                else:
+                    assistance = elsewhere()
+            rows.append(realtime_row(name, run, assistance, witness))
+            r = rows[-1]
+            print(
+                f"run {run}, {name}: {r['cycles']} cycles, {r['missed_syncs']} missed SYNCs, ended: {r['ended']}; "
+                f"witness max late {r['witness_late_max_ms']} ms "
+                f"({r.get('witness_late_during_slowest_answer_ms', '-')} ms during the slowest answer, "
+                f"{r['sync_to_tpdos_max_ms']} ms), {r['steal_ticks']} ticks stolen",
+                flush=True,
+            )
     return rows
 
 
@@ -172,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--quick", action="store_true", help="3 seeds, no results file")
     parser.add_argument("--realtime-only", action="store_true", help="only the real-time attempts, no results file")
+    parser.add_argument("--realtime-runs", type=int, default=3, help="real-time attempts per configuration")
     args = parser.parse_args(argv)
     if args.realtime_only:
         with tempfile.TemporaryDirectory() as folder:
@@ -179,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
             planning = load_pipeline(pipeline_file(tmp, {}))
             planning.stages = planning.stages[:1]
             plan = run_pipeline(planning).results[0]
-            rows = realtime_loops(tmp, plan, planning.stages[0].space)
+            rows = realtime_loops(tmp, plan, planning.stages[0].space, args.realtime_runs)
         print(table(rows, list(rows[0])))
         print(f"load average {os.getloadavg()}")
         return 0
@@ -221,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
                 )
         # the real-time loop at 500 Hz: the drives in a thread of this process, then in a process of their own
         # (the loop at ordinary priority, then under SCHED_FIFO where allowed)
-        realtime = realtime_loops(tmp, plan, space)
+        realtime = realtime_loops(tmp, plan, space, 1 if args.quick else args.realtime_runs)
     summary = []
     for arm in ("off", "on"):
         mine = [r for r in rows if r["assist"] == arm]
@@ -245,6 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         "fixture_cycles": len(compute),
         "realtime": realtime,
         "realtime_seconds": 8.0,
+        "realtime_runs": 1 if args.quick else args.realtime_runs,
         "target_rate_hz": REALTIME_RATE,
     }
     print(table(summary, list(summary[0])))
@@ -256,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         f"load average at the start {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f} (1/5/15 min) on 2 shared cores; "
         f"{seeds} synthetic beginners (seeds 0-{seeds - 1}) on configs/guide_assist.yaml's plan, simulated clock at "
         f"{RATE:g} Hz; off: fixture stiffness, damping and wall 0 (drives enabled at zero torque); on: the config's "
-        f"fixture, fade none; real time: one attempt at {REALTIME_RATE:g} Hz a configuration, clock realtime, max 8 s"
+        f"fixture, fade none; real time: {args.realtime_runs} attempts at {REALTIME_RATE:g} Hz a configuration, clock "
+        "realtime, max 8 s, each beside a SCHED_FIFO-99 stall witness (benchmarks/witness.py)"
     )
     save("assist", rows, notes, extra={"summary": summary, "loop": loop, "paired_better": better, "seeds": seeds})
     return 0

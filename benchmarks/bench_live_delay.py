@@ -17,8 +17,11 @@ Both with the stage's threads at ordinary priority (the shortest slice EEVDF gra
 keeps both busy, and only a real-time policy wins every wake-up from it (a C probe at ordinary priority, with or
 without the short slice, wakes more than 2 ms late ~50 times in 10 s beside the page; under SCHED_FIFO, never).
 
-Each attempt's stolen time is recorded (``steal_ticks_*``, /proc/stat, in 10 ms ticks): on this virtual machine the
-host sometimes runs other guests on our cores, and then no scheduling inside it is on time.
+Each attempt runs beside a stall witness (``benchmarks/witness.py``: a process under SCHED_FIFO 99 waking every
+millisecond, which nothing inside the machine can delay) and records the stolen time (``steal_ticks_*``,
+/proc/stat, in 10 ms ticks): on this virtual machine the host sometimes runs other guests on our cores, and then no
+scheduling inside it is on time. A late sample during which the witness was late too is counted apart
+(``*_during_machine_stalls``): the machine stopped then, not the stage.
 
 Counted: samples more than 2 ms late in each case; and paired, sample by sample (the same seed gives the same
 samples), samples the viewer delayed by more than 2 ms over the same sample with no viewer. Target: 0. Also
@@ -48,8 +51,9 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import Browser, feed_url, live_view, stalled_client, wait_for  # noqa: E402
-from common import paced_run_arguments, save, steal_ticks, table  # noqa: E402
+from common import paced_run_arguments, save, table  # noqa: E402
 from pipeline_support import block_world_pipeline, recommended_stage  # noqa: E402
+from witness import Witness  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
 LATE_MS = 2.0
@@ -83,6 +87,21 @@ class Recording:
         lag = done - t
         return 1000 * (lag - lag.min())
 
+    def done_at(self) -> np.ndarray:
+        """When the stage was done with each sample (perf_counter s)."""
+        return np.asarray(self.done)[:, 1]
+
+
+def during_stalls(witness: Witness, done: np.ndarray, lateness_ms: np.ndarray) -> np.ndarray:
+    """Which samples were late while the stall witness was late too: its late wake-up overlaps the time the
+    sample waited beyond the best (from ``done`` less its lateness to ``done``)."""
+    if not witness.late:
+        return np.zeros(len(done), dtype=bool)
+    start, late = np.asarray(witness.late).T
+    end = start + late
+    waited_from = done - lateness_ms / 1000
+    return np.array([bool(np.any((start < b) & (end > a))) for a, b in zip(waited_from, done, strict=True)])
+
 
 def pipeline(tmp: Path, seconds: float, priority: int | None) -> Path:
     guide = {
@@ -98,6 +117,7 @@ def pipeline(tmp: Path, seconds: float, priority: int | None) -> Path:
 
 
 def attempt(path: Path, feed: Recording) -> np.ndarray:
+    """The attempt's lateness per sample (ms; ``feed.done_at()``: when each was done)."""
     from surgiplan import load_pipeline, run_pipeline
     from surgiplan.outputs.report import scene_data
 
@@ -117,7 +137,9 @@ def tcp_state(sock: socket.socket) -> int:
     return struct.unpack("B", sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1))[0]
 
 
-def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
+def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The watched attempt's lateness per sample (ms), when each was done (perf_counter s), and what the page and
+    the stalled client went through."""
     from surgiplan.live import WebSocketFeed
 
     with live_view(exit_after=600) as url:
@@ -137,7 +159,8 @@ def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
         stop = threading.Event()
         watcher = threading.Thread(target=watch_stalled, daemon=True)
         watcher.start()
-        lateness = attempt(path, Recording(WebSocketFeed(feed_url(url))))
+        feed = Recording(WebSocketFeed(feed_url(url)))
+        lateness = attempt(path, feed)
         wait_for(page, "surgiplan.live.status !== null", 60_000)
         got = page.evaluate("({tips: surgiplan.live.tips, drops: surgiplan.live.drops})")
         problems = page.problems + page.evaluate("surgiplan.errors")
@@ -151,12 +174,16 @@ def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, dict]:
         stalled.close()
         if problems:
             raise SystemExit(f"the page reported problems: {problems}")
-        return lateness, {
-            "page_samples": got["tips"],
-            "page_drops": got["drops"]["page"],
-            "feed_drops": got["drops"]["feed"],
-            "stalled_cut_after_s": round(cut[0], 2) if cut else None,
-        }
+        return (
+            lateness,
+            feed.done_at(),
+            {
+                "page_samples": got["tips"],
+                "page_drops": got["drops"]["page"],
+                "feed_drops": got["drops"]["feed"],
+                "stalled_cut_after_s": round(cut[0], 2) if cut else None,
+            },
+        )
 
 
 def summary(case: str, runs: list[np.ndarray], scheduling: str, **extra) -> dict:
@@ -187,16 +214,33 @@ def main() -> None:
                 attempt(path, Recording())  # plans and stores the roadmap; a warm-up
                 alone, watched, paired = [], [], []
                 for i in range(runs):
-                    stolen = steal_ticks()
-                    alone.append(attempt(path, Recording()))
-                    alone_steal, stolen = steal_ticks() - stolen, steal_ticks()
-                    lateness, info = watched_attempt(path, browser)
-                    info = {**info, "steal_ticks_alone": alone_steal, "steal_ticks_watched": steal_ticks() - stolen}
+                    with Witness() as witness_alone:
+                        feed = Recording()
+                        alone.append(attempt(path, feed))
+                    alone_stalled = during_stalls(witness_alone, feed.done_at(), alone[-1]) & (alone[-1] > LATE_MS)
+                    with Witness() as witness_watched:
+                        lateness, done, info = watched_attempt(path, browser)
                     watched.append(lateness)
                     n = min(lateness.size, alone[-1].size)
                     paired.append(lateness[:n] - alone[-1][:n])
+                    delayed = paired[-1] > LATE_MS
+                    stalled_delays = during_stalls(witness_watched, done[:n], lateness[:n]) & delayed
                     late = int(np.count_nonzero(lateness > LATE_MS))
-                    viewer_runs.append({"scheduling": scheduling, "run": i + 1, "late_over_2ms": late, **info})
+                    viewer_runs.append({
+                        "scheduling": scheduling,
+                        "run": i + 1,
+                        "late_over_2ms": late,
+                        "delayed_by_viewer_over_2ms": int(np.count_nonzero(delayed)),
+                        "delayed_during_machine_stalls": int(np.count_nonzero(stalled_delays)),
+                        "late_alone_over_2ms": int(np.count_nonzero(alone[-1] > LATE_MS)),
+                        "late_alone_during_machine_stalls": int(np.count_nonzero(alone_stalled)),
+                        **info,
+                        "steal_ticks_alone": witness_alone.steal,
+                        "steal_ticks_watched": witness_watched.steal,
+                        "witness_late_max_ms_alone": witness_alone.summary()["witness_late_max_ms"],
+                        "witness_late_max_ms_watched": witness_watched.summary()["witness_late_max_ms"],
+                        "witness": witness_watched.policy,
+                    })  # fmt: skip
                     print(viewer_runs[-1], flush=True)
                 delayed = int(sum(np.count_nonzero(p > LATE_MS) for p in paired))
                 rows += [

@@ -29,6 +29,7 @@ from surgiplan.devices import Trajectory
 from surgiplan.errors import SurgiplanError
 from surgiplan.plugins.devices.canopen.bus import frame_bits, worst_case_bits
 from surgiplan.plugins.devices.cast_gimbal import CastGimbalDevice
+from witness import Witness
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -184,6 +185,8 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
         loop_cpu = drives_cpu = execute_cpu = 0.0
         syncs = 0
         lapses = []
+        lapses_stalled = 0  # missed cycles while the stall witness was late too
+        witness_worst, witness_late = 0.0, 0
         error = ""
         failures: list[str] = []
         clean = 0
@@ -196,7 +199,10 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
                 before_execute = time.process_time()
                 before_lapses = len(device.controller.missed_log)
-                report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                with Witness() as witness:
+                    report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                witness_worst = max(witness_worst, witness.worst)
+                witness_late += sum(1 for _, late in witness.late if late > 2e-3)
                 execute_cpu += time.process_time() - before_execute
                 drives_cpu += process_cpu(pid) - before_cpu
                 run_frames = device.bus.frames[before_frames:]
@@ -222,8 +228,10 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 clean += report.status == "completed" and not report.metrics.get("missed_cycles", 0)
                 load.append(report.metrics["bus_load_percent"])
                 worst.append(report.metrics["bus_load_worst_case_percent"])
-                new = device.controller.missed_log[before_lapses:]
-                lapses += [round(late * 1e3, 1) for due, late, _ in new if log.start <= due <= log.end]
+                new = [m for m in device.controller.missed_log[before_lapses:] if log.start <= m[0] <= log.end]
+                lapses += [round(late * 1e3, 1) for due, late, _ in new]
+                origin = device.controller.clock._origin  # the clock's time 0 on perf_counter
+                lapses_stalled += sum(1 for due, late, _ in new if witness.late_near(origin + due, late))
                 if report.status != "completed":
                     print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
                     failures.append(f"run {k + 1}: {report.message}")
@@ -260,6 +268,9 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             "jitter_max_ms": round(max(lateness) * 1e3, 3) if lateness else None,
             "missed_lapses_late_ms": lapses[:20],
             "steal_ticks": steal_ticks() - stolen,
+            "missed_during_machine_stalls": lapses_stalled,
+            "witness_late_over_2ms": witness_late,
+            "witness_late_max_ms": round(witness_worst * 1e3, 3),
             "cycles_missing_a_tpdo": missing,
             "bus_load_percent": round(statistics.median(load), 2) if load else None,
             "bus_load_worst_case_percent": round(statistics.median(worst), 2) if worst else None,

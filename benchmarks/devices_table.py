@@ -77,7 +77,17 @@ def readme_table(data: dict | None = None) -> str:
             f"{', '.join(f'{x:g}' for x in fifo[0]['missed_lapses_late_ms']) or 'none'} ms late); 500 Hz at "
             f"ordinary priority, no missed cycle: {'met' if clean(ordinary[0]) else 'not met'} "
             f"({ordinary[0]['runs_without_missed']} runs). The hypervisor stole {stolen} clock ticks of this "
-            "machine's time during those runs (/proc/stat).",
+            "machine's time during those runs (/proc/stat)."
+            + (
+                " Beside every run a stall witness (`benchmarks/witness.py`, SCHED_FIFO 99, waking every "
+                "millisecond) was late by up to "
+                + ", ".join(f"{r['witness_late_max_ms']:g}" for r in fifo + ordinary)
+                + " ms (those rows in turn); of the missed cycles, "
+                + ", ".join(f"{r['missed_during_machine_stalls']} of {r['missed_cycles']}" for r in fifo + ordinary)
+                + " came while the witness was late too: the whole machine stopped then."
+                if all("witness_late_max_ms" in r for r in fifo + ordinary)
+                else ""
+            ),
         ]
     lines.append("")
     for r in rows:

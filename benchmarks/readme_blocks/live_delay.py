@@ -38,23 +38,43 @@ def render_live_delay(results: Path) -> str:
         f"its own time the stage was done with it (analysis and publication), less the attempt's best (load "
         f"average {loads.group(1)} before and {loads.group(2)} after, 1/5/15 min, 2 shared cores):"
     )
+    runs = data["viewer_runs"]
+    witnessed = all("delayed_during_machine_stalls" in r for r in runs)
     verdicts = []
     for watched in rows[1::2]:
         delayed = watched["delayed_by_viewer_over_2ms"]
+        mine = [r for r in runs if r["scheduling"] == watched["scheduling"]]
+        stalled = sum(r.get("delayed_during_machine_stalls", 0) for r in mine)
         verdicts.append(
             f"{watched['scheduling']}: {met(delayed == 0)} ({delayed:,} of {watched['samples']:,} samples were, "
-            f"paired with the same sample of the attempt with no viewer; p99 of the difference "
-            f"{watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms)"
+            f"paired with the same sample of the attempt with no viewer"
+            + (f", {stalled:,} of them while the stall witness was late too" if witnessed and delayed else "")
+            + f"; p99 of the difference {watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms)"
         )
-    runs = data["viewer_runs"]
     cut = [r["stalled_cut_after_s"] for r in runs if r["stalled_cut_after_s"] is not None]
     tail = (
         f"Target: no sample delayed by more than {late:g} ms by the viewer. " + "; ".join(verdicts) + ". On 2 cores "
         "the page's software rendering keeps both busy: a C probe beside it at ordinary priority wakes more than "
-        "2 ms late now and then, with or without the shortest slice; one under SCHED_FIFO never did. What is left "
-        "under SCHED_FIFO came in runs whose attempts with no viewer were late too: time the host took from "
-        "this virtual machine, which the steal counts below (when recorded) tell apart. "
-        f"The stalled client was disconnected in {len(cut)} of {len(runs)} runs"
+        "2 ms late now and then, with or without the shortest slice; one under SCHED_FIFO never did. "
+        + (
+            "Beside every attempt ran a stall witness (`benchmarks/witness.py`: a process under SCHED_FIFO 99 waking "
+            "every millisecond, which nothing inside the machine can delay); a sample late while it was late too "
+            "was late because the whole machine stopped (the host ran something else). Per run (no viewer / "
+            "viewer), samples later than 2 ms, of them during such stalls, the witness's worst lateness and the "
+            "ticks stolen: "
+            + "; ".join(
+                f"{r['scheduling']} {r['run']}: {r['late_alone_over_2ms']} ({r['late_alone_during_machine_stalls']}) "
+                f"/ {r['late_over_2ms']} ({r['delayed_during_machine_stalls']} of {r['delayed_by_viewer_over_2ms']} "
+                f"delayed by the viewer), witness {r['witness_late_max_ms_alone']:.1f} / "
+                f"{r['witness_late_max_ms_watched']:.1f} ms, {r['steal_ticks_alone']} / {r['steal_ticks_watched']} "
+                "ticks"
+                for r in runs
+            )
+            + ". "
+            if witnessed
+            else ""
+        )
+        + f"The stalled client was disconnected in {len(cut)} of {len(runs)} runs"
         + (f" ({', '.join(f'{c:.1f}' for c in cut)} s after it connected)" if cut else "")
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
         f"{sum(r['page_drops'] + r['feed_drops'] for r in runs)} dropped."
@@ -64,7 +84,7 @@ def render_live_delay(results: Path) -> str:
                 f"{r['scheduling']} {r['run']}: {r['steal_ticks_alone']}/{r['steal_ticks_watched']}" for r in runs
             )
             + "."
-            if all("steal_ticks_alone" in r for r in runs)
+            if all("steal_ticks_alone" in r for r in runs) and not witnessed
             else ""
         )
     )

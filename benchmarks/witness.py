@@ -1,0 +1,105 @@
+"""A witness of the machine's stalls beside a real-time benchmark: a process of its own under SCHED_FIFO 99 (where
+allowed) that wakes every millisecond and notes each wake-up later than ``threshold``.
+
+Nothing in this machine can keep a SCHED_FIFO-99 thread from running for milliseconds: a run of such late wake-ups
+means the whole virtual machine stopped (the hypervisor ran something else: stolen time, ``/proc/stat``; or an
+interrupt storm). When a loop under test misses its deadline at the moment the witness was late too, the miss is
+the machine's, not the loop's; when the witness was on time, it is the loop's. The stolen ticks (10 ms each) say
+how much; the witness says when, to the millisecond, on the same clock as the loop (CLOCK_MONOTONIC:
+``time.perf_counter``).
+
+    with Witness() as witness:
+        ...  # the real-time attempt
+    witness.summary()  # {"witness_late_over_2ms": .., "witness_late_max_ms": .., "steal_ticks": ..}
+    witness.late_near(t, 0.05)  # the witness's late wake-ups within 50 ms of perf_counter time t
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+
+from common import steal_ticks
+
+#: the witness's loop (run with ``python -c``): argv period (s), threshold (s), priority (0: ordinary)
+_PROGRAM = r"""
+import ctypes, gc, json, os, signal, sys, time
+gc.disable()
+period, threshold, priority = float(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
+policy = "ordinary"
+if priority:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        policy = f"SCHED_FIFO {priority}"
+    except OSError:
+        pass
+try:
+    ctypes.CDLL(None).prctl(29, 1000, 0, 0, 0)  # timer slack 1 us
+except (OSError, AttributeError):
+    pass
+stop = []
+signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+late, wakes, worst = [], 0, 0.0
+print("ready", flush=True)
+deadline = time.perf_counter() + period
+while not stop and wakes < 10_000_000:
+    pause = deadline - time.perf_counter()
+    if pause > 0:
+        time.sleep(pause)
+    now = time.perf_counter()
+    wakes += 1
+    lateness = now - deadline
+    worst = max(worst, lateness)
+    if lateness > threshold and len(late) < 100_000:
+        late.append((round(deadline, 6), round(lateness, 6)))
+    deadline = max(deadline + period, now)  # a stall is one late wake-up, not a burst of catching up
+json.dump({"policy": policy, "wakes": wakes, "worst": worst, "late": late}, sys.stdout)
+"""
+
+
+class Witness:
+    """Run the witness for the ``with`` block (see the module); ``threshold``: the lateness noted (s)."""
+
+    def __init__(self, period: float = 1e-3, threshold: float = 2e-3, priority: int = 99):
+        self.period, self.threshold, self.priority = period, threshold, priority
+        self.late: list[tuple[float, float]] = []
+        self.wakes = 0
+        self.worst = 0.0
+        self.policy = "not run"
+        self.steal = 0
+
+    def __enter__(self) -> Witness:
+        self._steal = steal_ticks()
+        command = [sys.executable, "-c", _PROGRAM, str(self.period), str(self.threshold), str(self.priority)]
+        self._process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+        if self._process.stdout.readline().strip() != "ready":
+            raise RuntimeError("the stall witness did not start")
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.steal = steal_ticks() - self._steal
+        self._process.send_signal(signal.SIGTERM)
+        try:
+            out, _ = self._process.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+            self._process.communicate(timeout=10)
+            return
+        if self._process.returncode == 0 and out:
+            data = json.loads(out)
+            self.policy, self.wakes, self.worst = data["policy"], data["wakes"], data["worst"]
+            self.late = [tuple(x) for x in data["late"]]
+
+    def late_near(self, t: float, window: float) -> list[tuple[float, float]]:
+        """The witness's late wake-ups (deadline, lateness; s) whose lateness overlaps ``t`` ± ``window``."""
+        return [(d, late) for d, late in self.late if d - window <= t <= d + late + window]
+
+    def summary(self) -> dict:
+        return {
+            "witness": self.policy,
+            "witness_late_over_2ms": sum(1 for _, late in self.late if late > 2e-3),
+            "witness_late_max_ms": round(1e3 * self.worst, 3),
+            "steal_ticks": self.steal,
+        }
