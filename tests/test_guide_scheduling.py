@@ -91,7 +91,12 @@ def test_a_guide_attempt_with_a_realtime_priority_runs_under_sched_fifo(tmp_path
 
     monkeypatch.setattr(os, "sched_setscheduler", refuse)
     from surgiplan.errors import StageError
+    from surgiplan.plugins.guidance.synthetic import SyntheticTrainee
 
+    closed = []
+    close = SyntheticTrainee.close
+    monkeypatch.setattr(SyntheticTrainee, "close", lambda self: (closed.append(self), close(self))[1])
     with pytest.raises(StageError, match=r"guidance.realtime_priority 7 \(SCHED_FIFO\) is not allowed here \(Op"):
         run_pipeline(load_pipeline(path))
     assert seen == []
+    assert len(closed) == 1  # the source made for the attempt is closed, though it never opened
