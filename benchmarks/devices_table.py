@@ -79,12 +79,15 @@ def readme_table(data: dict | None = None) -> str:
             f"({ordinary[0]['runs_without_missed']} runs). The hypervisor stole {stolen} clock ticks of this "
             "machine's time during those runs (/proc/stat)."
             + (
-                " Beside every run a stall witness (`benchmarks/witness.py`, SCHED_FIFO 99, waking every "
-                "millisecond) was late by up to "
-                + ", ".join(f"{r['witness_late_max_ms']:g}" for r in fifo + ordinary)
-                + " ms (those rows in turn); of the missed cycles, "
-                + ", ".join(f"{r['missed_during_machine_stalls']} of {r['missed_cycles']}" for r in fifo + ordinary)
-                + " came while the witness was late too: the whole machine stopped then."
+                " Beside every run a stall witness (`benchmarks/witness.py`: SCHED_FIFO 99, waking every millisecond; "
+                "late only when the whole machine stops): "
+                + "; ".join(
+                    f"{r['rate_hz']:g} Hz {'under SCHED_FIFO' if r in fifo else 'at ordinary priority'}, late by up "
+                    f"to {r['witness_late_max_ms']:.1f} ms, {r['missed_during_machine_stalls']} of the "
+                    f"{r['missed_cycles']} missed cycles while it was late"
+                    for r in fifo + ordinary
+                )
+                + "."
                 if all("witness_late_max_ms" in r for r in fifo + ordinary)
                 else ""
             ),

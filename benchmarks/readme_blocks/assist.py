@@ -8,6 +8,12 @@ from pathlib import Path
 from .formatting import find, load, section, table, wrap
 
 
+def _held(r: dict, target: float) -> bool:
+    """Whether a real-time attempt held the target: the rate, no missed SYNC, the assistance lasting it."""
+    rate = r["cycle_rate_hz"]
+    return rate is not None and rate >= 0.99 * target and r["missed_syncs"] == 0 and not r["ended"]
+
+
 def render_assist(results: Path) -> str:
     data = load(results, "assist")
     summary = {row["assist"]: row for row in data["summary"]}
@@ -53,7 +59,7 @@ def render_assist(results: Path) -> str:
     stalled = 0  # attempts whose slowest answer came while the stall witness was late too
     for r in loop["realtime"]:
         rate = r["cycle_rate_hz"]
-        ok = rate is not None and rate >= 0.99 * target and r["missed_syncs"] == 0 and not r["ended"]
+        ok = _held(r, target)
         held[r["drives"]] = held.get(r["drives"], True) and ok
         during = r.get("witness_late_during_slowest_answer_ms")
         stalled += bool(during) and not ok
@@ -102,9 +108,14 @@ def render_assist(results: Path) -> str:
     verdict = f"Target ({target:.0f} Hz, 0 missed SYNCs, the assistance lasting the attempt, in every run): " + (
         f"met ({'; '.join(best)})." if best else "not met in any configuration."
     )
-    if stalled:
+    short = sum(1 for r in loop["realtime"] if not _held(r, target))
+    cpus = [r["drives_cpu_per_sync_ms"] for r in loop["realtime"] if r.get("drives_cpu_per_sync_ms") is not None]
+    cpu_note = f"; {min(cpus):.2f}-{max(cpus):.2f} ms of its CPU a SYNC" if cpus else ""
+    if short and any("witness_late_max_ms" in r for r in loop["realtime"]):
         verdict += (
-            f" In {stalled} of the attempts that fell short, the stall witness was late too while the slowest answer "
-            "was awaited: the machine stopped, not the loop or the drives."
+            f" Of the {short} attempts that fell short, the stall witness was late too while the slowest answer was "
+            f"awaited in {stalled} (the machine stopped); in the other {short - stalled} it was on time: the "
+            "simulated drives' answer itself came late (a Python process handling the SYNC, its motors and the "
+            f"hand{cpu_note})."
         )
     return "\n\n".join((section(head, body, tail), realtime, wrap(verdict)))

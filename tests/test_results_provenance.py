@@ -1,0 +1,49 @@
+"""Every committed benchmark result carries its provenance: the commit it ran on and whether the tree was dirty,
+the load average before and after, the machine, and the peers' versions and settings (benchmarks/common.py)."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+FILES = sorted(RESULTS.glob("*.json"))
+
+
+def test_there_are_results_to_check():
+    assert len(FILES) >= 20
+
+
+@pytest.mark.parametrize("path", FILES, ids=[p.stem for p in FILES])
+def test_a_result_names_the_commit_the_load_and_its_peers(path: Path):
+    provenance = json.loads(path.read_text()).get("provenance")
+    assert provenance, f"{path.name} has no provenance: rerun its benchmark"
+    assert re.fullmatch(r"[0-9a-f]{40}", provenance["commit"] or ""), f"{path.name}: commit {provenance['commit']!r}"
+    assert isinstance(provenance["dirty"], bool), f"{path.name}: dirty {provenance['dirty']!r}"
+    for key in ("load_before", "load_after"):
+        load = provenance[key]
+        assert len(load) == 3 and all(x >= 0 for x in load), f"{path.name}: {key} {load!r}"
+    assert provenance["cpus"] >= 1 and provenance["machine"] and provenance["python"]
+    for name, peer in provenance.get("peers", {}).items():
+        assert peer.get("version"), f"{path.name}: peer {name} has no version"
+
+
+@pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="not a git checkout")
+def test_every_result_came_from_a_commit_of_this_history():
+    shallow = subprocess.run(
+        ["git", "rev-parse", "--is-shallow-repository"], cwd=ROOT, capture_output=True, text=True, timeout=30
+    )
+    if shallow.stdout.strip() != "false":
+        pytest.skip("a shallow clone: the history is not here")
+    commits = {json.loads(p.read_text())["provenance"]["commit"] for p in FILES if "provenance" in p.read_text()}
+    for commit in sorted(c for c in commits if c):
+        ancestor = subprocess.run(
+            ["git", "merge-base", "--is-ancestor", commit, "HEAD"], cwd=ROOT, capture_output=True, timeout=30
+        )
+        assert ancestor.returncode == 0, f"{commit} is not in this branch's history"
