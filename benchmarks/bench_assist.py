@@ -294,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{seeds} synthetic beginners (seeds 0-{seeds - 1}) on configs/guide_assist.yaml's plan, simulated clock at "
         f"{RATE:g} Hz; off: fixture stiffness, damping and wall 0 (drives enabled at zero torque); on: the config's "
         f"fixture, fade none; real time: {args.realtime_runs} attempts at {REALTIME_RATE:g} Hz a configuration, clock "
-        "realtime, max 8 s, each beside a SCHED_FIFO-99 stall witness (benchmarks/witness.py)"
+        "realtime, max 8 s, each beside the stall witnesses (benchmarks/witness.py: SCHED_FIFO 99, one per CPU)"
     )
     save("assist", rows, notes, extra={"summary": summary, "loop": loop, "paired_better": better, "seeds": seeds})
     return 0

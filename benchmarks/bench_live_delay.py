@@ -17,8 +17,9 @@ Both with the stage's threads at ordinary priority (the shortest slice EEVDF gra
 keeps both busy, and only a real-time policy wins every wake-up from it (a C probe at ordinary priority, with or
 without the short slice, wakes more than 2 ms late ~50 times in 10 s beside the page; under SCHED_FIFO, never).
 
-Each attempt runs beside a stall witness (``benchmarks/witness.py``: a process under SCHED_FIFO 99 waking every
-millisecond, which nothing inside the machine can delay) and records the stolen time (``steal_ticks_*``,
+Each attempt runs beside a stall witness (``benchmarks/witness.py``: on each CPU a process pinned to it under
+SCHED_FIFO 99 waking every millisecond, which nothing inside the machine can delay) and records the stolen time
+(``steal_ticks_*``,
 /proc/stat, in 10 ms ticks): on this virtual machine the host sometimes runs other guests on our cores, and then no
 scheduling inside it is on time. A late sample during which the witness was late too is counted apart
 (``*_during_machine_stalls``): the machine stopped then, not the stage.

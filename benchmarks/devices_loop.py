@@ -187,6 +187,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
         lapses = []
         lapses_stalled = 0  # missed cycles while the stall witness was late too
         witness_worst, witness_late = 0.0, 0
+        witness_policy = None
         error = ""
         failures: list[str] = []
         clean = 0
@@ -202,6 +203,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 with Witness() as witness:
                     report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
                 witness_worst = max(witness_worst, witness.worst)
+                witness_policy = witness.policy
                 witness_late += sum(1 for _, late in witness.late if late > 2e-3)
                 execute_cpu += time.process_time() - before_execute
                 drives_cpu += process_cpu(pid) - before_cpu
@@ -271,6 +273,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             "missed_during_machine_stalls": lapses_stalled,
             "witness_late_over_2ms": witness_late,
             "witness_late_max_ms": round(witness_worst * 1e3, 3),
+            "witness": witness_policy,
             "cycles_missing_a_tpdo": missing,
             "bus_load_percent": round(statistics.median(load), 2) if load else None,
             "bus_load_worst_case_percent": round(statistics.median(worst), 2) if worst else None,

@@ -20,6 +20,7 @@ def readme_table(data: dict | None = None) -> str:
     import json
 
     from common import RESULTS
+    from readme_blocks.formatting import witness_words
 
     if data is None:
         data = json.loads((RESULTS / "devices.json").read_text())
@@ -79,8 +80,9 @@ def readme_table(data: dict | None = None) -> str:
             f"({ordinary[0]['runs_without_missed']} runs). The hypervisor stole {stolen} clock ticks of this "
             "machine's time during those runs (/proc/stat)."
             + (
-                " Beside every run a stall witness (`benchmarks/witness.py`: SCHED_FIFO 99, waking every millisecond; "
-                "late only when the whole machine stops): "
+                " Beside every run "
+                + witness_words(fifo[0].get("witness"))
+                + ": "
                 + "; ".join(
                     f"{r['rate_hz']:g} Hz {'under SCHED_FIFO' if r in fifo else 'at ordinary priority'}, late by up "
                     f"to {r['witness_late_max_ms']:.1f} ms, {r['missed_during_machine_stalls']} of the "

@@ -1,12 +1,13 @@
-"""A witness of the machine's stalls beside a real-time benchmark: a process of its own under SCHED_FIFO 99 (where
-allowed) that wakes every millisecond and notes each wake-up later than ``threshold``.
+"""A witness of the machine's stalls beside a real-time benchmark: on every CPU, a process of its own pinned to it,
+under SCHED_FIFO 99 (where allowed), that wakes every millisecond and notes each wake-up later than ``threshold``.
 
-Nothing in this machine can keep a SCHED_FIFO-99 thread from running for milliseconds: a run of such late wake-ups
-means the whole virtual machine stopped (the hypervisor ran something else: stolen time, ``/proc/stat``; or an
-interrupt storm). When a loop under test misses its deadline at the moment the witness was late too, the miss is
-the machine's, not the loop's; when the witness was on time, it is the loop's. The stolen ticks (10 ms each) say
-how much; the witness says when, to the millisecond, on the same clock as the loop (CLOCK_MONOTONIC:
-``time.perf_counter``).
+Nothing in this machine can keep a SCHED_FIFO-99 thread from running on its CPU for milliseconds: such a late
+wake-up means that CPU stopped (the hypervisor ran something else on it: stolen time, ``/proc/stat``; or an
+interrupt storm). A virtual machine's CPUs are stopped one at a time too, so there is one witness per CPU: a
+single one, running on the CPU that kept going, would miss the other's stall. When a loop under test misses its
+deadline at the moment a witness was late too, the miss is the machine's, not the loop's; when every witness was
+on time, it is the loop's. The stolen ticks (10 ms each) say how much; the witnesses say when and on which CPU, to
+the millisecond, on the same clock as the loop (CLOCK_MONOTONIC: ``time.perf_counter``).
 
     with Witness() as witness:
         ...  # the real-time attempt
@@ -17,17 +18,19 @@ how much; the witness says when, to the millisecond, on the same clock as the lo
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
 
 from common import steal_ticks
 
-#: the witness's loop (run with ``python -c``): argv period (s), threshold (s), priority (0: ordinary)
+#: the witness's loop (run with ``python -c``): argv period (s), threshold (s), priority (0: ordinary), CPU
 _PROGRAM = r"""
 import ctypes, gc, json, os, signal, sys, time
 gc.disable()
-period, threshold, priority = float(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
+period, threshold, priority, cpu = float(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
+os.sched_setaffinity(0, {cpu})
 policy = "ordinary"
 if priority:
     try:
@@ -60,11 +63,14 @@ json.dump({"policy": policy, "wakes": wakes, "worst": worst, "late": late}, sys.
 
 
 class Witness:
-    """Run the witness for the ``with`` block (see the module); ``threshold``: the lateness noted (s)."""
+    """Run the witnesses for the ``with`` block (see the module); ``threshold``: the lateness noted (s). ``late``:
+    every CPU's late wake-ups (deadline, lateness; s) in time order, ``late_by_cpu`` each CPU's."""
 
     def __init__(self, period: float = 1e-3, threshold: float = 2e-3, priority: int = 99):
         self.period, self.threshold, self.priority = period, threshold, priority
+        self.cpus = sorted(os.sched_getaffinity(0))
         self.late: list[tuple[float, float]] = []
+        self.late_by_cpu: dict[int, list[tuple[float, float]]] = {}
         self.wakes = 0
         self.worst = 0.0
         self.policy = "not run"
@@ -72,25 +78,37 @@ class Witness:
 
     def __enter__(self) -> Witness:
         self._steal = steal_ticks()
-        command = [sys.executable, "-c", _PROGRAM, str(self.period), str(self.threshold), str(self.priority)]
-        self._process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
-        if self._process.stdout.readline().strip() != "ready":
-            raise RuntimeError("the stall witness did not start")
+        self._processes = {}
+        for cpu in self.cpus:
+            command = [sys.executable, "-c", _PROGRAM, str(self.period), str(self.threshold), str(self.priority),
+                       str(cpu)]  # fmt: skip
+            process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)
+            self._processes[cpu] = process
+            if process.stdout.readline().strip() != "ready":
+                self.__exit__()
+                raise RuntimeError(f"the stall witness of CPU {cpu} did not start")
         return self
 
     def __exit__(self, *exc) -> None:
         self.steal = steal_ticks() - self._steal
-        self._process.send_signal(signal.SIGTERM)
-        try:
-            out, _ = self._process.communicate(timeout=10)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.communicate(timeout=10)
-            return
-        if self._process.returncode == 0 and out:
-            data = json.loads(out)
-            self.policy, self.wakes, self.worst = data["policy"], data["wakes"], data["worst"]
-            self.late = [tuple(x) for x in data["late"]]
+        for process in self._processes.values():
+            process.send_signal(signal.SIGTERM)
+        policies = set()
+        for cpu, process in self._processes.items():
+            try:
+                out, _ = process.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.communicate(timeout=10)
+                continue
+            if process.returncode == 0 and out:
+                data = json.loads(out)
+                policies.add(data["policy"])
+                self.wakes += data["wakes"]
+                self.worst = max(self.worst, data["worst"])
+                self.late_by_cpu[cpu] = [tuple(x) for x in data["late"]]
+        self.late = sorted(x for late in self.late_by_cpu.values() for x in late)
+        self.policy = f"{' / '.join(sorted(policies)) or 'not run'}, one per CPU ({len(self.late_by_cpu)})"
 
     def late_near(self, t: float, window: float) -> list[tuple[float, float]]:
         """The witness's late wake-ups (deadline, lateness; s) whose lateness overlaps ``t`` ± ``window``."""

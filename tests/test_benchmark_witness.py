@@ -20,9 +20,9 @@ def test_the_witness_notes_a_stop_with_its_time_and_length():
     with Witness(priority=0) as witness:
         time.sleep(0.1)
         stopped = time.perf_counter()
-        os.kill(witness._process.pid, signal.SIGSTOP)
+        [os.kill(p.pid, signal.SIGSTOP) for p in witness._processes.values()]
         time.sleep(0.05)
-        os.kill(witness._process.pid, signal.SIGCONT)
+        [os.kill(p.pid, signal.SIGCONT) for p in witness._processes.values()]
         time.sleep(0.1)
     summary = witness.summary()
     assert witness.wakes > 100

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .formatting import find, load, section, table, wrap
+from .formatting import find, load, section, table, witness_words, wrap
 
 
 def _held(r: dict, target: float) -> bool:
@@ -91,6 +91,7 @@ def render_assist(results: Path) -> str:
     )  # fmt: skip
     best = [name for name, ok in held.items() if ok]
     runs = loop.get("realtime_runs", 1)
+    witness_policy = next((r.get("witness") for r in loop["realtime"] if r.get("witness")), None)
     tail = (
         f"The deviation p95 is lower with the assistance in {data['paired_better']} of {seeds} paired seeds. "
         f"The fixture's computation (closest point, wall, Pinocchio Jacobian, τ = Jᵀ F) takes "
@@ -100,9 +101,8 @@ def render_assist(results: Path) -> str:
         f"attempt{'s' if runs > 1 else ''} at {target:.0f} Hz a configuration (an attempt ends its assistance, by "
         f"the safety rule, at the first SYNC a drive leaves unanswered by the next cycle; SYNC → all TPDOs is the "
         f"time from the master's SYNC to its having every drive's answer, which that rule needs within a period "
-        f"every cycle). Beside each attempt a process under SCHED_FIFO 99 wakes every millisecond "
-        f"(`benchmarks/witness.py`): nothing inside the machine can delay it, so its lateness while the drives' "
-        f"slowest answer was awaited says the whole machine stalled then (the hypervisor's stolen time, in 10 ms "
+        f"every cycle). Beside each attempt {witness_words(witness_policy)}: its lateness while the drives' "
+        f"slowest answer was awaited says the machine stalled then (the hypervisor's stolen time, in 10 ms "
         f"ticks, beside it):"
     )
     verdict = f"Target ({target:.0f} Hz, 0 missed SYNCs, the assistance lasting the attempt, in every run): " + (

@@ -140,3 +140,19 @@ def provenance_note(results: Path, sources: tuple[str, ...]) -> str:
         else:
             parts.append(f"`{name}.json`: commit not recorded")
     return "*Measured at " + "; ".join(parts) + ".*"
+
+
+def witness_words(policy: str | None) -> str:
+    """What ran beside a real-time benchmark as its stall witness (``benchmarks/witness.py``; ``policy`` as the
+    results record it), and what its lateness means."""
+    if policy and "one per CPU" in policy:
+        return (
+            "on each CPU a process pinned to it under SCHED_FIFO 99 woke every millisecond (`benchmarks/witness.py`); "
+            "nothing inside the machine can delay it, so its lateness means that CPU stopped (the host ran something "
+            "else on it)"
+        )
+    return (
+        "a process under SCHED_FIFO 99 woke every millisecond (`benchmarks/witness.py`); nothing inside the machine "
+        "can delay it, so its lateness means the CPU it ran on stopped (the host ran something else on it; a stall "
+        "of the other CPU alone escapes it)"
+    )

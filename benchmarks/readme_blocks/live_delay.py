@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .formatting import find, load, met, section, table
+from .formatting import find, load, met, section, table, witness_words
 
 
 def render_live_delay(results: Path) -> str:
@@ -57,9 +57,8 @@ def render_live_delay(results: Path) -> str:
         "the page's software rendering keeps both busy: a C probe beside it at ordinary priority wakes more than "
         "2 ms late now and then, with or without the shortest slice; one under SCHED_FIFO never did. "
         + (
-            "Beside every attempt ran a stall witness (`benchmarks/witness.py`: a process under SCHED_FIFO 99 waking "
-            "every millisecond, which nothing inside the machine can delay); a sample late while it was late too "
-            "was late because the whole machine stopped (the host ran something else). Per run (no viewer / "
+            f"Beside every attempt, {witness_words(runs[0].get('witness'))}; a sample late while it was late too "
+            "was late because the machine stopped. Per run (no viewer / "
             "viewer), samples later than 2 ms, of them during such stalls, the witness's worst lateness and the "
             "ticks stolen: "
             + "; ".join(
