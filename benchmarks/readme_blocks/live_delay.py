@@ -58,7 +58,15 @@ def render_live_delay(results: Path) -> str:
         "2 ms late now and then, with or without the shortest slice; one under SCHED_FIFO never did. "
         + (
             f"Beside every attempt, {witness_words(runs[0].get('witness'))}; a sample late while it was late too "
-            "was late because the machine stopped. Per run (no viewer / "
+            "was late because the machine stopped"
+            + (
+                " (the witnesses also preempt the browser every millisecond on both CPUs, which gives an ordinary "
+                "thread the CPU sooner than it would get it without them: the ordinary rows are better with them than "
+                "without; a thread under SCHED_FIFO preempts the browser anyway)"
+                if "one per CPU" in (runs[0].get("witness") or "")
+                else ""
+            )
+            + ". Per run (no viewer / "
             "viewer), samples later than 2 ms, of them during such stalls, the witness's worst lateness and the "
             "ticks stolen: "
             + "; ".join(
