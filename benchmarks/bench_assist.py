@@ -135,7 +135,13 @@ def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) 
             live["realtime_priority"] = priority
         out = attempt(tmp, plan, space, {"assist": ON, **live}, drives_pid=pid)
     cpu = {"drives_cpu_per_sync_ms": 1e3 * out["drives_cpu_s"] / max(1, len(out["answers"]))}
-    return {**out["assistance"], **answered(out), **cpu, "stopped": out["stopped"], "slowest": out["slowest"]}
+    return {**assistance_of(out), **cpu}
+
+
+def assistance_of(out: dict) -> dict:
+    """A real-time attempt's assistance summary, its drives' answers (:func:`answered`), how it stopped and its
+    slowest answer: what :func:`realtime_row` takes."""
+    return {**out["assistance"], **answered(out), "stopped": out["stopped"], "slowest": out["slowest"]}
 
 
 def answered(out: dict) -> dict:
@@ -157,8 +163,7 @@ def realtime_row(configuration: str, run: int, assistance: dict, witness: Witnes
     slowest = assistance.get("slowest")
     if slowest is not None:
         t, took = slowest
-        overlapping = [late for d, late in witness.late if d < t + took and d + late > t]
-        row["witness_late_during_slowest_answer_ms"] = round(1e3 * max(overlapping, default=0.0), 3)
+        row["witness_late_during_slowest_answer_ms"] = round(1e3 * witness.late_during(t, t + took), 3)
     return row
 
 
@@ -186,8 +191,7 @@ def realtime_loops(tmp: Path, plan, space, runs: int) -> list[dict]:
             with Witness() as witness:
                 if elsewhere is None:
                     out = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
-                    assistance = {**out["assistance"], **answered(out), "stopped": out["stopped"],
-                                  "slowest": out["slowest"]}  # fmt: skip
+                    assistance = assistance_of(out)
                 else:
                     assistance = elsewhere()
             rows.append(realtime_row(name, run, assistance, witness))

@@ -19,9 +19,8 @@ without the short slice, wakes more than 2 ms late ~50 times in 10 s beside the 
 
 Each attempt runs beside a stall witness (``benchmarks/witness.py``: on each CPU a process pinned to it under
 SCHED_FIFO 99 waking every millisecond, which nothing inside the machine can delay) and records the stolen time
-(``steal_ticks_*``,
-/proc/stat, in 10 ms ticks): on this virtual machine the host sometimes runs other guests on our cores, and then no
-scheduling inside it is on time. A late sample during which the witness was late too is counted apart
+(``steal_ticks_*``, /proc/stat, in 10 ms ticks): on this virtual machine the host sometimes runs other guests on our
+cores, and then no scheduling inside it is on time. A late sample during which the witness was late too is counted apart
 (``*_during_machine_stalls``): the machine stopped then, not the stage.
 
 Counted: samples more than 2 ms late in each case; and paired, sample by sample (the same seed gives the same
@@ -96,12 +95,8 @@ class Recording:
 def during_stalls(witness: Witness, done: np.ndarray, lateness_ms: np.ndarray) -> np.ndarray:
     """Which samples were late while the stall witness was late too: its late wake-up overlaps the time the
     sample waited beyond the best (from ``done`` less its lateness to ``done``)."""
-    if not witness.late:
-        return np.zeros(len(done), dtype=bool)
-    start, late = np.asarray(witness.late).T
-    end = start + late
     waited_from = done - lateness_ms / 1000
-    return np.array([bool(np.any((start < b) & (end > a))) for a, b in zip(waited_from, done, strict=True)])
+    return np.array([witness.late_during(a, b) > 0 for a, b in zip(waited_from, done, strict=True)], dtype=bool)
 
 
 def pipeline(tmp: Path, seconds: float, priority: int | None) -> Path:

@@ -204,7 +204,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                     report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
                 witness_worst = max(witness_worst, witness.worst)
                 witness_policy = witness.policy
-                witness_late += sum(1 for _, late in witness.late if late > 2e-3)
+                witness_late += witness.summary()["witness_late_over_2ms"]
                 execute_cpu += time.process_time() - before_execute
                 drives_cpu += process_cpu(pid) - before_cpu
                 run_frames = device.bus.frames[before_frames:]
@@ -233,7 +233,10 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 new = [m for m in device.controller.missed_log[before_lapses:] if log.start <= m[0] <= log.end]
                 lapses += [round(late * 1e3, 1) for due, late, _ in new]
                 origin = device.controller.clock._origin  # the clock's time 0 on perf_counter
-                lapses_stalled += sum(1 for due, late, _ in new if witness.late_near(origin + due, late))
+                # a witness late within the cycle's lateness either side of its due time
+                lapses_stalled += sum(
+                    1 for due, late, _ in new if witness.late_during(origin + due - late, origin + due + late) > 0
+                )
                 if report.status != "completed":
                     print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
                     failures.append(f"run {k + 1}: {report.message}")

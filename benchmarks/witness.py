@@ -12,7 +12,7 @@ the millisecond, on the same clock as the loop (CLOCK_MONOTONIC: ``time.perf_cou
     with Witness() as witness:
         ...  # the real-time attempt
     witness.summary()  # {"witness_late_over_2ms": .., "witness_late_max_ms": .., "steal_ticks": ..}
-    witness.late_near(t, 0.05)  # the witness's late wake-ups within 50 ms of perf_counter time t
+    witness.late_during(a, b)  # the worst lateness of a witness while perf_counter time ran from a to b (0: none)
 """
 
 from __future__ import annotations
@@ -110,9 +110,10 @@ class Witness:
         self.late = sorted(x for late in self.late_by_cpu.values() for x in late)
         self.policy = f"{' / '.join(sorted(policies)) or 'not run'}, one per CPU ({len(self.late_by_cpu)})"
 
-    def late_near(self, t: float, window: float) -> list[tuple[float, float]]:
-        """The witness's late wake-ups (deadline, lateness; s) whose lateness overlaps ``t`` ± ``window``."""
-        return [(d, late) for d, late in self.late if d - window <= t <= d + late + window]
+    def late_during(self, start: float, end: float) -> float:
+        """The longest a witness was late (s) while perf_counter time ran from ``start`` to ``end``: the largest
+        lateness of the late wake-ups whose wait (deadline to wake-up) overlaps that span; 0.0 if none did."""
+        return max((late for d, late in self.late if d < end and d + late > start), default=0.0)
 
     def summary(self) -> dict:
         return {

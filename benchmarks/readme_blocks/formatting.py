@@ -142,10 +142,15 @@ def provenance_note(results: Path, sources: tuple[str, ...]) -> str:
     return "*Measured at " + "; ".join(parts) + ".*"
 
 
+def witness_per_cpu(policy: str | None) -> bool:
+    """Whether a result ran with a stall witness on each CPU (``policy`` as the results record it), not a single one."""
+    return bool(policy) and "one per CPU" in policy
+
+
 def witness_words(policy: str | None) -> str:
     """What ran beside a real-time benchmark as its stall witness (``benchmarks/witness.py``; ``policy`` as the
     results record it), and what its lateness means."""
-    if policy and "one per CPU" in policy:
+    if witness_per_cpu(policy):
         return (
             "on each CPU a process pinned to it under SCHED_FIFO 99 woke every millisecond (`benchmarks/witness.py`); "
             "nothing inside the machine can delay it, so its lateness means that CPU stopped (the host ran something "

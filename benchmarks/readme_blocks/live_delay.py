@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .formatting import find, load, met, section, table, witness_words
+from .formatting import find, load, met, section, table, witness_per_cpu, witness_words
 
 
 def render_live_delay(results: Path) -> str:
@@ -63,7 +63,7 @@ def render_live_delay(results: Path) -> str:
                 " (the witnesses also preempt the browser every millisecond on both CPUs, which gives an ordinary "
                 "thread the CPU sooner than it would get it without them: the ordinary rows are better with them than "
                 "without; a thread under SCHED_FIFO preempts the browser anyway)"
-                if "one per CPU" in (runs[0].get("witness") or "")
+                if witness_per_cpu(runs[0].get("witness"))
                 else ""
             )
             + ". Per run (no viewer / "
