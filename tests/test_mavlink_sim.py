@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from surgiplan.plugins.devices.mavlink.conventions import EARTH_RADIUS, LocalFrame, MapProjection
 from surgiplan.plugins.devices.mavlink.device import MavlinkVehicleSettings
-from surgiplan.plugins.devices.mavlink.flight import Flight, Route
+from surgiplan.plugins.devices.mavlink.flight import SETPOINTS_BEFORE_SWITCH, Flight, Route
 from surgiplan.plugins.devices.mavlink.gcs import GroundStation
 from surgiplan.plugins.devices.mavlink.link import Endpoint, VehicleError, mavlink, signing_key
 from surgiplan.plugins.devices.mavlink.mission import MissionItem
@@ -229,6 +229,28 @@ def test_stream_sends_every_grid_time_once_in_order_whatever_the_pumps():
     assert len(station.sent) == before
     stream([], now=wall + 0.06)
     assert len(station.sent) == before + 1 and station.sent[-1].time_boot_ms == stamps[-1]
+
+
+def test_setpoints_flow_for_half_a_second_of_their_own_before_the_switch():
+    """The flight switches to offboard once its setpoints have flowed SETPOINTS_BEFORE_SWITCH of vehicle
+    time, counted from the stream's first setpoint: reports that queued while nobody pumped (here 0.55 s
+    of them, arriving in one burst before the stream's first tick) count for nothing. Waiting on the
+    vehicle's clock from a report read before the pump, the flight used to switch with one setpoint sent,
+    and on a lossy link the vehicle refused offboard ('no setpoints')."""
+    profile = TimedPath.along(np.array([[0.0, 0, 0], [0, 0, -1.5]]), 1.0, 1.0, 0.05, vertical_speed=0.5)
+    station = _Station()
+    stream = SetpointStream(station, profile, hold=[0.0, 0.0, 0.0])
+    station.vehicle.vehicle_time = 4.65  # a burst of reports from 4.1 s on, pumped at once
+    assert stream.flowing() == 0.0
+    stream([], now=0.0)
+    assert stream.sent == 1 and stream.flowing() == 0.0
+    ticks = 0
+    while stream.flowing() < SETPOINTS_BEFORE_SWITCH:
+        station.vehicle.vehicle_time += 0.05
+        stream([], now=0.0)
+        ticks += 1
+    assert ticks == 10 and stream.sent == 11  # one grid setpoint per report, 0.5 s of them
+    assert [m.time_boot_ms for m in station.sent] == list(range(4750, 5300, 50))
 
 
 def test_stream_samples_the_profile_the_same_whenever_it_starts():

@@ -48,6 +48,11 @@ from .profile import TimedPath
 from .stream import SetpointStream
 
 
+#: how long (s of vehicle time) the setpoints flow before the switch to offboard mode: 10 grid setpoints,
+#: so that a lossy link (20 % lost) still delivers some before the vehicle judges the stream
+SETPOINTS_BEFORE_SWITCH = 0.5
+
+
 class Refusal(SurgiplanError):
     """The flight will not start; the message says why.
 
@@ -323,8 +328,7 @@ class Flight:
         gcs.tickers.append(stream)
         try:
             gcs.step = "offboard setpoints"
-            begin = gcs.vehicle.vehicle_time
-            gcs.wait_for(lambda: gcs.vehicle.vehicle_time >= begin + 0.5, s.timeouts.mode, "no LOCAL_POSITION_NED")
+            gcs.wait_for(lambda: stream.flowing() >= SETPOINTS_BEFORE_SWITCH, s.timeouts.mode, "no LOCAL_POSITION_NED")
             gcs.step = "mode change"
             gcs.set_mode("offboard", s.timeouts.mode)
             gcs.step = "arming"
@@ -362,7 +366,7 @@ class Flight:
                 if self.route.land:
                     gcs.command(mavlink.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
                 else:
-                    gcs.command(mavlink.MAV_CMD_DO_SET_MODE, px4_mode_command("hold"))
+                    gcs.set_mode("hold", s.timeouts.mode)  # its HEARTBEAT showing hold stands for a lost ACK
                 gcs.tickers.remove(stream)
                 if self.route.land:
                     self._watch(

@@ -66,9 +66,20 @@ class SetpointStream:
         self._last_index: int | None = None  # grid index of the newest setpoint sent
         self._last_wall = -math.inf
         self.sent = 0
+        #: the vehicle's newest reported time (ms) when the first setpoint went out
+        self._first_ms: int | None = None
 
     def _now_ms(self) -> int:
         return round(self.gcs.vehicle.vehicle_time * 1000)
+
+    def flowing(self) -> float:
+        """How long (s of vehicle time, by its newest report) setpoints have been going out; 0 before the first.
+
+        What PX4's rule (setpoints flowing before the switch to offboard) is measured by: the time since the
+        stream's first setpoint, not since some earlier report. Reports that queued while nobody pumped arrive
+        in one burst; a wait on the vehicle's clock alone ends on such a burst with a single setpoint sent.
+        """
+        return 0.0 if self._first_ms is None else (self._now_ms() - self._first_ms) / 1000
 
     def begin(self) -> float:
         """Start the profile at the first grid time two leads after the vehicle's newest report (vehicle s):
@@ -103,6 +114,8 @@ class SetpointStream:
         p, v, a = self.setpoints(indices)
         gcs = self.gcs
         gcs.send([gcs.position_target(t, *x) for t, *x in zip(times, p, v, a, strict=True)])
+        if self._first_ms is None:
+            self._first_ms = self._now_ms()
         self._last_index = int(max(indices[-1], self._last_index if self._last_index is not None else indices[-1]))
         self._last_wall = now
         self.sent += len(indices)
