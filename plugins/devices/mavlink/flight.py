@@ -47,7 +47,6 @@ from .mission import MissionItem, compare_missions
 from .profile import TimedPath
 from .stream import SetpointStream
 
-
 #: how long (s of vehicle time) the setpoints flow before the switch to offboard mode: 10 grid setpoints,
 #: so that a lossy link (20 % lost) still delivers some before the vehicle judges the stream
 SETPOINTS_BEFORE_SWITCH = 0.5
