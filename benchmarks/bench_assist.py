@@ -37,6 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import save, table
+from schedtrace import SchedTrace, thread_names, threads_of
+from schedtrace import summary as schedtrace_summary
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.clearance import intervals, threshold_value
 from surgiplan.guidance import Guide, GuideContext, SourceStopped
@@ -94,17 +96,25 @@ def attempt(tmp: Path, plan, space, settings: dict, drives_pid: int | None = Non
         nodes = [a.node_id for a in source.device.master.axes]
         frames = list(source.device.bus.frames) if clock.realtime else []
         answers = answer_latencies(frames, nodes) if clock.realtime else np.zeros(0)
+        threads = thread_names()
+        threads.update({tid: "drives' process" for tid in (threads_of(drives_pid) if drives_pid is not None else {})})
+        ended = source.assist.events[0]["t"] if source.assist is not None and source.assist.events else None
+        last_cycle = source.loop_span[1]
         source.close()
-    slowest = None  # the SYNC the drives answered last (perf_counter time s) and how long they took (s)
-    if len(answers):
-        syncs = [t for t, cob, _ in frames if cob == 0x080]
-        k = int(np.argmax(answers))
-        slowest = (clock._origin + syncs[k], float(answers[k]))
+    syncs = np.array([t for t, cob, _ in frames if cob == 0x080])
+    slowest = None  # the loop's SYNC the drives answered last (perf_counter time s) and how long they took (s)
+    looped = int(np.sum(syncs[: len(answers)] <= last_cycle + 1e-9))  # not the SYNC that disables them after it
+    if looped:
+        k = int(np.argmax(answers[:looped]))
+        slowest = (clock.origin + syncs[k], float(answers[k]))
+    ending = None  # from the SYNC whose answers were missed to the cycle that found them missing (perf_counter s)
+    if ended is not None and np.any(syncs < ended):
+        ending = (clock.origin + float(syncs[syncs < ended][-1]), clock.origin + ended)
     guide.finish()
     metrics = guide.metrics()
     return {"metrics": metrics, "assistance": source.assistance, "compute": compute, "stopped": stopped,
             "completed": guide.reached_goal, "answers": answers, "drives_cpu_s": drives_cpu,
-            "slowest": slowest}  # fmt: skip
+            "slowest": slowest, "ending": ending, "threads": threads}  # fmt: skip
 
 
 def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) -> dict:
@@ -141,7 +151,8 @@ def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) 
 def assistance_of(out: dict) -> dict:
     """A real-time attempt's assistance summary, its drives' answers (:func:`answered`), how it stopped and its
     slowest answer: what :func:`realtime_row` takes."""
-    return {**out["assistance"], **answered(out), "stopped": out["stopped"], "slowest": out["slowest"]}
+    return {**out["assistance"], **answered(out), "stopped": out["stopped"], "slowest": out["slowest"],
+            "ending": out["ending"], "threads": out["threads"]}  # fmt: skip
 
 
 def answered(out: dict) -> dict:
@@ -151,9 +162,12 @@ def answered(out: dict) -> dict:
     return latency_summary(out["answers"], 1.0 / REALTIME_RATE)
 
 
-def realtime_row(configuration: str, run: int, assistance: dict, witness: Witness) -> dict:
+def realtime_row(configuration: str, run: int, assistance: dict, witness: Witness, trace: SchedTrace) -> dict:
     """One real-time attempt's row, with what the stall witness saw meanwhile and while the drives' slowest answer
-    was awaited (a late wake-up of a SCHED_FIFO-99 process then: the machine stalled, not the drives)."""
+    was awaited (a late wake-up of a SCHED_FIFO-99 process then: the machine stalled, not the drives), and what the
+    kernel's scheduler trace says of the two processes' wake-ups: the slowest, and the slowest between the SYNC
+    whose answer was missed and the cycle that found it missing (its delivery part: the host's, see
+    :mod:`schedtrace`)."""
     keys = ("cycle_rate_hz", "missed_syncs", "cycles", "ended", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms",
             "sync_to_tpdos_p50_ms", "sync_to_tpdos_p99_ms", "sync_to_tpdos_max_ms", "answers_later_than_a_period",
             "drives_cpu_per_sync_ms")  # fmt: skip
@@ -164,6 +178,10 @@ def realtime_row(configuration: str, run: int, assistance: dict, witness: Witnes
     if slowest is not None:
         t, took = slowest
         row["witness_late_during_slowest_answer_ms"] = round(1e3 * witness.late_during(t, t + took), 3)
+    ending = assistance.get("ending")
+    row.update(schedtrace_summary(trace, assistance.get("threads") or {}, ending))
+    if ending is not None:
+        row["witness_late_when_missed_ms"] = round(1e3 * witness.late_during(*ending), 3)
     return row
 
 
@@ -188,19 +206,21 @@ def realtime_loops(tmp: Path, plan, space, runs: int) -> list[dict]:
     rows = []
     for run in range(runs):
         for name, elsewhere in configurations:
-            with Witness() as witness:
+            with Witness() as witness, SchedTrace() as trace:
                 if elsewhere is None:
                     out = attempt(tmp, plan, space, {"hand": {"level": "beginner", "seed": 0}, "assist": ON, **live})
                     assistance = assistance_of(out)
                 else:
                     assistance = elsewhere()
-            rows.append(realtime_row(name, run, assistance, witness))
+            rows.append(realtime_row(name, run, assistance, witness, trace))
             r = rows[-1]
             print(
                 f"run {run}, {name}: {r['cycles']} cycles, {r['missed_syncs']} missed SYNCs, ended: {r['ended']}; "
                 f"witness max late {r['witness_late_max_ms']} ms "
                 f"({r.get('witness_late_during_slowest_answer_ms', '-')} ms during the slowest answer, "
-                f"{r['sync_to_tpdos_max_ms']} ms), {r['steal_ticks']} ticks stolen",
+                f"{r['sync_to_tpdos_max_ms']} ms), {r['steal_ticks']} ticks stolen; slowest wake-up when the answer "
+                f"was missed: {r.get('span_wakeup_max_ms', '-')} ms ({r.get('span_wakeup_thread')}, delivery "
+                f"{r.get('span_delivery_ms', '-')} ms)",
                 flush=True,
             )
     return rows

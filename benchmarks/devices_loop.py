@@ -24,6 +24,7 @@ import numpy as np
 from common import steal_ticks, table
 from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
 from devices_table import DRIVES_PRIORITY, PRIORITY, SEPARATE, SEPARATE_RT, THREAD
+from schedtrace import SchedTrace, slowest_during, thread_names, threads_of
 from surgiplan import load_scene
 from surgiplan.devices import Trajectory
 from surgiplan.errors import SurgiplanError
@@ -186,6 +187,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
         syncs = 0
         lapses = []
         lapses_stalled = 0  # missed cycles while the stall witness was late too
+        lapse_wakeups: list[list] = []  # per missed cycle: its lateness, the slowest wake-up then, its delivery (ms)
         witness_worst, witness_late = 0.0, 0
         witness_policy = None
         error = ""
@@ -200,7 +202,9 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
                 before_execute = time.process_time()
                 before_lapses = len(device.controller.missed_log)
-                with Witness() as witness:
+                threads = thread_names()
+                threads.update({tid: "drives' process" for tid in (threads_of(pid) if pid is not None else {})})
+                with Witness() as witness, SchedTrace() as trace:
                     report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
                 witness_worst = max(witness_worst, witness.worst)
                 witness_policy = witness.policy
@@ -232,11 +236,19 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 worst.append(report.metrics["bus_load_worst_case_percent"])
                 new = [m for m in device.controller.missed_log[before_lapses:] if log.start <= m[0] <= log.end]
                 lapses += [round(late * 1e3, 1) for due, late, _ in new]
-                origin = device.controller.clock._origin  # the clock's time 0 on perf_counter
+                origin = device.controller.clock.origin  # the clock's time 0 on perf_counter
                 # a witness late within the cycle's lateness either side of its due time
                 lapses_stalled += sum(
                     1 for due, late, _ in new if witness.late_during(origin + due - late, origin + due + late) > 0
                 )
+                # the kernel's account of each missed cycle: the slowest wake-up of the two processes' threads then
+                # (and its delivery part, the host's: see schedtrace)
+                if trace.available and new:
+                    rows_ = trace.wakeups(threads)
+                    for due, late, _ in new:
+                        wait, tid, delivery = slowest_during(rows_, origin + due - late, origin + due + late)
+                        lapse_wakeups.append([round(late * 1e3, 2), round(wait * 1e3, 3), round(delivery * 1e3, 3),
+                                              threads.get(tid)])  # fmt: skip
                 if report.status != "completed":
                     print(f"  {mode} {rate} Hz run {k}: {report.message}", flush=True)
                     failures.append(f"run {k + 1}: {report.message}")
@@ -274,6 +286,8 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             "missed_lapses_late_ms": lapses[:20],
             "steal_ticks": steal_ticks() - stolen,
             "missed_during_machine_stalls": lapses_stalled,
+            "missed_slowest_wakeup": lapse_wakeups[:20],
+            "sched_trace": "ftrace sched_waking/wakeup/switch" if SchedTrace().root is not None else "not available",
             "witness_late_over_2ms": witness_late,
             "witness_late_max_ms": round(witness_worst * 1e3, 3),
             "witness": witness_policy,

@@ -92,6 +92,25 @@ def readme_table(data: dict | None = None) -> str:
                 + "."
                 if all("witness_late_max_ms" in r for r in fifo + ordinary)
                 else ""
+            )
+            + (
+                " The kernel's scheduler trace (`benchmarks/schedtrace.py`) of each missed cycle: "
+                + "; ".join(
+                    f"{r['rate_hz']:g} Hz {'under SCHED_FIFO' if r in fifo else 'at ordinary priority'}: "
+                    + (
+                        ", ".join(
+                            f"{late:g} ms late with {wait:.2f} ms the slowest wake-up then ({who}, {delivery:.2f} ms "
+                            "of it the host's delivery)"
+                            for late, wait, delivery, who in r["missed_slowest_wakeup"]
+                        )
+                        or "none missed"
+                    )
+                    for r in fifo + ordinary
+                )
+                + " (a wake-up's delivery: from the waker's CPU asking to the sleeper's CPU taking it, which on a "
+                "virtual machine whose CPU had halted is the hypervisor running it again)."
+                if all("missed_slowest_wakeup" in r for r in fifo + ordinary)
+                else ""
             ),
         ]
     lines.append("")

@@ -11,6 +11,9 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
 from witness import Witness
@@ -32,3 +35,36 @@ def test_the_witness_notes_a_stop_with_its_time_and_length():
     assert witness.late_during(inside, inside) >= 0.045
     before = stopped - 0.05
     assert witness.late_during(before, before) == 0.0  # before it, on time
+
+
+#: a piece of ftrace's text (two CPUs): thread 700 woken from CPU 0 onto the idle CPU 1, which takes the wake-up
+#: 2.7 ms later (the host delivering it) and runs it 6 us after that; thread 800 woken on the waker's own CPU
+_TRACE = """\
+# tracer: nop
+          python-600     [000] d..2.   100.000000: sched_waking: comm=python pid=700 prio=79 target_cpu=001
+          python-600     [000] d..2.   100.000100: sched_waking: comm=python pid=800 prio=69 target_cpu=000
+          python-600     [000] d..2.   100.000150: sched_switch: prev_comm=python prev_pid=600 prev_prio=69 \
+prev_state=S ==> next_comm=python next_pid=800 next_prio=69
+          <idle>-0       [001] dNh2.   100.002700: sched_wakeup: comm=python pid=700 prio=79 target_cpu=001
+          <idle>-0       [001] d..2.   100.002706: sched_switch: prev_comm=swapper/1 prev_pid=0 prev_prio=120 \
+prev_state=R ==> next_comm=python next_pid=700 next_prio=79
+"""
+
+
+def test_the_scheduler_trace_splits_a_wake_up_into_the_hosts_delivery_and_the_run_queue():
+    from schedtrace import SchedTrace, summary
+
+    trace = SchedTrace()
+    trace.available, trace.text = True, _TRACE
+    rows = trace.wakeups([700, 800, 900])
+    assert rows[700].tolist() == [[100.0, pytest.approx(0.0027), pytest.approx(6e-6)]]
+    ((waking, delivery, queue),) = rows[800]
+    assert waking == 100.0001 and np.isnan(delivery) and queue == pytest.approx(5e-5)
+    assert len(rows[900]) == 0
+    names = {700: "drives", 800: "master", 900: "idle"}
+    s = summary(trace, names, span=(100.001, 100.002))  # inside thread 700's wait
+    assert s["wakeups"] == 2 and s["wakeups_over_1ms"] == 1 and s["wakeup_max_ms"] == pytest.approx(2.706)
+    assert s["delivery_max_ms"] == pytest.approx(2.7)
+    assert s["span_wakeup_thread"] == "drives" and s["span_delivery_ms"] == pytest.approx(2.7)
+    after = summary(trace, names, span=(100.003, 100.004))  # every thread running by then
+    assert after["span_wakeup_max_ms"] == 0.0 and after["span_wakeup_thread"] is None

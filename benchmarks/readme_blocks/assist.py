@@ -7,6 +7,9 @@ from pathlib import Path
 
 from .formatting import find, load, section, table, witness_words, wrap
 
+#: a wake-up whose delivery (sched_waking to sched_wakeup) took this long (ms) was the host's doing
+HOST_DELIVERY_MS = 0.5
+
 
 def _held(r: dict, target: float) -> bool:
     """Whether a real-time attempt held the target: the rate, no missed SYNC, the assistance lasting it."""
@@ -57,16 +60,20 @@ def render_assist(results: Path) -> str:
     rows, held = [], {}
     answered = ("sync_to_tpdos_p50_ms", "sync_to_tpdos_p99_ms", "sync_to_tpdos_max_ms")
     stalled = 0  # attempts whose slowest answer came while the stall witness was late too
+    traced = all("span_wakeup_max_ms" in r or _held(r, target) for r in loop["realtime"])
     for r in loop["realtime"]:
         rate = r["cycle_rate_hz"]
         ok = _held(r, target)
         held[r["drives"]] = held.get(r["drives"], True) and ok
-        during = r.get("witness_late_during_slowest_answer_ms")
+        during = r.get("witness_late_when_missed_ms" if traced else "witness_late_during_slowest_answer_ms")
         stalled += bool(during) and not ok
         witness = "-"
         if "witness_late_max_ms" in r:
             late = f"{during:.1f}" if during is not None else "-"
             witness = f"{r['witness_late_max_ms']:.1f} ({late}) ms, {r['steal_ticks']}"
+        wakeup = "-"
+        if r.get("span_wakeup_max_ms") is not None:
+            wakeup = f"{r['span_wakeup_max_ms']:.2f} ms, {r['span_wakeup_thread']} ({r['span_delivery_ms']:.2f})"
         rows.append(
             [
                 r["drives"],
@@ -80,13 +87,17 @@ def render_assist(results: Path) -> str:
                 " / ".join(f"{r[k]:.3f}" for k in answered) if r.get(answered[0]) is not None else "-",
                 f"{r['drives_cpu_per_sync_ms']:.3f} ms" if r.get("drives_cpu_per_sync_ms") is not None else "-",
                 witness,
+                *([wakeup] if traced else []),
                 r["ended"] or r.get("stopped") or "lasted the attempt",
             ]
         )
+    during_words = "when the answer was missed" if traced else "during the slowest answer"
     realtime = table(
         ["drives (real-time mode)", "run", "cycle rate", "missed SYNCs", "cycles assisted",
          "jitter p50 / p99 / max (ms)", "SYNC → all TPDOs p50 / p99 / max (ms)", "drives CPU per SYNC",
-         "witness late max (during the slowest answer), ticks stolen", "assistance ended"],
+         f"witness late max ({during_words}), ticks stolen",
+         *(["slowest wake-up when the answer was missed, thread (its delivery, ms)"] if traced else []),
+         "assistance ended"],
         rows,
     )  # fmt: skip
     best = [name for name, ok in held.items() if ok]
@@ -102,8 +113,17 @@ def render_assist(results: Path) -> str:
         f"the safety rule, at the first SYNC a drive leaves unanswered by the next cycle; SYNC → all TPDOs is the "
         f"time from the master's SYNC to its having every drive's answer, which that rule needs within a period "
         f"every cycle). Beside each attempt {witness_words(witness_policy)}: its lateness while the drives' "
-        f"slowest answer was awaited says the machine stalled then (the hypervisor's stolen time, in 10 ms "
-        f"ticks, beside it):"
+        f"{'missed' if traced else 'slowest'} answer was awaited says the machine stalled then (the hypervisor's "
+        f"stolen time, in 10 ms ticks, beside it)"
+        + (
+            ". The kernel's scheduler trace (ftrace, `benchmarks/schedtrace.py`) gives the slowest wake-up of a "
+            "thread of the master or the drives while the missed answer was awaited, and its delivery: the time "
+            "from the waker's CPU asking (`sched_waking`) to the sleeper's CPU taking it (`sched_wakeup`), which "
+            "on a virtual machine whose CPU had halted, idle, is the hypervisor running it again; the witnesses, "
+            "each woken by its own timer, cannot see it:"
+            if traced
+            else ":"
+        )
     )
     verdict = f"Target ({target:.0f} Hz, 0 missed SYNCs, the assistance lasting the attempt, in every run): " + (
         f"met ({'; '.join(best)})." if best else "not met in any configuration."
@@ -111,7 +131,23 @@ def render_assist(results: Path) -> str:
     short = sum(1 for r in loop["realtime"] if not _held(r, target))
     cpus = [r["drives_cpu_per_sync_ms"] for r in loop["realtime"] if r.get("drives_cpu_per_sync_ms") is not None]
     cpu_note = f"; {min(cpus):.2f}-{max(cpus):.2f} ms of its CPU a SYNC" if cpus else ""
-    if short and any("witness_late_max_ms" in r for r in loop["realtime"]):
+    if short and traced:
+        failed = [r for r in loop["realtime"] if not _held(r, target)]
+        host = sum(1 for r in failed if (r.get("span_delivery_ms") or 0.0) >= HOST_DELIVERY_MS)
+        queued = sum(
+            1
+            for r in failed
+            if (r.get("span_delivery_ms") or 0.0) < HOST_DELIVERY_MS and (r.get("span_wakeup_max_ms") or 0.0) >= 1.0
+        )
+        verdict += (
+            f" Of the {short} attempts that fell short, {host} had a wake-up whose delivery by the host took "
+            f"{HOST_DELIVERY_MS:g} ms or more while the missed answer was awaited (a halted CPU run again late: the "
+            f"machine's), {queued} a wake-up of 1 ms or more that waited in this machine's own run queue, and the "
+            f"stall witnesses were late in {stalled}; in the remaining {short - host - queued} nothing in the trace "
+            f"waited that long: the simulated drives' answer itself came late (a Python process handling the SYNC, "
+            f"its motors and the hand{cpu_note})."
+        )
+    elif short and any("witness_late_max_ms" in r for r in loop["realtime"]):
         verdict += (
             f" Of the {short} attempts that fell short, the stall witness was late too while the slowest answer was "
             f"awaited in {stalled} (the machine stopped); in the other {short - stalled} it was on time: the "

@@ -330,7 +330,6 @@ class GuideKind(StageKind):
             },
         )
         source = run.call("construction", spec.plugin.cls, spec.settings)
-        status, message = GuideStatus.INCOMPLETE, ""
         reader = None
         started = time.perf_counter()
         # this thread takes each sample from the source's as it arrives: both run under SCHED_FIFO at
@@ -354,61 +353,8 @@ class GuideKind(StageKind):
                 run.call("open", source.open, gcontext)
                 iterator = run.call("samples", source.samples)
                 reader = _Reader(iter(iterator), settings.realtime_priority)
-                previous_t = -math.inf
-                received = 0
                 with context.progress.task("following the instrument (% of the path)", total=100) as task:
-                    while True:
-                        try:
-                            arrived, item = reader.queue.get(timeout=settings.silence_timeout)
-                        except queue.Empty:
-                            status = GuideStatus.STOPPED
-                            message = (
-                                f"source '{spec.plugin.name}' sent no pose for {settings.silence_timeout:g} s "
-                                f"(guidance.silence_timeout); the attempt is stopped"
-                            )
-                            break
-                        if item is _END:
-                            break
-                        if isinstance(item, SourceStopped):
-                            status, message = GuideStatus.STOPPED, f"source '{spec.plugin.name}' stopped: {item}"
-                            break
-                        if isinstance(item, BaseException):
-                            raise StageError(
-                                f"plugin '{spec.plugin.name}' ({spec.plugin.package} {spec.plugin.version}) failed in "
-                                f"samples of guide stage '{spec.name}': {type(item).__name__}: {item}",
-                                location=spec.location,
-                            ) from item
-                        problem = _check_sample(item, received, previous_t, space)
-                        if problem:
-                            raise _InvalidSample(problem)
-                        received += 1
-                        previous_t = float(item.t)
-                        m, changes = guide.measure(item)
-                        if ghost is not None:
-                            m.ghost = ghost.at(m.progress / max(guide.length, 1e-12))
-                        m.delay = time.perf_counter() - arrived
-                        if live.active:
-                            live.publish(
-                                "tip",
-                                {
-                                    "t": m.t,
-                                    "tip": m.tip.tolist(),
-                                    "deviation": m.deviation,
-                                    "clearance": m.clearance,
-                                    "progress": m.progress,
-                                    "critical": m.critical,
-                                    "closest": m.closest.tolist(),
-                                    **({"ghost": m.ghost.tolist()} if m.ghost is not None else {}),
-                                    # when the sample arrived, on the wall clock (the viewer measures cue latency)
-                                    "wall": time.time() - m.delay,
-                                },
-                            )
-                            for what, event in changes:
-                                live.publish(
-                                    "event",
-                                    {"t": m.t, "change": what, **event.to_json(), "message": guide.describe(event)},
-                                )
-                        task.update(100.0 * min(m.progress / max(guide.length, 1e-12), 1.0))
+                    status, message = _follow(reader, spec, settings, space, guide, ghost, live, task)
             except _InvalidSample as exc:
                 return run.invalid(str(exc))
             finally:
@@ -515,3 +461,65 @@ class GuideKind(StageKind):
 
     def report(self, stage, entry, inputs) -> None:
         motion_report(stage, entry, inputs)
+
+
+def _follow(reader: _Reader, spec, settings, space, guide: Guide, ghost, live, task) -> tuple[GuideStatus, str]:
+    """Measure each sample the source sends as it arrives, until its end, a stop or a silence (the attempt's status
+    and message then); publishes each to the live view. Raises StageError for a plugin that failed, and
+    _InvalidSample for a sample that is not one."""
+    status, message = GuideStatus.INCOMPLETE, ""
+    previous_t = -math.inf
+    received = 0
+    while True:
+        try:
+            arrived, item = reader.queue.get(timeout=settings.silence_timeout)
+        except queue.Empty:
+            status = GuideStatus.STOPPED
+            message = (
+                f"source '{spec.plugin.name}' sent no pose for {settings.silence_timeout:g} s "
+                f"(guidance.silence_timeout); the attempt is stopped"
+            )
+            break
+        if item is _END:
+            break
+        if isinstance(item, SourceStopped):
+            status, message = GuideStatus.STOPPED, f"source '{spec.plugin.name}' stopped: {item}"
+            break
+        if isinstance(item, BaseException):
+            raise StageError(
+                f"plugin '{spec.plugin.name}' ({spec.plugin.package} {spec.plugin.version}) failed in "
+                f"samples of guide stage '{spec.name}': {type(item).__name__}: {item}",
+                location=spec.location,
+            ) from item
+        problem = _check_sample(item, received, previous_t, space)
+        if problem:
+            raise _InvalidSample(problem)
+        received += 1
+        previous_t = float(item.t)
+        m, changes = guide.measure(item)
+        if ghost is not None:
+            m.ghost = ghost.at(m.progress / max(guide.length, 1e-12))
+        m.delay = time.perf_counter() - arrived
+        if live.active:
+            live.publish(
+                "tip",
+                {
+                    "t": m.t,
+                    "tip": m.tip.tolist(),
+                    "deviation": m.deviation,
+                    "clearance": m.clearance,
+                    "progress": m.progress,
+                    "critical": m.critical,
+                    "closest": m.closest.tolist(),
+                    **({"ghost": m.ghost.tolist()} if m.ghost is not None else {}),
+                    # when the sample arrived, on the wall clock (the viewer measures cue latency)
+                    "wall": time.time() - m.delay,
+                },
+            )
+            for what, event in changes:
+                live.publish(
+                    "event",
+                    {"t": m.t, "change": what, **event.to_json(), "message": guide.describe(event)},
+                )
+        task.update(100.0 * min(m.progress / max(guide.length, 1e-12), 1.0))
+    return status, message

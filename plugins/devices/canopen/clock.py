@@ -160,6 +160,12 @@ class RealTimeClock(Clock):
         """Timer slack 1 us for the calling thread (Linux); False where not available."""
         return precise_timer_slack()
 
+    @property
+    def origin(self) -> float:
+        """This clock's time 0 on ``time.perf_counter`` (CLOCK_MONOTONIC on Linux): where its times meet other
+        records of the machine (a kernel trace, another process's perf_counter)."""
+        return self._origin
+
     def now(self) -> float:
         return time.perf_counter() - self._origin
 

@@ -1,0 +1,166 @@
+"""The kernel's own account of a real-time attempt's wake-ups: ftrace's scheduler events, read back per thread.
+
+A thread that sleeps (a drive waiting for its SYNC, a master waiting for the answers) is woken by another CPU:
+the waker's CPU notes ``sched_waking``; the sleeper's CPU, once it takes the wake-up, ``sched_wakeup``; the thread
+runs at ``sched_switch``. On a virtual machine a CPU with nothing to do halts, and the hypervisor must run it
+again to deliver the wake-up: the gap from ``sched_waking`` to ``sched_wakeup`` is that delivery, the host's; the
+gap from ``sched_wakeup`` to ``sched_switch`` is the guest's own scheduling (a higher priority running there).
+The stall witnesses (:mod:`witness`) cannot see the first kind: each wakes by its own timer, and is on time.
+
+    with SchedTrace() as trace:
+        ...  # the real-time attempt
+    trace.wakeups(tids)  # per thread: (waking, delivery s, run-queue s), in time order
+
+Needs root and tracefs (``/sys/kernel/tracing`` or ``/sys/kernel/debug/tracing``); elsewhere ``available`` is
+False and every answer empty. The trace clock is CLOCK_MONOTONIC (``mono``): ``time.perf_counter`` on Linux, the
+loop's clock. The tracer's settings are restored on exit.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+from pathlib import Path
+
+import numpy as np
+
+ROOTS = (Path("/sys/kernel/tracing"), Path("/sys/kernel/debug/tracing"))
+EVENTS = "sched:sched_waking sched:sched_wakeup sched:sched_switch\n"
+_LINE = re.compile(r"^\s*.+?-\d+\s+\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_\w+): (.*)$")
+_PID = re.compile(r"(?:^| )pid=(\d+)")
+_NEXT = re.compile(r"next_pid=(\d+)")
+
+
+class SchedTrace:
+    """Trace the scheduler for the ``with`` block (see the module); ``buffer_kb`` per CPU."""
+
+    def __init__(self, buffer_kb: int = 60_000) -> None:
+        self.buffer_kb = buffer_kb
+        self.root = next((r for r in ROOTS if (r / "tracing_on").exists()), None)
+        self.available = False
+        self.text = ""
+        self._saved: dict[str, str] = {}
+
+    def _write(self, name: str, value: str) -> None:
+        (self.root / name).write_text(value)
+
+    def __enter__(self) -> SchedTrace:
+        if self.root is None:
+            return self
+        try:
+            for name in ("trace_clock", "buffer_size_kb", "set_event", "tracing_on"):
+                text = (self.root / name).read_text()
+                if name == "trace_clock":  # "[local] global mono ...": the one in brackets is in force
+                    text = re.search(r"\[(\w+)\]", text).group(1)
+                self._saved[name] = text
+            self._write("tracing_on", "0")
+            self._write("trace_clock", "mono")
+            self._write("buffer_size_kb", str(self.buffer_kb))
+            self._write("set_event", EVENTS)
+            self._write("trace", "")
+            self._write("tracing_on", "1")
+            self.available = True
+        except (OSError, AttributeError):
+            self._restore()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if not self.available:
+            return
+        self._write("tracing_on", "0")
+        self.text = (self.root / "trace").read_text()
+        self._restore()
+
+    def _restore(self) -> None:
+        for name in ("set_event", "buffer_size_kb", "trace_clock", "tracing_on"):
+            if name in self._saved:
+                try:
+                    value = self._saved[name]
+                    self._write(name, value if value.strip() or name != "set_event" else "\n")
+                except OSError:
+                    pass
+        if self.root is not None:
+            try:
+                self._write("trace", "")
+            except OSError:
+                pass
+
+    def wakeups(self, tids) -> dict[int, np.ndarray]:
+        """Per thread id: every wake-up as (waking time, delivery, run-queue delay) in s (delivery nan when the
+        wake-up was taken on the waker's CPU), in time order."""
+        wanted = {int(t) for t in tids}
+        pending: dict[int, list] = {}
+        out: dict[int, list] = {t: [] for t in wanted}
+        for line in self.text.splitlines():
+            m = _LINE.match(line)
+            if m is None:
+                continue
+            event, rest, ts = m.group(3), m.group(4), float(m.group(2))
+            if event == "sched_switch":
+                n = _NEXT.search(rest)
+                tid = int(n.group(1)) if n else -1
+                if tid in pending:
+                    waking, wakeup = pending.pop(tid)
+                    delivery = wakeup - waking if wakeup is not None else np.nan
+                    out[tid].append((waking, delivery, ts - (wakeup if wakeup is not None else waking)))
+                continue
+            p = _PID.search(rest)
+            tid = int(p.group(1)) if p else -1
+            if tid not in wanted:
+                continue
+            if event == "sched_waking":
+                pending[tid] = [ts, None]
+            elif event == "sched_wakeup" and tid in pending:
+                pending[tid][1] = ts
+        return {t: np.array(v, dtype=float).reshape(-1, 3) for t, v in out.items()}
+
+
+def thread_names() -> dict[int, str]:
+    """This process's threads now (thread id: their Python name; the main thread, which runs the loop: "loop")."""
+    return {t.native_id: "loop" if t is threading.main_thread() else t.name for t in threading.enumerate()}
+
+
+def threads_of(pid: int | str = "self") -> dict[int, str]:
+    """The threads of a process now (thread id: name), from /proc."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            out[int(task.name)] = (task / "comm").read_text().strip()
+        except (OSError, ValueError):
+            continue
+    return out
+
+
+def slowest_during(rows: dict[int, np.ndarray], start: float, end: float) -> tuple[float, int | None, float]:
+    """Of :meth:`SchedTrace.wakeups`' rows, the slowest wake-up that overlapped ``start``..``end`` (perf_counter s:
+    woken before its end, running only after its start): (its wait s, thread id, its delivery part s)."""
+    worst, who, delivery = 0.0, None, 0.0
+    for tid, r in rows.items():
+        for waking, d, q in r:
+            late = (0.0 if np.isnan(d) else d) + q
+            if waking < end and waking + late > start and late > worst:
+                worst, who, delivery = late, tid, (0.0 if np.isnan(d) else d)
+    return worst, who, delivery
+
+
+def summary(trace: SchedTrace, threads: dict[int, str], span: tuple[float, float] | None = None) -> dict:
+    """The slowest wake-up of the ``threads`` (ms; delivery and run-queue parts) overall and, with ``span``
+    (perf_counter s), the slowest that overlapped it (:func:`slowest_during`): what a deadline missed in that span
+    can be laid to."""
+    if not trace.available:
+        return {"sched_trace": "not available (needs root and tracefs)"}
+    rows = trace.wakeups(threads)
+    every = np.vstack([r for r in rows.values() if len(r)] or [np.zeros((0, 3))])
+    total = np.nan_to_num(every[:, 1]) + every[:, 2]
+    out = {
+        "wakeups": len(every),
+        "wakeups_over_1ms": int(np.sum(total > 1e-3)),
+        "wakeup_max_ms": round(1e3 * float(total.max()), 3) if len(total) else 0.0,
+        "delivery_max_ms": round(1e3 * float(np.nanmax(every[:, 1], initial=0.0)), 3),
+    }
+    if span is not None:
+        worst, who, delivery = slowest_during(rows, *span)
+        out["span_wakeup_max_ms"] = round(1e3 * worst, 3)
+        out["span_wakeup_thread"] = threads.get(who, str(who)) if who is not None else None
+        out["span_delivery_ms"] = round(1e3 * delivery, 3)
+    return out
