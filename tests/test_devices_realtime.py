@@ -12,6 +12,8 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
+import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -154,3 +156,24 @@ def test_at_ordinary_priority_the_loops_threads_ask_for_a_short_slice(block_worl
             assert attr.policy == os.SCHED_OTHER and attr.runtime == round(LOOP_SLICE * 1e9)
         assert device.execute(Trajectory(path, space, "test")).status == "completed"
         assert sched_attr() == before  # the caller's thread asked while the trajectory ran, and gave it back
+
+
+def test_the_master_waits_for_a_syncs_answers_no_longer_than_it_is_told(block_world, tmp_path):
+    """A real-time loop judges a SYNC's answers a whole period after the SYNC went (a SYNC that went late must not
+    leave the drives less): DriveMaster.wait_for_answers returns as soon as every drive has answered the latest
+    SYNC, and after its timeout, False, when one has not."""
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "simulation": {"sync_timeout": 0.5}}
+    with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+        master = device.master
+        master.sync()
+        assert master.wait_for_answers(2.0)
+        assert master.feedback().current.all()
+        device.simulator.sync_drop = SimpleNamespace(drop=lambda cob_id: True)  # every drive misses the next SYNC
+        master.sync()
+        started = time.perf_counter()
+        assert not master.wait_for_answers(0.05)
+        assert time.perf_counter() - started >= 0.05 - 1e-3
+        assert not master.feedback().current.any()
+        device.simulator.sync_drop = None
+        master.sync()
+        assert master.wait_for_answers(2.0)  # answered again: at once, not after the timeout

@@ -110,7 +110,7 @@ def render_assist(results: Path) -> str:
         f"({loop['fixture_cycles']:,} cycles). In the simulated bus's real-time mode, "
         f"{runs if runs > 1 else 'one'} {seconds:g} s "
         f"attempt{'s' if runs > 1 else ''} at {target:.0f} Hz a configuration (an attempt ends its assistance, by "
-        f"the safety rule, at the first SYNC a drive leaves unanswered by the next cycle; SYNC → all TPDOs is the "
+        f"the safety rule, at the first SYNC a drive leaves unanswered a period after it went; SYNC → all TPDOs is the "
         f"time from the master's SYNC to its having every drive's answer, which that rule needs within a period "
         f"every cycle). Beside each attempt {witness_words(witness_policy)}: its lateness while the drives' "
         f"{'missed' if traced else 'slowest'} answer was awaited says the machine stalled then (the hypervisor's "

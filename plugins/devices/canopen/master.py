@@ -163,6 +163,8 @@ class DriveMaster:
         #: clock time of each node's boot-up message after the reset (nan: none yet)
         self.booted = np.full(n, np.nan)
         self._boot_event = threading.Event()
+        #: set once every drive has answered the latest SYNC (cleared as each SYNC is counted)
+        self._all_answered = threading.Event()
         #: (time s, node id, EMCY code, error register)
         self.emcy: list[tuple[float, int, int, int]] = []
         self.nodes: list[canopen.RemoteNode] = []
@@ -398,6 +400,8 @@ class DriveMaster:
             self._position[i] = position
             self._fresh[i] = True
             self._answered[i] = self.syncs_sent
+            if (self._answered == self.syncs_sent).all():
+                self._all_answered.set()
 
     def _on_heartbeat(self, i: int, state: int) -> None:
         now = self.clock.now()
@@ -450,6 +454,7 @@ class DriveMaster:
             with self._lock:
                 # counted before sending: in real time the answers may arrive before transmit returns
                 self.syncs_sent += 1
+                self._all_answered.clear()
         send_batch = getattr(self.bus, "send_batch", None)
         if send_batch is not None and not isinstance(self.network, PumpedNetwork):
             # one write for the cycle's frames where the interface can (loopback): SYNC first, in order; the
@@ -475,7 +480,14 @@ class DriveMaster:
         observe mode of a guide stage: the drives stay disabled and a hand moves the instrument)."""
         with self._lock:
             self.syncs_sent += 1
+            self._all_answered.clear()
         self.network.send_message(0x080, b"")
+
+    def wait_for_answers(self, timeout: float) -> bool:
+        """Real time: wait up to ``timeout`` s for every drive's TPDO answering the latest SYNC (at once when they
+        are in); whether they are. A loop judges the answers a whole period after its SYNC went, not at the
+        next SYNC's due time: a SYNC that went late would otherwise leave the drives less than a period."""
+        return self._all_answered.wait(max(timeout, 0.0))
 
     def emcy_since(self, count: int) -> list[tuple[float, int, int, int]]:
         with self._lock:

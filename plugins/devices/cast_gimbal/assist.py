@@ -22,7 +22,7 @@ next RPDO (the drive applies it at the next SYNC: within one SYNC period), the
 drives in SWITCH ON DISABLED, the attempt going on in observe mode:
 
 * a sample older than ``max_sample_age`` (the loop fell behind);
-* a missed TPDO (a drive did not answer the last SYNC);
+* a missed TPDO (a drive did not answer the last SYNC within a period of its going out);
 * a heartbeat loss (a drive silent for 1.5 heartbeat periods);
 * any EMCY.
 

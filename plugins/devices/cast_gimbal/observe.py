@@ -259,6 +259,10 @@ class CastGimbalObserver(PoseSource):
                 clock.sleep_until(max(clock.now(), sent + period))
                 now = clock.now()
                 next_due = now + period
+            if clock.realtime and previous_sync is not None:
+                # the drives get a whole period after the last SYNC went before their answers are judged, also when
+                # it went less than a period late (the next SYNC then goes when they are in, or at that period's end)
+                master.wait_for_answers(sent + period - clock.now())
             feedback = master.feedback()  # the answers to the previous SYNC
             sample = None
             done = False
