@@ -107,9 +107,11 @@ def attempt(tmp: Path, plan, space, settings: dict, drives_pid: int | None = Non
     if looped:
         k = int(np.argmax(answers[:looped]))
         slowest = (clock.origin + syncs[k], float(answers[k]))
-    ending = None  # from the SYNC whose answers were missed to the cycle that found them missing (perf_counter s)
+    ending = None  # from the SYNC whose answers were missed to when they were judged missing (perf_counter s): the
+    # cycle's due time, or a period after that SYNC went when the loop waited for them that long
     if ended is not None and np.any(syncs < ended):
-        ending = (clock.origin + float(syncs[syncs < ended][-1]), clock.origin + ended)
+        missed = float(syncs[syncs < ended][-1])
+        ending = (clock.origin + missed, clock.origin + max(ended, missed + 1.0 / REALTIME_RATE))
     guide.finish()
     metrics = guide.metrics()
     return {"metrics": metrics, "assistance": source.assistance, "compute": compute, "stopped": stopped,
