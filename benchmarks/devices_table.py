@@ -15,6 +15,22 @@ SEPARATE_RT = f"separate process (loopback bus), SCHED_FIFO {PRIORITY} (drives {
 THREAD = "in-process thread (virtual bus)"
 
 
+def _causes(lapses: list) -> str:
+    """The scheduler trace's account of a row's missed cycles ([late, wait, delivery, thread] ms each), in words."""
+    from readme_blocks.formatting import HOST_DELIVERY_MS, thread_label, wakeup_cause
+
+    if not lapses:
+        return "none missed"
+    causes = [wakeup_cause(wait, delivery) for _, wait, delivery, _ in lapses]
+    worst = max(lapses, key=lambda x: x[1])
+    return (
+        f"of {len(lapses)} missed cycles, {causes.count('host')} with a wake-up delivered "
+        f"{HOST_DELIVERY_MS:g} ms or more late by the host, {causes.count('queue')} with one that waited 1 ms or more "
+        f"in a run queue, {causes.count('none')} with neither (the slowest: {worst[1]:.2f} ms, "
+        f"{thread_label(worst[3])}, {worst[2]:.2f} ms of it delivery)"
+    )
+
+
 def readme_table(data: dict | None = None) -> str:
     """The README's table, from benchmarks/results/devices.json (so that its numbers are never typed by hand)."""
     import json
@@ -94,21 +110,16 @@ def readme_table(data: dict | None = None) -> str:
                 else ""
             )
             + (
-                " The kernel's scheduler trace (`benchmarks/schedtrace.py`) of each missed cycle: "
+                " The kernel's scheduler trace (`benchmarks/schedtrace.py`), for each missed cycle, the slowest "
+                "wake-up of the master's or the drives' threads then: "
                 + "; ".join(
                     f"{r['rate_hz']:g} Hz {'under SCHED_FIFO' if r in fifo else 'at ordinary priority'}: "
-                    + (
-                        ", ".join(
-                            f"{late:g} ms late with {wait:.2f} ms the slowest wake-up then ({who}, {delivery:.2f} ms "
-                            "of it the host's delivery)"
-                            for late, wait, delivery, who in r["missed_slowest_wakeup"]
-                        )
-                        or "none missed"
-                    )
+                    + _causes(r["missed_slowest_wakeup"])
                     for r in fifo + ordinary
                 )
                 + " (a wake-up's delivery: from the waker's CPU asking to the sleeper's CPU taking it, which on a "
-                "virtual machine whose CPU had halted is the hypervisor running it again)."
+                "virtual machine whose CPU had halted is the hypervisor running it again; a wait in a run queue is "
+                "this machine's threads, or the host preempting a running CPU, which the witnesses see)."
                 if all("missed_slowest_wakeup" in r for r in fifo + ordinary)
                 else ""
             ),

@@ -5,10 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .formatting import find, load, section, table, witness_words, wrap
-
-#: a wake-up whose delivery (sched_waking to sched_wakeup) took this long (ms) was the host's doing
-HOST_DELIVERY_MS = 0.5
+from .formatting import HOST_DELIVERY_MS, find, load, section, table, thread_label, wakeup_cause, witness_words, wrap
 
 
 def _held(r: dict, target: float) -> bool:
@@ -73,7 +70,8 @@ def render_assist(results: Path) -> str:
             witness = f"{r['witness_late_max_ms']:.1f} ({late}) ms, {r['steal_ticks']}"
         wakeup = "-"
         if r.get("span_wakeup_max_ms") is not None:
-            wakeup = f"{r['span_wakeup_max_ms']:.2f} ms, {r['span_wakeup_thread']} ({r['span_delivery_ms']:.2f})"
+            who = thread_label(r["span_wakeup_thread"])
+            wakeup = f"{r['span_wakeup_max_ms']:.2f} ms, {who} ({r['span_delivery_ms']:.2f})"
         rows.append(
             [
                 r["drives"],
@@ -132,20 +130,16 @@ def render_assist(results: Path) -> str:
     cpus = [r["drives_cpu_per_sync_ms"] for r in loop["realtime"] if r.get("drives_cpu_per_sync_ms") is not None]
     cpu_note = f"; {min(cpus):.2f}-{max(cpus):.2f} ms of its CPU a SYNC" if cpus else ""
     if short and traced:
-        failed = [r for r in loop["realtime"] if not _held(r, target)]
-        host = sum(1 for r in failed if (r.get("span_delivery_ms") or 0.0) >= HOST_DELIVERY_MS)
-        queued = sum(
-            1
-            for r in failed
-            if (r.get("span_delivery_ms") or 0.0) < HOST_DELIVERY_MS and (r.get("span_wakeup_max_ms") or 0.0) >= 1.0
-        )
+        causes = [wakeup_cause(r.get("span_wakeup_max_ms"), r.get("span_delivery_ms")) for r in loop["realtime"]
+                  if not _held(r, target)]  # fmt: skip
+        host, queued = causes.count("host"), causes.count("queue")
         verdict += (
             f" Of the {short} attempts that fell short, {host} had a wake-up whose delivery by the host took "
             f"{HOST_DELIVERY_MS:g} ms or more while the missed answer was awaited (a halted CPU run again late: the "
-            f"machine's), {queued} a wake-up of 1 ms or more that waited in this machine's own run queue, and the "
-            f"stall witnesses were late in {stalled}; in the remaining {short - host - queued} nothing in the trace "
-            f"waited that long: the simulated drives' answer itself came late (a Python process handling the SYNC, "
-            f"its motors and the hand{cpu_note})."
+            f"machine's), {queued} a wake-up of 1 ms or more that waited in a run queue, and the stall witnesses "
+            f"were late in {stalled}; in the remaining {short - host - queued} neither the trace nor the witnesses "
+            f"account for the late answer: what remains is the work on its way (the simulated drives, a Python "
+            f"process handling the SYNC, its motors and the hand{cpu_note}, and the master's receive thread)."
         )
     elif short and any("witness_late_max_ms" in r for r in loop["realtime"]):
         verdict += (

@@ -161,3 +161,29 @@ def witness_words(policy: str | None) -> str:
         "can delay it, so its lateness means the CPU it ran on stopped (the host ran something else on it; a stall "
         "of the other CPU alone escapes it)"
     )
+
+
+#: a wake-up whose delivery (sched_waking to sched_wakeup, ``benchmarks/schedtrace.py``) took this long (ms) was the
+#: host's doing: a halted virtual CPU run again late
+HOST_DELIVERY_MS = 0.5
+#: ... and one that waited this long (ms) in all, its delivery short, waited in a run queue (this machine's threads,
+#: or the host preempting a running virtual CPU: the witnesses tell those apart)
+QUEUED_MS = 1.0
+
+
+def wakeup_cause(wait_ms: float | None, delivery_ms: float | None) -> str:
+    """What the slowest wake-up during a missed deadline says: "host" (its delivery), "queue" (a run queue), "none"."""
+    if (delivery_ms or 0.0) >= HOST_DELIVERY_MS:
+        return "host"
+    return "queue" if (wait_ms or 0.0) >= QUEUED_MS else "none"
+
+
+def thread_label(name: str | None) -> str:
+    """A benchmark thread's name as the tables say it (the master's receive thread is python-can's Notifier)."""
+    if name is None:
+        return "-"
+    for prefix, label in (("Notifier for bus", "master's receive thread"), ("Cyclic send task", "master's heartbeat"),
+                          ("surgiplan-simulated-drives", "drives' thread"), ("loop", "master's loop")):  # fmt: skip
+        if name.startswith(prefix):
+            return label
+    return name
