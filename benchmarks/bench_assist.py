@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import save, table
-from schedtrace import SchedTrace, thread_names, threads_of
+from schedtrace import SchedTrace, benchmark_threads
 from schedtrace import summary as schedtrace_summary
 from surgiplan import load_pipeline, run_pipeline
 from surgiplan.clearance import intervals, threshold_value
@@ -96,8 +96,7 @@ def attempt(tmp: Path, plan, space, settings: dict, drives_pid: int | None = Non
         nodes = [a.node_id for a in source.device.master.axes]
         frames = list(source.device.bus.frames) if clock.realtime else []
         answers = answer_latencies(frames, nodes) if clock.realtime else np.zeros(0)
-        threads = thread_names()
-        threads.update({tid: "drives' process" for tid in (threads_of(drives_pid) if drives_pid is not None else {})})
+        threads = benchmark_threads(drives_pid)
         ended = source.assist.events[0]["t"] if source.assist is not None and source.assist.events else None
         last_cycle = source.loop_span[1]
         source.close()

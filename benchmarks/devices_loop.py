@@ -24,7 +24,7 @@ import numpy as np
 from common import steal_ticks, table
 from devices_support import FULCRUM, GAP_TIPS, active, gimbal_path, gimbal_space
 from devices_table import DRIVES_PRIORITY, PRIORITY, SEPARATE, SEPARATE_RT, THREAD
-from schedtrace import SchedTrace, slowest_during, thread_names, threads_of
+from schedtrace import SchedTrace, benchmark_threads, slowest_during
 from surgiplan import load_scene
 from surgiplan.devices import Trajectory
 from surgiplan.errors import SurgiplanError
@@ -188,6 +188,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
         lapses = []
         lapses_stalled = 0  # missed cycles while the stall witness was late too
         lapse_wakeups: list[list] = []  # per missed cycle: its lateness, the slowest wake-up then, its delivery (ms)
+        traced = False  # whether the scheduler trace ran (root and tracefs)
         witness_worst, witness_late = 0.0, 0
         witness_policy = None
         error = ""
@@ -202,10 +203,10 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 before_cpu, before_frames = process_cpu(pid), len(device.bus.frames)
                 before_execute = time.process_time()
                 before_lapses = len(device.controller.missed_log)
-                threads = thread_names()
-                threads.update({tid: "drives' process" for tid in (threads_of(pid) if pid is not None else {})})
+                threads = benchmark_threads(pid)
                 with Witness() as witness, SchedTrace() as trace:
                     report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
+                traced |= trace.available
                 witness_worst = max(witness_worst, witness.worst)
                 witness_policy = witness.policy
                 witness_late += witness.summary()["witness_late_over_2ms"]
@@ -287,7 +288,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
             "steal_ticks": steal_ticks() - stolen,
             "missed_during_machine_stalls": lapses_stalled,
             "missed_slowest_wakeup": lapse_wakeups[:20],
-            "sched_trace": "ftrace sched_waking/wakeup/switch" if SchedTrace().root is not None else "not available",
+            "sched_trace": "ftrace sched_waking/wakeup/switch" if traced else "not available",
             "witness_late_over_2ms": witness_late,
             "witness_late_max_ms": round(witness_worst * 1e3, 3),
             "witness": witness_policy,

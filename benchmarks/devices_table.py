@@ -17,7 +17,7 @@ THREAD = "in-process thread (virtual bus)"
 
 def _causes(lapses: list) -> str:
     """The scheduler trace's account of a row's missed cycles ([late, wait, delivery, thread] ms each), in words."""
-    from readme_blocks.formatting import HOST_DELIVERY_MS, thread_label, wakeup_cause
+    from readme_blocks.formatting import HOST_DELIVERY_MS, QUEUED_MS, thread_label, wakeup_cause
 
     if not lapses:
         return "none missed"
@@ -25,9 +25,9 @@ def _causes(lapses: list) -> str:
     worst = max(lapses, key=lambda x: x[1])
     return (
         f"of {len(lapses)} missed cycles, {causes.count('host')} with a wake-up delivered "
-        f"{HOST_DELIVERY_MS:g} ms or more late by the host, {causes.count('queue')} with one that waited 1 ms or more "
-        f"in a run queue, {causes.count('none')} with neither (the slowest: {worst[1]:.2f} ms, "
-        f"{thread_label(worst[3])}, {worst[2]:.2f} ms of it delivery)"
+        f"{HOST_DELIVERY_MS:g} ms or more late by the host, {causes.count('queue')} with one that waited "
+        f"{QUEUED_MS:g} ms or more in a run queue, {causes.count('none')} with neither (the slowest: "
+        f"{worst[1]:.2f} ms, {thread_label(worst[3])}, {worst[2]:.2f} ms of it delivery)"
     )
 
 

@@ -75,8 +75,7 @@ class SchedTrace:
         for name in ("set_event", "buffer_size_kb", "trace_clock", "tracing_on"):
             if name in self._saved:
                 try:
-                    value = self._saved[name]
-                    self._write(name, value if value.strip() or name != "set_event" else "\n")
+                    self._write(name, self._saved[name] or "\n")  # no events: an empty line clears them
                 except OSError:
                     pass
         if self.root is not None:
@@ -115,20 +114,15 @@ class SchedTrace:
         return {t: np.array(v, dtype=float).reshape(-1, 3) for t, v in out.items()}
 
 
-def thread_names() -> dict[int, str]:
-    """This process's threads now (thread id: their Python name; the main thread, which runs the loop: "loop")."""
-    return {t.native_id: "loop" if t is threading.main_thread() else t.name for t in threading.enumerate()}
-
-
-def threads_of(pid: int | str = "self") -> dict[int, str]:
-    """The threads of a process now (thread id: name), from /proc."""
-    out = {}
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            out[int(task.name)] = (task / "comm").read_text().strip()
-        except (OSError, ValueError):
-            continue
-    return out
+def benchmark_threads(drives_pid: int | None = None) -> dict[int, str]:
+    """The threads to trace, by id: this process's now (their Python names; the main thread, which runs the loop:
+    "loop") and, with ``drives_pid``, every thread of the drives' process ("drives' process", from /proc)."""
+    names = {t.native_id: "loop" if t is threading.main_thread() else t.name for t in threading.enumerate()}
+    if drives_pid is not None:
+        for task in Path(f"/proc/{drives_pid}/task").glob("*"):
+            if task.name.isdigit():
+                names[int(task.name)] = "drives' process"
+    return names
 
 
 def slowest_during(rows: dict[int, np.ndarray], start: float, end: float) -> tuple[float, int | None, float]:
@@ -137,9 +131,9 @@ def slowest_during(rows: dict[int, np.ndarray], start: float, end: float) -> tup
     worst, who, delivery = 0.0, None, 0.0
     for tid, r in rows.items():
         for waking, d, q in r:
-            late = (0.0 if np.isnan(d) else d) + q
-            if waking < end and waking + late > start and late > worst:
-                worst, who, delivery = late, tid, (0.0 if np.isnan(d) else d)
+            d = 0.0 if np.isnan(d) else d
+            if waking < end and waking + d + q > start and d + q > worst:
+                worst, who, delivery = d + q, tid, d
     return worst, who, delivery
 
 

@@ -5,7 +5,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .formatting import HOST_DELIVERY_MS, find, load, section, table, thread_label, wakeup_cause, witness_words, wrap
+from .formatting import (
+    HOST_DELIVERY_MS,
+    QUEUED_MS,
+    find,
+    load,
+    section,
+    table,
+    thread_label,
+    wakeup_cause,
+    witness_words,
+    wrap,
+)
 
 
 def _held(r: dict, target: float) -> bool:
@@ -136,10 +147,10 @@ def render_assist(results: Path) -> str:
         verdict += (
             f" Of the {short} attempts that fell short, {host} had a wake-up whose delivery by the host took "
             f"{HOST_DELIVERY_MS:g} ms or more while the missed answer was awaited (a halted CPU run again late: the "
-            f"machine's), {queued} a wake-up of 1 ms or more that waited in a run queue, and the stall witnesses "
-            f"were late in {stalled}; in the remaining {short - host - queued} neither the trace nor the witnesses "
-            f"account for the late answer: what remains is the work on its way (the simulated drives, a Python "
-            f"process handling the SYNC, its motors and the hand{cpu_note}, and the master's receive thread)."
+            f"machine's), {queued} a wake-up of {QUEUED_MS:g} ms or more that waited in a run queue, and the stall "
+            f"witnesses were late in {stalled}; in the remaining {short - host - queued} neither the trace nor the "
+            f"witnesses account for the late answer: what remains is the work on its way (the simulated drives, a "
+            f"Python process handling the SYNC, its motors and the hand{cpu_note}, and the master's receive thread)."
         )
     elif short and any("witness_late_max_ms" in r for r in loop["realtime"]):
         verdict += (

@@ -451,10 +451,7 @@ class DriveMaster:
         if self.max_torque is not None:
             targets = np.clip(np.rint(np.asarray(targets, dtype=float)), -self.max_torque, self.max_torque)
         if sync:
-            with self._lock:
-                # counted before sending: in real time the answers may arrive before transmit returns
-                self.syncs_sent += 1
-                self._all_answered.clear()
+            self._count_sync()  # before sending: in real time the answers may arrive before transmit returns
         send_batch = getattr(self.bus, "send_batch", None)
         if send_batch is not None and not isinstance(self.network, PumpedNetwork):
             # one write for the cycle's frames where the interface can (loopback): SYNC first, in order; the
@@ -478,10 +475,14 @@ class DriveMaster:
     def sync(self) -> None:
         """SYNC alone: every drive answers with its TPDOs (positions, statuswords); nothing is commanded (the
         observe mode of a guide stage: the drives stay disabled and a hand moves the instrument)."""
+        self._count_sync()
+        self.network.send_message(0x080, b"")
+
+    def _count_sync(self) -> None:
+        """A SYNC is about to go: counted, and no drive has answered it yet."""
         with self._lock:
             self.syncs_sent += 1
             self._all_answered.clear()
-        self.network.send_message(0x080, b"")
 
     def wait_for_answers(self, timeout: float) -> bool:
         """Real time: wait up to ``timeout`` s for every drive's TPDO answering the latest SYNC (at once when they
