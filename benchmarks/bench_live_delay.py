@@ -23,6 +23,16 @@ SCHED_FIFO 99 waking every millisecond, which nothing inside the machine can del
 cores, and then no scheduling inside it is on time. A late sample during which the witness was late too is counted apart
 (``*_during_machine_stalls``): the machine stopped then, not the stage.
 
+Each attempt itself also runs under the kernel's scheduler trace (``benchmarks/schedtrace.py``: ftrace's sched_waking,
+sched_wakeup and sched_switch; root and tracefs, else ``sched_trace`` says it was not available) of the stage's
+threads: the one that follows the samples (and publishes them) and the source's reader (``guide-source``, which
+sleeps until each sample is due). For every sample more than 2 ms late, and every one the viewer delayed, the slowest
+wake-up of those threads from the sample's due time (when it would have been done as quickly as the attempt's best,
+the span the witness is asked about) to when the stage was done with it: its thread, its delivery (sched_waking to
+sched_wakeup: on this virtual machine a halted CPU run again, the host's), its wait in a run queue (to sched_switch),
+and what ``readme_blocks.formatting.wakeup_cause`` makes of it (``host``, ``queue`` or ``none``); per attempt, the
+slowest wake-up of those threads overall (``schedtrace.summary``).
+
 Counted: samples more than 2 ms late in each case; and paired, sample by sample (the same seed gives the same
 samples), samples the viewer delayed by more than 2 ms over the same sample with no viewer. Target: 0. Also
 recorded: when the stalled client was disconnected (its socket's TCP state, read without reading its data), and
@@ -34,6 +44,7 @@ what the page got and was told it lost. The machine is shared: the load average 
 from __future__ import annotations
 
 import os
+import re
 import socket
 import struct
 import subprocess
@@ -53,6 +64,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 from browser_support import Browser, feed_url, live_view, stalled_client, wait_for  # noqa: E402
 from common import paced_run_arguments, save, table  # noqa: E402
 from pipeline_support import block_world_pipeline, recommended_stage  # noqa: E402
+from readme_blocks.formatting import wakeup_cause  # noqa: E402
+from schedtrace import SchedTrace, benchmark_threads, slowest_during  # noqa: E402
+from schedtrace import summary as schedtrace_summary  # noqa: E402
 from witness import Witness  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
@@ -61,6 +75,9 @@ LATE_MS = 2.0
 #: (guidance.realtime_priority), as a real-time loop runs
 SCHEDULING = (("ordinary", None), ("SCHED_FIFO 10", 10))
 TCP_CLOSE, TCP_CLOSE_WAIT = 7, 8
+TRACED = "ftrace sched_waking/wakeup/switch"
+#: the late samples whose slowest wake-up a run's results list (all are counted)
+LISTED = 20
 
 
 class Recording:
@@ -71,12 +88,15 @@ class Recording:
     def __init__(self, inner=None) -> None:
         self.inner = inner
         self.done: list[tuple[float, float]] = []  # (the sample's t, perf_counter after its publication)
+        self.threads: dict[int, str] = {}  # the stage's threads, taken at its first sample (stage_threads)
 
     def publish(self, channel: str, payload) -> None:
         if self.inner is not None:
             self.inner.publish(channel, payload)
         if channel == "tip":
             self.done.append((float(payload["t"]), time.perf_counter()))
+            if not self.threads:  # after the sample's time is taken: it costs that sample nothing
+                self.threads = stage_threads()
 
     def close(self) -> None:
         if self.inner is not None:
@@ -90,6 +110,61 @@ class Recording:
     def done_at(self) -> np.ndarray:
         """When the stage was done with each sample (perf_counter s)."""
         return np.asarray(self.done)[:, 1]
+
+
+def stage_threads() -> dict[int, str]:
+    """The guide stage's threads by id, called from the stage while it runs (it publishes from the thread that
+    follows the samples): that one ("stage") and the source's reader ("guide-source", the stage's ``_Reader``)."""
+    threads = {threading.get_native_id(): "stage"}
+    threads.update({tid: name for tid, name in benchmark_threads().items() if name == "guide-source"})
+    return threads
+
+
+def slowest_wakeups(
+    rows: dict[int, np.ndarray] | None,
+    threads: dict[int, str],
+    done: np.ndarray,
+    lateness_ms: np.ndarray,
+    which: np.ndarray,
+) -> list[dict]:
+    """For each sample ``which`` picks: the slowest wake-up of the stage's ``threads`` (``rows``:
+    :meth:`SchedTrace.wakeups`) from its due time (when it would have been done as quickly as the attempt's best:
+    ``done`` less its lateness, the span :func:`during_stalls` asks the witness about) to ``done``: its thread, its
+    delivery (the host's), its wait in a run queue, in all (ms), and its cause as ``wakeup_cause`` says it. None
+    (no trace): none."""
+    if rows is None:
+        return []
+    out = []
+    for i in np.flatnonzero(which):
+        wait, tid, delivery = slowest_during(rows, done[i] - lateness_ms[i] / 1000, done[i])
+        wait, delivery = float(wait), float(delivery)
+        row = {
+            "sample": int(i),
+            "late_ms": round(float(lateness_ms[i]), 3),
+            "thread": threads.get(tid, str(tid)) if tid is not None else None,
+            "delivery_ms": round(1e3 * delivery, 3),
+            "run_queue_ms": round(1e3 * (wait - delivery), 3),
+            "wakeup_ms": round(1e3 * wait, 3),
+        }
+        row["cause"] = wakeup_cause(row["wakeup_ms"], row["delivery_ms"])
+        out.append(row)
+    return out
+
+
+def causes(samples: list[dict]) -> dict[str, int]:
+    """How many of :func:`slowest_wakeups`' samples had each cause."""
+    return {cause: sum(1 for s in samples if s["cause"] == cause) for cause in ("host", "queue", "none")}
+
+
+def traced_attempt(trace: SchedTrace, threads: dict[int, str]) -> tuple[dict[int, np.ndarray] | None, dict]:
+    """An attempt's wake-ups of the stage's threads (None without the trace) and its summary: whether the trace
+    ran, the slowest wake-up (``schedtrace.summary``) and the events the trace's buffer lost (0: none)."""
+    info = schedtrace_summary(trace, threads)
+    if not trace.available:
+        return None, info
+    written = re.search(r"entries-in-buffer/entries-written: (\d+)/(\d+)", trace.text)
+    lost = int(written.group(2)) - int(written.group(1)) if written else None
+    return trace.wakeups(threads), {"sched_trace": TRACED, **info, "trace_events_lost": lost}
 
 
 def during_stalls(witness: Witness, done: np.ndarray, lateness_ms: np.ndarray) -> np.ndarray:
@@ -133,9 +208,12 @@ def tcp_state(sock: socket.socket) -> int:
     return struct.unpack("B", sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1))[0]
 
 
-def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, np.ndarray, dict]:
-    """The watched attempt's lateness per sample (ms), when each was done (perf_counter s), and what the page and
-    the stalled client went through."""
+def watched_attempt(
+    path: Path, browser: Browser, trace: SchedTrace
+) -> tuple[np.ndarray, np.ndarray, dict, dict[int, str]]:
+    """The watched attempt's lateness per sample (ms), when each was done (perf_counter s), what the page and
+    the stalled client went through, and the stage's threads (:func:`stage_threads`); ``trace`` records the attempt
+    itself (not the viewer's and the page's start)."""
     from surgiplan.live import WebSocketFeed
 
     with live_view(exit_after=600) as url:
@@ -156,7 +234,8 @@ def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, np.ndarra
         watcher = threading.Thread(target=watch_stalled, daemon=True)
         watcher.start()
         feed = Recording(WebSocketFeed(feed_url(url)))
-        lateness = attempt(path, feed)
+        with trace:
+            lateness = attempt(path, feed)
         wait_for(page, "surgiplan.live.status !== null", 60_000)
         got = page.evaluate("({tips: surgiplan.live.tips, drops: surgiplan.live.drops})")
         problems = page.problems + page.evaluate("surgiplan.errors")
@@ -179,6 +258,7 @@ def watched_attempt(path: Path, browser: Browser) -> tuple[np.ndarray, np.ndarra
                 "feed_drops": got["drops"]["feed"],
                 "stalled_cut_after_s": round(cut[0], 2) if cut else None,
             },
+            feed.threads,
         )
 
 
@@ -197,6 +277,40 @@ def summary(case: str, runs: list[np.ndarray], scheduling: str, **extra) -> dict
     }
 
 
+def case_trace(attempts: list[dict], late: list[dict], delayed: list[dict] | None = None) -> dict:
+    """A case's trace over its runs: whether it ran, its attempts' slowest wake-ups (``attempts``:
+    :func:`traced_attempt`'s summaries) and the causes of its late samples (and of those the viewer delayed)."""
+    if not all(a.get("sched_trace") == TRACED for a in attempts):
+        return {"sched_trace": attempts[0]["sched_trace"] if attempts else "not run"}
+    out = {
+        "sched_trace": TRACED,
+        "wakeups": sum(a["wakeups"] for a in attempts),
+        "wakeups_over_1ms": sum(a["wakeups_over_1ms"] for a in attempts),
+        "wakeup_max_ms": max(a["wakeup_max_ms"] for a in attempts),
+        "delivery_max_ms": max(a["delivery_max_ms"] for a in attempts),
+        "late_wakeup_causes": causes(late),
+    }
+    if delayed is not None:
+        out["delayed_wakeup_causes"] = causes(delayed)
+    return out
+
+
+def run_trace(alone: dict, watched: dict, late_alone: list[dict], late: list[dict], delayed: list[dict]) -> dict:
+    """A run's trace fields: whether it ran, the slowest wake-up of each attempt, the causes of the late and the
+    delayed samples, and the first :data:`LISTED` of each attempt's late samples (:func:`slowest_wakeups`)."""
+    if alone.get("sched_trace") != TRACED or watched.get("sched_trace") != TRACED:
+        return {"sched_trace": watched.get("sched_trace") or alone.get("sched_trace")}
+    out = {"sched_trace": TRACED}
+    for key in ("wakeups_over_1ms", "wakeup_max_ms", "delivery_max_ms", "trace_events_lost"):
+        out[f"{key}_alone"], out[f"{key}_watched"] = alone[key], watched[key]
+    out["delayed_wakeup_causes"] = causes(delayed)
+    out["late_wakeup_causes"] = causes(late)
+    out["late_alone_wakeup_causes"] = causes(late_alone)
+    out["late_slowest_wakeups"] = late[:LISTED]
+    out["late_alone_slowest_wakeups"] = late_alone[:LISTED]
+    return out
+
+
 def main() -> None:
     runs, seconds, quick = paced_run_arguments(__doc__.splitlines()[0])
     load = os.getloadavg()
@@ -209,19 +323,35 @@ def main() -> None:
                 path = pipeline(tmp, seconds, priority)
                 attempt(path, Recording())  # plans and stores the roadmap; a warm-up
                 alone, watched, paired = [], [], []
+                traces_alone, traces_watched = [], []  # per run: the attempt's trace summary (traced_attempt)
+                late_alone_all, late_all, delayed_all = [], [], []  # the late samples' slowest wake-ups
                 for i in range(runs):
-                    with Witness() as witness_alone:
+                    with Witness() as witness_alone, SchedTrace() as trace:
                         feed = Recording()
                         alone.append(attempt(path, feed))
                     alone_stalled = during_stalls(witness_alone, feed.done_at(), alone[-1]) & (alone[-1] > LATE_MS)
+                    wakeups, trace_alone = traced_attempt(trace, feed.threads)
+                    late_alone = slowest_wakeups(wakeups, feed.threads, feed.done_at(), alone[-1], alone[-1] > LATE_MS)
+                    trace = SchedTrace()
                     with Witness() as witness_watched:
-                        lateness, done, info = watched_attempt(path, browser)
+                        lateness, done, info, threads = watched_attempt(path, browser, trace)
                     watched.append(lateness)
                     n = min(lateness.size, alone[-1].size)
                     paired.append(lateness[:n] - alone[-1][:n])
                     delayed = paired[-1] > LATE_MS
                     stalled_delays = during_stalls(witness_watched, done[:n], lateness[:n]) & delayed
                     late = int(np.count_nonzero(lateness > LATE_MS))
+                    wakeups, trace_watched = traced_attempt(trace, threads)
+                    late_watched = slowest_wakeups(wakeups, threads, done, lateness, lateness > LATE_MS)
+                    for s in late_watched:  # a sample the viewer delayed is late (it is no earlier alone)
+                        if s["sample"] < n:
+                            s["delayed_ms"] = round(float(paired[-1][s["sample"]]), 3)
+                    late_delayed = [s for s in late_watched if s["sample"] < n and delayed[s["sample"]]]
+                    traces_alone.append(trace_alone)
+                    traces_watched.append(trace_watched)
+                    late_alone_all += late_alone
+                    late_all += late_watched
+                    delayed_all += late_delayed
                     viewer_runs.append({
                         "scheduling": scheduling,
                         "run": i + 1,
@@ -236,11 +366,16 @@ def main() -> None:
                         "witness_late_max_ms_alone": witness_alone.summary()["witness_late_max_ms"],
                         "witness_late_max_ms_watched": witness_watched.summary()["witness_late_max_ms"],
                         "witness": witness_watched.policy,
+                        **run_trace(trace_alone, trace_watched, late_alone, late_watched, late_delayed),
                     })  # fmt: skip
-                    print(viewer_runs[-1], flush=True)
+                    print({k: v for k, v in viewer_runs[-1].items() if not isinstance(v, list)}, flush=True)
+                    for s in late_delayed[:LISTED]:
+                        print(f"  delayed by the viewer: {s}", flush=True)
+                    if len(late_delayed) > LISTED:
+                        print(f"  ... and {len(late_delayed) - LISTED} more delayed samples", flush=True)
                 delayed = int(sum(np.count_nonzero(p > LATE_MS) for p in paired))
                 rows += [
-                    summary("no viewer", alone, scheduling),
+                    summary("no viewer", alone, scheduling, **case_trace(traces_alone, late_alone_all)),
                     summary(
                         "viewer: a page and a stalled client",
                         watched,
@@ -248,12 +383,13 @@ def main() -> None:
                         delayed_by_viewer_over_2ms=delayed,
                         paired_p99_ms=round(float(np.percentile(np.concatenate(paired), 99)), 3),
                         paired_max_ms=round(float(np.concatenate(paired).max()), 3),
+                        **case_trace(traces_watched, late_all, delayed_all),
                     ),
                 ]
         finally:
             browser.close()
     print(table(rows, list(rows[1])))
-    print(table(viewer_runs, list(viewer_runs[0])))
+    print(table(viewer_runs, [k for k, v in viewer_runs[0].items() if not isinstance(v, list)]))
     if quick:
         return
     after = os.getloadavg()

@@ -68,3 +68,54 @@ def test_the_scheduler_trace_splits_a_wake_up_into_the_hosts_delivery_and_the_ru
     assert s["span_wakeup_thread"] == "drives" and s["span_delivery_ms"] == pytest.approx(2.7)
     after = summary(trace, names, span=(100.003, 100.004))  # every thread running by then
     assert after["span_wakeup_max_ms"] == 0.0 and after["span_wakeup_thread"] is None
+
+
+#: _TRACE's header as ftrace writes it, two events lost, and thread 900 woken onto CPU 1 at once (its delivery
+#: 20 us) that then waits 1.5 ms in CPU 1's run queue behind thread 700
+_LIVE_TRACE = (
+    _TRACE.replace("# tracer: nop\n", "# tracer: nop\n#\n# entries-in-buffer/entries-written: 7/9   #P:2\n#\n")
+    + """\
+          python-600     [000] d..2.   100.010000: sched_waking: comm=python pid=900 prio=79 target_cpu=001
+          python-700     [001] d..2.   100.010020: sched_wakeup: comm=python pid=900 prio=79 target_cpu=001
+          python-700     [001] d..2.   100.011520: sched_switch: prev_comm=python prev_pid=700 prev_prio=79 \
+prev_state=S ==> next_comm=python next_pid=900 next_prio=79
+"""
+)
+
+
+def test_the_live_delay_lays_each_late_sample_to_the_slowest_wake_up_of_the_stages_threads():
+    from bench_live_delay import TRACED, causes, slowest_wakeups, traced_attempt
+    from schedtrace import SchedTrace
+
+    trace = SchedTrace()
+    trace.available, trace.text = True, _LIVE_TRACE
+    threads = {700: "guide-source", 800: "stage", 900: "stage"}
+    rows, info = traced_attempt(trace, threads)
+    assert info["sched_trace"] == TRACED and info["trace_events_lost"] == 2 and info["wakeups"] == 3
+    # samples done at these times (perf_counter s) and late by these (ms): the span of each is from done less its
+    # lateness to done; sample 1 is on time (not asked about), sample 3 late after every wake-up was over
+    done = np.array([100.003, 100.0035, 100.012, 100.030])
+    late_ms = np.array([2.5, 0.1, 2.5, 3.0])
+    samples = slowest_wakeups(rows, threads, done, late_ms, late_ms > 2.0)
+    assert [s["sample"] for s in samples] == [0, 2, 3]
+    host, queue, neither = samples
+    assert host["thread"] == "guide-source" and host["cause"] == "host"
+    assert host["delivery_ms"] == pytest.approx(2.7) and host["run_queue_ms"] == pytest.approx(0.006)
+    assert host["wakeup_ms"] == pytest.approx(2.706) and host["late_ms"] == 2.5
+    assert queue["thread"] == "stage" and queue["cause"] == "queue"
+    assert queue["delivery_ms"] == pytest.approx(0.02) and queue["run_queue_ms"] == pytest.approx(1.5)
+    assert neither == {"sample": 3, "late_ms": 3.0, "thread": None, "delivery_ms": 0.0, "run_queue_ms": 0.0,
+                       "wakeup_ms": 0.0, "cause": "none"}  # fmt: skip
+    assert causes(samples) == {"host": 1, "queue": 1, "none": 1}
+
+
+def test_the_live_delay_says_when_the_trace_was_not_available():
+    from bench_live_delay import case_trace, slowest_wakeups, traced_attempt
+    from schedtrace import SchedTrace
+
+    trace = SchedTrace()
+    trace.available = False
+    rows, info = traced_attempt(trace, {700: "stage"})
+    assert rows is None and info == {"sched_trace": "not available (needs root and tracefs)"}
+    assert slowest_wakeups(rows, {}, np.array([1.0]), np.array([3.0]), np.array([True])) == []
+    assert case_trace([info], []) == {"sched_trace": "not available (needs root and tracefs)"}

@@ -5,7 +5,23 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .formatting import find, load, met, section, table, witness_per_cpu, witness_words
+from .formatting import (
+    HOST_DELIVERY_MS,
+    QUEUED_MS,
+    find,
+    load,
+    met,
+    section,
+    table,
+    witness_per_cpu,
+    witness_words,
+)
+
+
+def _causes(runs: list[dict]) -> dict[str, int]:
+    """How many of the samples the viewer delayed in ``runs`` had each cause, as the benchmark counted them
+    (``formatting.wakeup_cause`` of the slowest wake-up of the stage's threads meanwhile: "host", "queue", "none")."""
+    return {c: sum(r["delayed_wakeup_causes"][c] for r in runs) for c in ("host", "queue", "none")}
 
 
 def render_live_delay(results: Path) -> str:
@@ -40,6 +56,7 @@ def render_live_delay(results: Path) -> str:
     )
     runs = data["viewer_runs"]
     witnessed = all("delayed_during_machine_stalls" in r for r in runs)
+    traced = all("delayed_wakeup_causes" in r for r in runs)
     verdicts = []
     for watched in rows[1::2]:
         delayed = watched["delayed_by_viewer_over_2ms"]
@@ -49,11 +66,38 @@ def render_live_delay(results: Path) -> str:
             f"{watched['scheduling']}: {met(delayed == 0)} ({delayed:,} of {watched['samples']:,} samples were, "
             f"paired with the same sample of the attempt with no viewer"
             + (f", {stalled:,} of them while the stall witness was late too" if witnessed and delayed else "")
+            + (
+                "; in the scheduler trace, {host} had a wake-up of the stage's threads whose delivery by the host "
+                "took {host_ms:g} ms or more, {queue} a wake-up of {queued_ms:g} ms or more that waited in a run "
+                "queue, and {none} neither".format(**_causes(mine), host_ms=HOST_DELIVERY_MS, queued_ms=QUEUED_MS)
+                if traced and delayed
+                else ""
+            )
             + f"; p99 of the difference {watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms)"
         )
     cut = [r["stalled_cut_after_s"] for r in runs if r["stalled_cut_after_s"] is not None]
     tail = (
-        f"Target: no sample delayed by more than {late:g} ms by the viewer. " + "; ".join(verdicts) + ". On 2 cores "
+        f"Target: no sample delayed by more than {late:g} ms by the viewer. "
+        + "; ".join(verdicts)
+        + ". "
+        + (
+            "The kernel's scheduler trace (ftrace, `benchmarks/schedtrace.py`) gives, for each delayed sample, the "
+            "slowest wake-up of the stage's threads (the one that follows the samples and the source's reader) from "
+            "the sample's due time to when the stage was done with it, and its delivery: the time from the waker's "
+            "CPU asking (`sched_waking`) to the sleeper's CPU taking it (`sched_wakeup`), which on a virtual machine "
+            "whose CPU had halted, idle, is the hypervisor running it again (the machine's); the rest, to "
+            "`sched_switch`, it waited in a run queue. A sample with neither was delayed with no slow wake-up: while "
+            "those threads ran, waited for Python's GIL in short waits, or were preempted running (which "
+            "is no wake-up), or by a timer that fired late. "
+            if traced and any(w["delayed_by_viewer_over_2ms"] for w in rows[1::2])
+            else ""
+        )
+        + (
+            "The kernel's scheduler trace was not available (it needs root and tracefs). "
+            if any("sched_trace" in r for r in runs) and not traced
+            else ""
+        )
+        + "On 2 cores "
         "the page's software rendering keeps both busy: a C probe beside it at ordinary priority wakes more than "
         "2 ms late now and then, with or without the shortest slice; one under SCHED_FIFO never did. "
         + (
