@@ -11,6 +11,9 @@ The stall witnesses (:mod:`witness`) cannot see the first kind: each wakes by it
         ...  # the real-time attempt
     trace.wakeups(tids)  # per thread: (waking, delivery s, run-queue s), in time order
 
+A thread switched out while still runnable (preempted: ``prev_state=R``) waits in the run queue too, from then
+until it runs again; :meth:`SchedTrace.wakeups` lists those waits beside the wake-ups (no delivery).
+
 Needs root and tracefs (``/sys/kernel/tracing`` or ``/sys/kernel/debug/tracing``); elsewhere ``available`` is
 False and every answer empty. The trace clock is CLOCK_MONOTONIC (``mono``): ``time.perf_counter`` on Linux, the
 loop's clock. The tracer's settings are restored on exit.
@@ -29,6 +32,7 @@ EVENTS = "sched:sched_waking sched:sched_wakeup sched:sched_switch\n"
 _LINE = re.compile(r"^\s*.+?-\d+\s+\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_\w+): (.*)$")
 _PID = re.compile(r"(?:^| )pid=(\d+)")
 _NEXT = re.compile(r"next_pid=(\d+)")
+_PREV = re.compile(r"prev_pid=(\d+) .*?prev_state=(\S+)")
 
 
 class SchedTrace:
@@ -86,9 +90,12 @@ class SchedTrace:
 
     def wakeups(self, tids) -> dict[int, np.ndarray]:
         """Per thread id: every wake-up as (waking time, delivery, run-queue delay) in s (delivery nan when the
-        wake-up was taken on the waker's CPU), in time order."""
+        wake-up was taken on the waker's CPU), in time order; and every preemption (switched out still runnable,
+        ``prev_state=R``) as (switched out, 0, until it ran again): time it wanted the CPU and waited, as a woken
+        thread waits in the run queue."""
         wanted = {int(t) for t in tids}
         pending: dict[int, list] = {}
+        preempted: dict[int, float] = {}
         out: dict[int, list] = {t: [] for t in wanted}
         for line in self.text.splitlines():
             m = _LINE.match(line)
@@ -96,12 +103,18 @@ class SchedTrace:
                 continue
             event, rest, ts = m.group(3), m.group(4), float(m.group(2))
             if event == "sched_switch":
+                previous = _PREV.search(rest)
+                if previous and int(previous.group(1)) in wanted and previous.group(2).startswith("R"):
+                    preempted[int(previous.group(1))] = ts
                 n = _NEXT.search(rest)
                 tid = int(n.group(1)) if n else -1
                 if tid in pending:
                     waking, wakeup = pending.pop(tid)
                     delivery = wakeup - waking if wakeup is not None else np.nan
                     out[tid].append((waking, delivery, ts - (wakeup if wakeup is not None else waking)))
+                elif tid in preempted:
+                    out[tid].append((preempted[tid], 0.0, ts - preempted[tid]))
+                preempted.pop(tid, None)
                 continue
             p = _PID.search(rest)
             tid = int(p.group(1)) if p else -1

@@ -70,6 +70,33 @@ def test_the_scheduler_trace_splits_a_wake_up_into_the_hosts_delivery_and_the_ru
     assert after["span_wakeup_max_ms"] == 0.0 and after["span_wakeup_thread"] is None
 
 
+def test_a_thread_preempted_while_runnable_waits_in_the_run_queue_until_it_runs_again():
+    """sched_switch with prev_state=R: thread 700 pushed off CPU 1 by 600 for 1.2 ms counts as a 1.2 ms run-queue
+    wait (no delivery); 700 then sleeping (prev_state=S) and woken as usual is a wake-up, not a preemption."""
+    from schedtrace import SchedTrace, slowest_during
+
+    trace = SchedTrace()
+    trace.available = True
+    trace.text = """\
+          python-700     [001] d..2.   200.000000: sched_switch: prev_comm=python prev_pid=700 prev_prio=79 \
+prev_state=R+ ==> next_comm=chrome next_pid=600 next_prio=120
+          chrome-600     [001] d..2.   200.001200: sched_switch: prev_comm=chrome prev_pid=600 prev_prio=120 \
+prev_state=R ==> next_comm=python next_pid=700 next_prio=79
+          python-700     [001] d..2.   200.002000: sched_switch: prev_comm=python prev_pid=700 prev_prio=79 \
+prev_state=S ==> next_comm=swapper/1 next_pid=0 next_prio=120
+          python-600     [000] d..2.   200.003000: sched_waking: comm=python pid=700 prio=79 target_cpu=001
+          python-600     [001] d..2.   200.003010: sched_wakeup: comm=python pid=700 prio=79 target_cpu=001
+          python-600     [001] d..2.   200.003020: sched_switch: prev_comm=swapper/1 prev_pid=0 prev_prio=120 \
+prev_state=R ==> next_comm=python next_pid=700 next_prio=79
+"""
+    rows = trace.wakeups([700])[700]
+    assert rows.shape == (2, 3)
+    assert rows[0].tolist() == [200.0, 0.0, pytest.approx(0.0012)]
+    assert rows[1].tolist() == [200.003, pytest.approx(1e-5), pytest.approx(1e-5)]
+    wait, tid, delivery = slowest_during({700: rows}, 200.0005, 200.0006)
+    assert tid == 700 and wait == pytest.approx(0.0012) and delivery == 0.0
+
+
 #: _TRACE's header as ftrace writes it, two events lost, and thread 900 woken onto CPU 1 at once (its delivery
 #: 20 us) that then waits 1.5 ms in CPU 1's run queue behind thread 700
 _LIVE_TRACE = (

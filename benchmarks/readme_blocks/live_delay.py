@@ -86,9 +86,10 @@ def render_live_delay(results: Path) -> str:
             "the sample's due time to when the stage was done with it, and its delivery: the time from the waker's "
             "CPU asking (`sched_waking`) to the sleeper's CPU taking it (`sched_wakeup`), which on a virtual machine "
             "whose CPU had halted, idle, is the hypervisor running it again (the machine's); the rest, to "
-            "`sched_switch`, it waited in a run queue. A sample with neither was delayed with no slow wake-up: while "
-            "those threads ran, waited for Python's GIL in short waits, or were preempted running (which "
-            "is no wake-up), or by a timer that fired late. "
+            "`sched_switch`, it waited in a run queue, as does a thread pushed off its CPU while it could run "
+            "(`prev_state=R`), until it runs again. A sample with neither was delayed with no slow wake-up or "
+            "preemption: while those threads ran, waited for Python's GIL in short waits, or by a timer that fired "
+            "late. "
             if traced and any(w["delayed_by_viewer_over_2ms"] for w in rows[1::2])
             else ""
         )
