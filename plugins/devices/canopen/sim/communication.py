@@ -170,15 +170,13 @@ class Communication:
                         node.write_rpdo(pdo, data)
             if not node.talking:
                 continue  # inside an LSS switch delay: no TPDO
-            for pdo in node.tpdos:
-                if not pdo.valid:
-                    continue
-                if 1 <= pdo.trans <= 240:
+            for pdo in node.sync_tpdos:
+                if pdo.trans:  # every n-th SYNC
                     pdo.sync_count += 1
                     if pdo.sync_count >= pdo.trans:
                         pdo.sync_count = 0
                         batch.append((pdo, node.tpdo_data(pdo)))
-                elif pdo.trans == 0:
+                else:  # on SYNC when changed
                     payload = node.tpdo_data(pdo)
                     if payload != pdo.last:
                         batch.append((pdo, payload))
@@ -192,8 +190,17 @@ class Communication:
         for pdo, payload in batch:
             pdo.last = payload
         if send_batch is not None and self.network.link is None:
-            send_batch([can.Message(arbitration_id=pdo.cob_id, data=payload, is_extended_id=False)
-                        for pdo, payload in batch])  # fmt: skip
+            # each TPDO's frame is made once and its data rewritten (the bus encodes it as it is sent)
+            frames = []
+            for pdo, payload in batch:
+                frame = pdo.frame
+                if frame is None:
+                    frame = pdo.frame = can.Message(arbitration_id=pdo.cob_id, data=payload, is_extended_id=False)
+                else:
+                    frame.data[:] = payload
+                    frame.dlc = len(payload)
+                frames.append(frame)
+            send_batch(frames)
         else:
             for pdo, payload in batch:
                 self.network.send_message(pdo.cob_id, payload)
@@ -212,9 +219,7 @@ class Communication:
             node = self.nodes.get(node_id)
             if node is None or not node.talking or node.nmt._state != NMT_OPERATIONAL:
                 continue
-            for pdo in node.tpdos:
-                if not pdo.valid or pdo.trans < 254:
-                    continue
+            for pdo in node.event_tpdos:
                 if now - pdo.sent_at < pdo.inhibit:
                     continue
                 payload = node.tpdo_data(pdo)
@@ -260,10 +265,12 @@ class Communication:
         with self._lock:
             now = self.clock.now()
             self._advance_locked(now)
-            cyclic = np.isin(self.mode, cia402.CYCLIC_MODES)
-            lost = (self.state == OE) & self.alive & cyclic & (self.sync_watchdog > 0)
-            lost &= now - self.last_sync > self.sync_watchdog
-            for i in np.flatnonzero(lost):
+            # Python lists: numpy's per-call cost is most of it on a few axes
+            watched = zip(self.state.tolist(), self.alive.tolist(), self.mode.tolist(), self.sync_watchdog.tolist(),
+                          self.last_sync.tolist(), strict=True)  # fmt: skip
+            lost = [i for i, (state, alive, mode, watchdog, last) in enumerate(watched)
+                    if state == OE and alive and mode in cia402.CYCLIC_MODES and 0 < watchdog < now - last]  # fmt: skip
+            for i in lost:
                 self._raise_error(i, cia402.EMCY_SYNC_LOST)
                 self._abort_connection(i, "SYNC lost")
             for i, consumers in enumerate(self.consumers):

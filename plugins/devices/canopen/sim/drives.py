@@ -269,18 +269,18 @@ class DriveSimulator(
         span = t - self.t
         if span <= 0:
             return
-        state = self.state
-        powered_mask = ((state == OE) | (state == QS)) & self.alive
+        # Python lists: numpy's per-call cost is most of it on a few axes, at every SYNC
+        powered = [(s == OE or s == QS) and a for s, a in zip(self.state.tolist(), self.alive.tolist(), strict=True)]
         if self.hand is not None:
             # unpowered axes moved by hand (a trainee holding the instrument): they go where the hand takes them
-            by_hand = ~powered_mask & self.alive
+            by_hand = ~np.array(powered, dtype=bool) & self.alive
             if by_hand.any():
                 where = np.asarray(self.hand(t), dtype=float)
                 self.vel[by_hand] = (where[by_hand] - self.pos[by_hand]) / span
                 self.pos[by_hand] = where[by_hand]
                 for i in np.flatnonzero(by_hand):
                     self.reference.hold(i, t, self.pos[i])
-        if not powered_mask.any():
+        if not any(powered):
             if self.hand is not None:
                 self.t = t
                 return
@@ -290,8 +290,9 @@ class DriveSimulator(
             return
         tripped = self.model.integrate(self, self.t, span)
         self.t = t
-        for i in np.flatnonzero(tripped):
-            self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
+        for i, trip in enumerate(tripped.tolist()):
+            if trip:
+                self._fault(i, cia402.EMCY_FOLLOWING_ERROR, following_error=True)
         self._windows(t)
 
     # ------------------------------------------------------------------ real time
@@ -339,7 +340,7 @@ class DriveSimulator(
     def torque(self, i: int) -> int:
         """Torque actual value 0x6077 of axis ``i`` (thousandths of the rated torque): the torque its drive applies
         in cyclic synchronous torque (within 0x6072), 0 with the power stage off or in another mode."""
-        return round(self.torque_actual[i]) if self.state[i] == OE and self.mode[i] == cia402.CST else 0
+        return round(self.torque_actual.item(i)) if self.state[i] == OE and self.mode[i] == cia402.CST else 0
 
     def positions(self) -> np.ndarray:
         """True joint positions (units): the simulation's ground truth, for tests."""

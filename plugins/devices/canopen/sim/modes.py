@@ -33,8 +33,8 @@ class OperatingModes:
     def _latch_position(self, i: int, target_counts: int, now: float) -> None:
         """CSP: from the command now to the target over one interpolation period, then hold."""
         command, _ = self.reference.at_axis(i, now)
-        target = target_counts / self.cpu[i]
-        clamped = min(max(target, self.limit_lo[i]), self.limit_hi[i])
+        target = target_counts / self.cpu.item(i)  # Python floats (the same arithmetic): cheaper at every SYNC
+        clamped = min(max(target, self.limit_lo.item(i)), self.limit_hi.item(i))
         self.limit_active[i] = clamped != target
         period = self.period[i]
         rate = (clamped - command) / period

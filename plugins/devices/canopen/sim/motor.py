@@ -90,7 +90,7 @@ class MotorModel:
 
     def substeps(self, span: float) -> int:
         """How many integration steps cover ``span`` seconds (steps of at most ``substep``)."""
-        return max(1, int(np.ceil(span / self.substep - 1e-9)))
+        return max(1, math.ceil(span / self.substep - 1e-9))
 
     def integrate(self, axes, t0: float, span: float) -> np.ndarray:
         """Move the simulator's axes (``axes``: its ``pos``, ``vel``, following-error timers ``over_time`` and

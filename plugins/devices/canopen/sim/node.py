@@ -16,7 +16,8 @@ simulator behind the node, :mod:`.drives`).
 * PDO: four RPDOs and four TPDOs, compiled from their communication and
   mapping parameters on entering OPERATIONAL (:class:`Pdo`); a TPDO of the
   cyclic objects is packed straight from the drive's state in one go, an
-  RPDO writes its objects as an SDO would, the controlword last.
+  RPDO of integer objects is decoded in one go and writes its objects as an
+  SDO would, the controlword last.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import can
 import canopen
 import numpy as np
 from canopen import objectdictionary as od_types
@@ -58,6 +60,8 @@ class Drive(Protocol):
     def torque(self, i: int) -> int: ...
 
     def write(self, i: int, index: int, subindex: int, od, data: bytes) -> None: ...
+
+    def write_value(self, i: int, index: int, subindex: int, od, value) -> None: ...
 
     def on_nmt(self, i: int, old: int, new: int) -> None: ...
 
@@ -144,19 +148,23 @@ class Pdo:
     last: bytes | None = None
     sent_at: float = -np.inf
     pending: bytes | None = None
-    #: the entries with the controlword last (RPDO)
+    #: the entries with the controlword last (RPDO), each with its position in the PDO: (position, *entry)
     ordered: list = field(default_factory=list)
+    #: RPDO of integer objects: every value decoded in one go, as each object's own decoding would
+    unpacker: struct.Struct | None = None
     #: TPDO of objects the simulator serves: packed in one go
     packer: struct.Struct | None = None
     getters: list = field(default_factory=list)
+    #: TPDO: the frame it goes in where the bus sends a batch (made once, its data rewritten for each send)
+    frame: can.Message | None = None
 
 
 #: the objects a TPDO packs straight from the simulator's state, and the struct codes of their sizes
 _TPDO_GETTERS = {
     0x6041: lambda sim, i: sim.statusword(i),
-    0x6064: lambda sim, i: round(sim.pos[i] * sim.cpu[i]),
-    0x606C: lambda sim, i: round(sim.vel[i] * sim.cpu[i]),
-    0x6061: lambda sim, i: int(sim.mode[i]),
+    0x6064: lambda sim, i: round(sim.pos.item(i) * sim.cpu.item(i)),  # Python floats: numpy's round is slow
+    0x606C: lambda sim, i: round(sim.vel.item(i) * sim.cpu.item(i)),
+    0x6061: lambda sim, i: sim.mode.item(i),
     0x603F: lambda sim, i: next(iter(reversed(sim.errors[i])), 0),
     0x6077: lambda sim, i: sim.torque(i),
 }
@@ -184,6 +192,9 @@ class DriveNode(canopen.LocalNode):
         self.emcy = _GatedEmcy(0x80 + node_id, self)
         self.rpdos: list[Pdo] = []
         self.tpdos: list[Pdo] = []
+        #: the valid TPDOs by what sends them: SYNC (types 0-240), events (254, 255)
+        self.sync_tpdos: list[Pdo] = []
+        self.event_tpdos: list[Pdo] = []
 
     @property
     def on_bus(self) -> bool:
@@ -229,7 +240,7 @@ class DriveNode(canopen.LocalNode):
                 del self.data_store[index]
         # what was stored (0x1010) is what the reset brings back
         self.simulator.memories[self.axis].apply(self, 0x1000, 0xFFFF if application else 0x1FFF)
-        self.rpdos, self.tpdos = [], []
+        self.rpdos, self.tpdos, self.sync_tpdos, self.event_tpdos = [], [], [], []
         self.simulator.reload(self.axis)  # the restored values take effect
 
     # ------------------------------------------------------------------ PDOs
@@ -237,6 +248,8 @@ class DriveNode(canopen.LocalNode):
         """Read the PDO configuration from the object dictionary (entering OPERATIONAL)."""
         self.rpdos = [self._compile(True, n) for n in (1, 2, 3, 4)]
         self.tpdos = [self._compile(False, n) for n in (1, 2, 3, 4)]
+        self.sync_tpdos = [pdo for pdo in self.tpdos if pdo.valid and pdo.trans <= 240]
+        self.event_tpdos = [pdo for pdo in self.tpdos if pdo.valid and pdo.trans >= 254]
 
     def _compile(self, receive: bool, n: int) -> Pdo:
         comm = (0x1400 if receive else 0x1800) + n - 1
@@ -253,7 +266,12 @@ class DriveNode(canopen.LocalNode):
         event = 0.0 if receive else int(self.value(comm, 5)) * 1e-3
         pdo = Pdo(receive, n, cob & 0x7FF, not cob & cia402.PDO_INVALID, int(self.value(comm, 2)), inhibit,
                    event, entries, offset)  # fmt: skip
-        pdo.ordered = sorted(entries, key=lambda entry: entry[0] == 0x6040)
+        ordered = sorted(enumerate(entries), key=lambda item: item[1][0] == 0x6040)
+        pdo.ordered = [(k, *entry) for k, entry in ordered]
+        # canopen's own decoding of each object (a plain struct of the entry's size), all in one
+        codecs = [(obj.STRUCT_TYPES.get(obj.data_type), size) for _, _, obj, _, size in entries]
+        if receive and entries and all(type(codec) is struct.Struct and codec.size == size for codec, size in codecs):
+            pdo.unpacker = struct.Struct("<" + "".join(codec.format.lstrip("<") for codec, _ in codecs))
         served = [index in _TPDO_GETTERS and size in _FORMATS for index, *_, size in entries]
         if not receive and entries and all(served):
             codes = ""
@@ -278,12 +296,14 @@ class DriveNode(canopen.LocalNode):
         if len(data) < pdo.length:
             return  # CiA 301: a PDO shorter than its mapping is not processed
         store = self.data_store
-        for index, subindex, obj, offset, size in pdo.ordered:
-            value = data[offset : offset + size]
+        values = pdo.unpacker.unpack_from(data) if pdo.unpacker is not None else None
+        write, axis = self.simulator.write_value, self.axis
+        for k, index, subindex, obj, offset, size in pdo.ordered:
+            raw = data[offset : offset + size]
             try:
                 # as LocalNode.set_data, without its look-ups (the mapping was checked when it was written)
-                self.simulator.write(self.axis, index, subindex, obj, value)
+                write(axis, index, subindex, obj, values[k] if values is not None else obj.decode_raw(raw))
             except SdoAbortedError as exc:  # a value the drive refuses by PDO: ignored, as by SDO
                 log.info("node %d: RPDO%d value for 0x%04X refused (0x%08X)", self.id, pdo.n, index, exc.code)
                 continue
-            store.setdefault(index, {})[subindex] = value
+            store.setdefault(index, {})[subindex] = raw

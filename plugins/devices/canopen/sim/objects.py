@@ -74,7 +74,10 @@ class ObjectDictionary:
     # ------------------------------------------------------------------ writes
     def write(self, i: int, index: int, subindex: int, od, data: bytes) -> None:
         """Check a write (SDO or RPDO) and make it take effect; raise SdoAbortedError to refuse it."""
-        value = od.decode_raw(data)
+        self.write_value(i, index, subindex, od, od.decode_raw(data))
+
+    def write_value(self, i: int, index: int, subindex: int, od, value) -> None:
+        """:meth:`write` of the value decoded (an RPDO decodes its objects in one go)."""
         node = self.nodes[self.ids[i]]
         if od.min is not None and value < od.min:
             raise SdoAbortedError(cia402.ABORT_VALUE_TOO_LOW)
@@ -88,32 +91,9 @@ class ObjectDictionary:
             return
         with self._lock:
             now = self._now()
-            if index == 0x6040:
-                self._advance_locked(now)
-                self._controlword(i, int(value), now)
-                if self._event_time is None:
-                    self._event_tpdos(i, now)  # a new statusword goes at once in an event-driven TPDO
-            elif index == 0x6060:
-                if value not in cia402.SUPPORTED_MODES:
-                    raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
-                self._advance_locked(now)
-                self._switch_mode(i, int(value), now)
-            elif index == 0x607A:  # pp: taken with the next new set-point; csp: now (at SYNC by RPDO)
-                if self.mode[i] == cia402.CSP and self.state[i] == OE:
-                    self._advance_locked(now)
-                    self._latch_position(i, int(value), now)
-            elif index == 0x60FF:
-                self.target_velocity[i] = value / self.cpu[i]
-                if self.state[i] == OE and self.mode[i] == cia402.PV:
-                    self._advance_locked(now)
-                    self._plan_velocity(i, now)
-                elif self.state[i] == OE and self.mode[i] == cia402.CSV:
-                    self._advance_locked(now)
-                    self._latch_velocity(i, now)
-            elif index == 0x6071:  # cst: the torque from now on (at SYNC by RPDO), within 0x6072
-                self._advance_locked(now)
-                self.target_torque[i] = value
-            elif index == 0x6007:
+            if self._command(i, index, value, now):
+                return
+            if index == 0x6007:
                 if value not in cia402.ABORT_CONNECTION_OPTIONS:
                     raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
                 self.abort_option[i] = value
@@ -142,6 +122,37 @@ class ObjectDictionary:
                             raise SdoAbortedError(cia402.ABORT_INCOMPATIBLE)  # one entry per producer
             # the new value takes effect at once (stored by the node after this callback)
             self._parameter(i, index, subindex, value, now)
+
+    def _command(self, i: int, index: int, value, now: float) -> bool:
+        """The controlword, the mode and the targets act when written; False: ``index`` is none of them."""
+        if index == 0x6040:
+            self._advance_locked(now)
+            self._controlword(i, int(value), now)
+            if self._event_time is None:
+                self._event_tpdos(i, now)  # a new statusword goes at once in an event-driven TPDO
+        elif index == 0x6060:
+            if value not in cia402.SUPPORTED_MODES:
+                raise SdoAbortedError(cia402.ABORT_VALUE_RANGE)
+            self._advance_locked(now)
+            self._switch_mode(i, int(value), now)
+        elif index == 0x607A:  # pp: taken with the next new set-point; csp: now (at SYNC by RPDO)
+            if self.mode[i] == cia402.CSP and self.state[i] == OE:
+                self._advance_locked(now)
+                self._latch_position(i, int(value), now)
+        elif index == 0x60FF:
+            self.target_velocity[i] = value / self.cpu[i]
+            if self.state[i] == OE and self.mode[i] == cia402.PV:
+                self._advance_locked(now)
+                self._plan_velocity(i, now)
+            elif self.state[i] == OE and self.mode[i] == cia402.CSV:
+                self._advance_locked(now)
+                self._latch_velocity(i, now)
+        elif index == 0x6071:  # cst: the torque from now on (at SYNC by RPDO), within 0x6072
+            self._advance_locked(now)
+            self.target_torque[i] = value
+        else:
+            return False
+        return True
 
     def _check_pdo_write(self, node: DriveNode, index: int, subindex: int, value: int) -> None:
         """CiA 301's rules for changing a PDO (only in PRE-OPERATIONAL; mapping only while invalid)."""

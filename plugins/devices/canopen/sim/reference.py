@@ -50,14 +50,14 @@ class Reference:
 
     def at_axis(self, i: int, t: float) -> tuple[float, float]:
         """Position and velocity of axis ``i`` at time ``t`` (scalar arithmetic: one axis, cheaply)."""
-        starts = self.t[i]
+        starts = self.t[i].tolist()
         k = 0
         for j in range(1, self.K):
             if starts[j] <= t:
                 k = j
-        tau = max(t - float(starts[k]), 0.0)
-        a, v = float(self.a[i, k]), float(self.v[i, k])
-        return float(self.p[i, k]) + v * tau + 0.5 * a * tau * tau, v + a * tau
+        tau = max(t - starts[k], 0.0)
+        a, v = self.a.item(i, k), self.v.item(i, k)
+        return self.p.item(i, k) + v * tau + 0.5 * a * tau * tau, v + a * tau
 
     def end(self, i: int) -> float:
         """Start of the axis' last segment: from then on the reference is constant velocity (or still)."""

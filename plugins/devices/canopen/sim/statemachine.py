@@ -37,6 +37,8 @@ OE = _CODE[cia402.OPERATION_ENABLED]
 QS = _CODE[cia402.QUICK_STOP_ACTIVE]
 FAULT = _CODE[cia402.FAULT]
 _STATUSWORD = [cia402.STATUSWORD[name] | cia402.SW_REMOTE for name in _STATES]
+#: the modes with target-reached windows (profile position and velocity)
+_PROFILE_MODES = (cia402.PP, cia402.PV)
 
 
 class Cia402StateMachine:
@@ -45,13 +47,13 @@ class Cia402StateMachine:
 
     # ------------------------------------------------------------------ statusword
     def statusword(self, i: int) -> int:
-        state = int(self.state[i])
+        state = self.state.item(i)
         word = _STATUSWORD[state]
         errors = self.errors[i]
         if errors and state != FAULT:
             word |= cia402.SW_WARNING
         if state == OE:
-            mode = self.mode[i]
+            mode = self.mode.item(i)
             if mode in cia402.CYCLIC_MODES:
                 word |= cia402.SW_FOLLOWING_COMMAND
             elif mode == cia402.PP:
@@ -86,7 +88,7 @@ class Cia402StateMachine:
         self.state[i] = code
 
     def _controlword(self, i: int, controlword: int, now: float) -> None:
-        previous = int(self.controlword[i])
+        previous = self.controlword.item(i)
         self.controlword[i] = controlword
         state = _STATES[self.state[i]]
         new = cia402.next_state(state, controlword, previous)
@@ -106,14 +108,17 @@ class Cia402StateMachine:
                 self.reference.hold(i, now, self.pos[i])
         elif rising_reset and state != cia402.FAULT:
             self._clear_errors(i, communication_only=True)
-        if self.state[i] == OE and self.mode[i] == cia402.PP:
+        if self.state[i] != OE:
+            return
+        mode = self.mode.item(i)
+        if mode == cia402.PP:
             self._profile_position_bits(i, controlword, previous, now)
-        if self.state[i] == OE and controlword & cia402.CW_HALT and not previous & cia402.CW_HALT:
+        if controlword & cia402.CW_HALT and not previous & cia402.CW_HALT:
             self._halt(i, now)
-        elif self.state[i] == OE and previous & cia402.CW_HALT and not controlword & cia402.CW_HALT:
-            if self.mode[i] == cia402.PV:
+        elif previous & cia402.CW_HALT and not controlword & cia402.CW_HALT:
+            if mode == cia402.PV:
                 self._plan_velocity(i, now)
-            elif self.mode[i] == cia402.PP and self.moving_to_target[i]:
+            elif mode == cia402.PP and self.moving_to_target[i]:
                 self._plan_position(i, now)
 
     def _enable(self, i: int, now: float) -> None:
@@ -184,8 +189,9 @@ class Cia402StateMachine:
 
     def _windows(self, t: float) -> None:
         """Target-reached windows (pp: position, pv: velocity), quick stop ramps that end in SWITCH ON DISABLED."""
-        mode, state = self.mode, self.state
-        if not (((mode == cia402.PP) | (mode == cia402.PV)) & (state == OE)).any() and not (state == QS).any():
+        # Python lists: numpy's per-call cost is most of it on a few axes, at every SYNC
+        states, modes = self.state.tolist(), self.mode.tolist()
+        if QS not in states and not any(s == OE and m in _PROFILE_MODES for s, m in zip(states, modes, strict=True)):
             return
         for i in np.flatnonzero(self.state == OE):
             mode = self.mode[i]
