@@ -73,6 +73,7 @@ from helpers import coal_scene_segment_distance
 from surgiplan import PlanningProblem, load_scene
 from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
 from surgiplan.spaces import R3Space
+from surgiplan.threads import cpu_threads
 
 ROOT = Path(__file__).resolve().parent.parent
 MARGINS = {"expert": 0.0, "intermediate": 0.004, "beginner": 0.008}
@@ -121,6 +122,11 @@ def run_safe_prm(scene, space, milestones, seed, level):
     t0 = time.perf_counter()
     artifact = planner.build(PlanningProblem(scene, space))
     build = time.perf_counter() - t0
+    # the same build on one thread (the default uses two where it may: the roadmaps are the same)
+    one = SafePRM(SafePRMSettings(proficiency=level, milestones=milestones, seed=seed, threads=1))
+    t0 = time.perf_counter()
+    one.build(PlanningProblem(scene, space))
+    build_one_thread = time.perf_counter() - t0
     raw = planner.query(artifact, start, goal)  # the first query, as a pipeline's plan stage makes it
     first_query = raw.metrics["query_s"]
     queries, smooth = [], []
@@ -142,6 +148,7 @@ def run_safe_prm(scene, space, milestones, seed, level):
     _, _, raw_clips = measure_path(scene, roadmap_path.path if roadmap_path.found else None)
     return {
         "build_s": build,
+        "build_one_thread_s": build_one_thread,
         "query_ms": 1e3 * statistics.median(queries),
         "query_warm_ms": 1e3 * statistics.median(warm),
         "first_query_ms": 1e3 * first_query,
@@ -422,6 +429,7 @@ def main() -> None:
         arena[milestones][f"OMPL PRM ({strongest})"] = answered["expert"]  # its own build, and the query
         # R + R_safe: the intermediate and beginner builds (the expert's R_safe is R)
         ours_build = med(ours["intermediate"] + ours["beginner"], "build_s")
+        ours_one_thread = med(ours["intermediate"] + ours["beginner"], "build_one_thread_s")
         ours_query = med(ours["intermediate"] + ours["beginner"], "query_ms")
         expert = answered["expert"]
         row = {
@@ -429,6 +437,8 @@ def main() -> None:
             "milestones": milestones,
             "seeds": n_seeds,
             "build_s": fmt(ours_build),
+            "threads": cpu_threads(),
+            "build_one_thread_s": fmt(ours_one_thread),
             "query_ms": fmt(med(ours["expert"], "query_ms")),
             "query_repair_ms_4mm": fmt(med(ours["intermediate"], "query_ms")),
             "query_repair_ms_8mm": fmt(med(ours["beginner"], "query_ms")),
@@ -444,6 +454,7 @@ def main() -> None:
             "settled_median": fmt(med(ours["beginner"], "settled"), 1, 4),
             "strongest_ompl": strongest,
             "build_ratio_vs_strongest": f"{builds[strongest] / ours_build:.1f}x",
+            "build_ratio_vs_strongest_one_thread": f"{builds[strongest] / ours_one_thread:.1f}x",
         }
         ref = med(expert, "length_m")
         if ref and med(ours["expert"], "length_m"):
@@ -515,7 +526,9 @@ def main() -> None:
     notes = (
         f"block world, entry -> target; medians over seeds (build) and over {QUERY_REPEATS} repeats per seed "
         "(query, simplification), then over seeds. build_ratio = OMPL's build of its one roadmap / safe_prm's "
-        "build of R + R_safe (median of the 4 and 8 mm builds); the strongest OMPL configuration at a size is the "
+        "build of R + R_safe (median of the 4 and 8 mm builds; on the threads surgiplan.threads.cpu_threads gives, "
+        "and, for the record, on one: build_one_thread_s; OMPL's PRM grows its roadmap on one); the strongest OMPL "
+        "configuration at a size is the "
         "fastest to build there (it alone answers the query and tries the margins); query_ratio = its query (solve "
         "on the grown roadmap) / safe_prm's query with repair (4 and 8 mm), safe_prm's query as the plan stage "
         f"reports it (query_s: linking, search, repair). OMPL's DiscreteMotionValidator at {resolution:.3g} mm "

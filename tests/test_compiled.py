@@ -64,9 +64,10 @@ def test_compiled_scene_distances_equal_the_vectorised_groups(cutoff):
         assert np.all(d1[~exact] >= cutoff) and np.all(d0[~exact] >= cutoff)
 
 
-@pytest.mark.parametrize("dimension", [3, 4])
-def test_k_s_grid_finds_the_kd_trees_neighbours(dimension):
-    """At most k nearest within s, for the milestones themselves (pairs) and for any points (links)."""
+@pytest.mark.parametrize("dimension, threads", [(3, 1), (4, 1), (3, 2), (4, 3)])
+def test_k_s_grid_finds_the_kd_trees_neighbours(dimension, threads):
+    """At most k nearest within s, for the milestones themselves (pairs, on one thread or slabs on several) and
+    for any points (links)."""
     from scipy.spatial import cKDTree
     from surgiplan.plugins.planners.safe_prm.kernels import k_s_neighbours, k_s_pairs
     from surgiplan.plugins.planners.safe_prm.roadmap import Grid
@@ -79,7 +80,7 @@ def test_k_s_grid_finds_the_kd_trees_neighbours(dimension):
     np.testing.assert_array_equal(grid.points, points[order])  # the points numbered in the grid's order
     points = grid.points
     tree = cKDTree(points)
-    pairs, lengths = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, k, s)
+    pairs, lengths = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, k, s, threads)
     distance, index = tree.query(points, k=k + 1, distance_upper_bound=s)
     expected = {
         (min(i, int(j)), max(i, int(j)))
@@ -146,7 +147,8 @@ def test_builds_and_queries_compile_nothing():
         "surgiplan.geometry.compiled.nearest",
         "surgiplan.plugins.planners.safe_prm.astar.search",
         "surgiplan.plugins.planners.safe_prm.kernels.grid_build",
-        "surgiplan.plugins.planners.safe_prm.kernels.k_s_pairs",
+        "surgiplan.plugins.planners.safe_prm.kernels.neighbour_rows",
+        "surgiplan.plugins.planners.safe_prm.kernels.unique_pairs",
         "surgiplan.plugins.planners.safe_prm.kernels.k_s_neighbours",
         "surgiplan.plugins.planners.safe_prm.kernels.cover_pairs",
         "surgiplan.plugins.planners.safe_prm.kernels.csr_rows",
@@ -158,3 +160,38 @@ def test_builds_and_queries_compile_nothing():
         "surgiplan.plugins.planners.segmented_astar.astar.astar_junctions",
     ]
     assert all(result["before"][name] >= 1 for name in called_from_python), result["before"]
+
+
+def test_a_large_batch_of_distances_in_halves_on_two_threads_is_the_batch_on_one(block_world, monkeypatch):
+    """compiled.distances splits a batch of SPLIT_AT or more between the process's threads: the same distances
+    and nearest obstacles, to the bit, as one thread's, for points and for segments."""
+    from surgiplan.geometry import compiled
+
+    rng = np.random.default_rng(7)
+    lo, hi = np.asarray(block_world.bounds_min), np.asarray(block_world.bounds_max)
+    a = rng.uniform(lo, hi, (compiled.SPLIT_AT * 3 + 17, 3))
+    b = rng.uniform(lo, hi, a.shape)
+    block_world.signed_distance(a[:2])
+    block_world.prepare()
+    packed = block_world._packed
+    answers = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(compiled, "cpu_threads", lambda threads=threads: threads)
+        answers[threads] = compiled.distances(packed, a, None, np.inf), compiled.distances(packed, a, b, 0.01)
+    for one, two in zip(answers[1], answers[2], strict=True):
+        np.testing.assert_array_equal(one[0], two[0])
+        np.testing.assert_array_equal(one[1], two[1])
+    assert np.any(answers[1][0][0] < 0) and np.any(answers[1][1][0] >= 0.01)  # inside obstacles, and cut off
+
+
+def test_in_parallel_returns_every_result_in_order_and_raises_a_calls_error():
+    from surgiplan.threads import in_parallel
+
+    assert in_parallel([(pow, (2, k)) for k in range(5)]) == [1, 2, 4, 8, 16]
+    assert in_parallel([]) == []
+
+    def fail(message):
+        raise ValueError(message)
+
+    with pytest.raises(ValueError, match="second"):
+        in_parallel([(pow, (2, 3)), (fail, ("second",)), (pow, (3, 2))])

@@ -130,6 +130,37 @@ def test_same_seed_same_path_and_reload_gives_the_same_answer(block_world):
     np.testing.assert_array_equal(a.path, c.path)
 
 
+@pytest.mark.parametrize("space_kind", ["r3", "gimbal"])
+def test_the_build_is_the_same_on_one_thread_or_several(block_world, space_kind):
+    """The neighbour search's slabs and the two roadmaps' landmarks run at once on several threads: the same
+    edges, components, landmark marks and answer as on one (three threads: uneven slabs)."""
+    space = (
+        R3Space(block_world)
+        if space_kind == "r3"
+        else CastGimbalSpace(
+            block_world,
+            CastGimbalSettings.model_validate({"fulcrum": {"xyz": [0.075, -0.06, 0.12], "rpy": [0, 0, 1.5707963]}}),
+        )
+    )
+    problem = PlanningProblem(block_world, space)
+    built = {}
+    for threads in (1, 2, 3):
+        planner = SafePRM(SafePRMSettings(proficiency="intermediate", milestones=1500, seed=5, threads=threads))
+        built[threads] = planner.build(problem).roadmap
+    one = built[1]
+    assert one.threads == 1 and built[2].threads == 2
+    assert len(one.edges) > 5000 and 0 < np.count_nonzero(one.edge_safe) < len(one.edges)
+    for threads in (2, 3):
+        other = built[threads]
+        np.testing.assert_array_equal(other.edges, one.edges)
+        np.testing.assert_array_equal(other.edge_safe, one.edge_safe)
+        np.testing.assert_array_equal(other.safe_labels, one.safe_labels)
+        for mine, theirs in ((other.free_graph, one.free_graph), (other.safe_graph, one.safe_graph)):
+            assert mine.landmarks == theirs.landmarks > 0
+            np.testing.assert_array_equal(mine.marks, theirs.marks)
+            np.testing.assert_array_equal(mine.indices, theirs.indices)
+
+
 def test_every_edge_is_certified(block_world):
     """No R edge touches an obstacle, no R_safe edge crosses the 4 mm virtual boundary: re-measured with coal."""
     space = R3Space(block_world, tip_radius=0.5 * MM)

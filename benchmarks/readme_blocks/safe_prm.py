@@ -101,6 +101,14 @@ def render_safe_prm(results: Path) -> str:
         f"builds its one roadmap at {largest:,} milestones: {met(build_ok)} "
         f"({ratio(s_big, 'build_ratio_vs_strongest'):.1f}× against `{strongest}`; "
         + ", ".join(f"{ratio(by[(c, largest)]):.1f}× against `{c}`" for c in order if c != strongest)
+        + (
+            f"; safe_prm on {s_big['threads']} threads; on one it builds in "
+            f"{sig(f(s_big['build_one_thread_s']), 2)} s, "
+            f"{ratio(s_big, 'build_ratio_vs_strongest_one_thread'):.1f}× against `{strongest}`, which grows its "
+            "roadmap on one"
+            if "build_one_thread_s" in s_big
+            else ""
+        )
         + f"). Query with path repair at most {1e3 * QUERY_MS:g} µs median at {largest:,} milestones: "
         f"{met(max(repair) <= QUERY_MS)} ({sig(1e3 * repair[0], 2)} / {sig(1e3 * repair[1], 2)} µs)."
         + (

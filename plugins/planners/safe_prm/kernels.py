@@ -18,8 +18,11 @@ Compiled when the module is imported (cached on disk by numba), so a roadmap's b
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 from numba import njit
+from surgiplan.threads import in_parallel
 
 _FLAGS = {"cache": True, "nogil": True}
 #: a milestone's first guess of its k-th nearest neighbour's distance: this times the previous milestone's (a guess
@@ -230,7 +233,7 @@ def k_s_neighbours(queries, points, origin, dims, cell, first, k, s):
 
 
 @njit(**_FLAGS)
-def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance, counts):
+def _block_neighbours3(points, origin, dims, cell, first, k, s, slab_lo, slab_hi, index, distance, counts):
     """The K-S neighbours of every point (three coordinates, sorted by cell), cell by cell. A cell's 3 x 3 x 3 block
     is nine runs of points (columns of three cells along z); each point of the cell keeps, of the block's points,
     those nearer than a guess of its k-th nearest's distance (:data:`_GUESS` times the previous point's; twice
@@ -238,7 +241,7 @@ def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance,
     moves on only for those kept: a branch taken at random for a quarter of them cost more than all the
     arithmetic), then the k nearest of those, sorted. A point whose k-th nearest might lie beyond the block (or
     within s beyond it) is answered by :func:`k_s_nearest` instead. The answers of :func:`k_s_nearest` for every
-    point."""
+    point of the cells with x index in [``slab_lo``, ``slab_hi``)."""
     nx, ny, nz = dims[0], dims[1], dims[2]
     s2 = s * s
     starts = np.empty(9, dtype=np.int64)
@@ -248,7 +251,7 @@ def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance,
     best = np.empty(k)
     guess = s2
     one, zero = np.uint64(1), np.uint64(0)  # unsigned indices: no test for wrapping around at each access
-    for cx in range(nx):
+    for cx in range(slab_lo, slab_hi):
         for cy in range(ny):
             for cz in range(nz):
                 c = (cx * ny + cy) * nz + cz
@@ -300,20 +303,25 @@ def _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance,
 
 
 @njit(**_FLAGS)
-def k_s_pairs(points, origin, dims, cell, first, k, s):
-    """The undirected pairs (lo, hi) of points where one is among the other's K-S neighbours, each once, sorted by
-    lo then hi (``points``: sorted by cell, as :class:`.roadmap.Grid` holds them), and their lengths (Euclidean,
-    in the points' coordinates)."""
-    n = points.shape[0]
-    kk = max(k, 1)
-    index = np.empty((n, kk), dtype=np.int64)
-    distance = np.empty((n, kk))
-    counts = np.zeros(n, dtype=np.int64)
-    if points.shape[1] == 3 and k > 0:
-        _block_neighbours3(points, origin, dims, cell, first, k, s, index, distance, counts)
-    else:
-        for i in range(n):
-            counts[i] = k_s_nearest(points[i], points, origin, dims, cell, first, k, s, i, index[i], distance[i])
+def neighbour_rows(points, origin, dims, cell, first, k, s, slab_lo, slab_hi, index, distance, counts):
+    """The K-S neighbours of the points of the cells with x index in [``slab_lo``, ``slab_hi``) (``points``: sorted
+    by cell, as :class:`.roadmap.Grid` holds them; a slab's points are consecutive) into their rows of ``index``,
+    ``distance`` and ``counts``. Slabs are independent: threads may fill disjoint slabs at once."""
+    if points.shape[1] == 3:
+        _block_neighbours3(points, origin, dims, cell, first, k, s, slab_lo, slab_hi, index, distance, counts)
+        return
+    per_slab = 1
+    for axis in range(1, dims.shape[0]):
+        per_slab *= dims[axis]
+    for i in range(first[slab_lo * per_slab], first[slab_hi * per_slab]):
+        counts[i] = k_s_nearest(points[i], points, origin, dims, cell, first, k, s, i, index[i], distance[i])
+
+
+@njit(**_FLAGS)
+def unique_pairs(index, distance, counts):
+    """The undirected pairs (lo, hi) of the neighbour rows (point i and each of its ``counts[i]`` neighbours
+    ``index[i]``), each once, sorted by lo then hi, and their lengths (``distance``)."""
+    n = counts.shape[0]
     # bucket every pair by its lower index, then sort and deduplicate each bucket (unsigned indices throughout:
     # no test for wrapping around at each access)
     m, one = np.uint64(n), np.uint64(1)
@@ -356,6 +364,31 @@ def k_s_pairs(points, origin, dims, cell, first, k, s):
                 lengths[total] = length[e]
                 total += one
     return pairs[:total].copy(), lengths[:total].copy()
+
+
+def k_s_pairs(points, origin, dims, cell, first, k, s, threads=1):
+    """The undirected pairs (lo, hi) of points where one is among the other's K-S neighbours, each once, sorted by
+    lo then hi (``points``: sorted by cell, as :class:`.roadmap.Grid` holds them), and their lengths (Euclidean,
+    in the points' coordinates). With ``threads`` > 1 the neighbour rows are found in that many slabs of cells at
+    once (:func:`surgiplan.threads.in_parallel`), split where the points are halved; the answer is the same."""
+    n = points.shape[0]
+    kk = max(int(k), 1)
+    index = np.empty((n, kk), dtype=np.int64)
+    distance = np.empty((n, kk))
+    counts = np.zeros(n, dtype=np.int64)
+    if k > 0 and n:
+        per_slab = int(np.prod(dims[1:]))
+        slab_first = np.asarray(first[::per_slab])  # the first point of each slab (and, last, n)
+        cuts = np.searchsorted(slab_first, np.linspace(0, n, max(int(threads), 1) + 1)[1:-1])
+        bounds = [0, *sorted(set(int(c) for c in cuts)), int(dims[0])]
+        in_parallel(
+            [
+                (neighbour_rows, (points, origin, dims, cell, first, k, s, lo, hi, index, distance, counts))
+                for lo, hi in pairwise(bounds)
+                if hi > lo
+            ]
+        )
+    return unique_pairs(index, distance, counts)
 
 
 @njit(**_FLAGS)

@@ -168,6 +168,9 @@ class SafePRMSettings(StrictModel):
     k: PositiveInt = 15
     s: PositiveLength | None = None
     seed: int = 0
+    #: threads the roadmaps' build may use (the neighbour search's slabs; R's and R_safe's landmarks at once);
+    #: the default, two where the process may run on two CPUs. The roadmaps are the same whatever the number
+    threads: PositiveInt | None = None
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
 
     @field_validator("proficiency", mode="before")
@@ -290,6 +293,7 @@ class SafePRM(Planner):
             d_thresh=self.planning_threshold(problem),
             seed=self.settings.seed,
             progress=problem.progress,
+            threads=self.settings.threads,
         )
 
     def build(self, problem: PlanningProblem) -> SafePRMArtifact:
@@ -325,6 +329,7 @@ class SafePRM(Planner):
             int(data["k"]),
             float(data["s"]),
             covered_edges=int(data["covered_edges"]),
+            threads=self.settings.threads,
         )
         if not (
             len(roadmap.clearance) == len(roadmap.safe) == roadmap.n

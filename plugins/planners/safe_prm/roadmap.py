@@ -36,9 +36,18 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
+from surgiplan.threads import cpu_threads, in_parallel
 
 from .astar import Workspace, bucket_width, search_graph
-from .kernels import component_labels, cover_pairs, csr_rows, grid_build, grid_cell, k_s_neighbours, k_s_pairs
+from .kernels import (
+    component_labels,
+    cover_pairs,
+    csr_rows,
+    grid_build,
+    grid_cell,
+    k_s_neighbours,
+    k_s_pairs,
+)
 from .landmarks import BUCKET_FRACTION, FREE_LANDMARKS, ONLY_LANDMARKS, SAFE_LANDMARKS, landmark_distances
 from .query_fused import point_obstacles
 from .query_kernel import Roadmap
@@ -88,8 +97,11 @@ class RoadmapPair:
     covered_edges: int = 0
     #: the grid over the scaled milestones, when the caller has built it already (milestones in its order)
     grid: Grid | None = field(default=None, repr=False, compare=False)
+    #: threads for the landmarks' Dijkstras (R's and R_safe's at once); None: :func:`surgiplan.threads.cpu_threads`
+    threads: int | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        self.threads = cpu_threads() if self.threads is None else max(int(self.threads), 1)
         if self.grid is None:
             self.grid, order = Grid.sorting(self.scaled(self.milestones).reshape(len(self.milestones), -1), self.s)
             if np.any(order != np.arange(len(order))):
@@ -106,17 +118,20 @@ class RoadmapPair:
         cost = np.ascontiguousarray(self.edge_cost, dtype=float)
         every = np.ones(len(edges), dtype=np.bool_)
         edge_safe = np.ascontiguousarray(self.edge_safe, dtype=np.bool_)
-        #: the connected component of every milestone in R and in R_safe, and how many there are
-        self.free_labels, self.free_count = component_labels(self.n, edges, every)
-        #: R and R_safe as the searches read them (:class:`.astar.Graph`): CSR rows, both directions of every
-        #: edge, the milestones' positions and their distances to each roadmap's landmarks (:mod:`.landmarks`)
+        #: the connected component of every milestone in R and in R_safe, and how many there are; R and R_safe as
+        #: the searches read them (:class:`.astar.Graph`): CSR rows, both directions of every edge, the milestones'
+        #: positions and their distances to each roadmap's landmarks (:mod:`.landmarks`)
         if edge_safe.all() and self.safe_flags.all():  # R_safe is R (d_thresh 0: every free motion is safe)
-            self.free_graph = self._graph(edges, cost, every, self.free_labels, ONLY_LANDMARKS)
+            self.free_labels, self.free_count, self.free_graph = self._graph(edges, cost, every, ONLY_LANDMARKS)
             self.safe_labels, self.safe_count, self.safe_graph = self.free_labels, self.free_count, self.free_graph
-        else:
-            self.free_graph = self._graph(edges, cost, every, self.free_labels, FREE_LANDMARKS)
-            self.safe_labels, self.safe_count = component_labels(self.n, edges, edge_safe)
-            self.safe_graph = self._graph(edges, cost, edge_safe, self.safe_labels, SAFE_LANDMARKS)
+        else:  # the two at once where the build has two threads (most of each is its landmarks' Dijkstras)
+            calls = [
+                (self._graph, (edges, cost, edge_safe, SAFE_LANDMARKS)),
+                (self._graph, (edges, cost, every, FREE_LANDMARKS)),
+            ]
+            safe, free = in_parallel(calls) if self.threads > 1 else [call(*args) for call, args in calls]
+            self.free_labels, self.free_count, self.free_graph = free
+            self.safe_labels, self.safe_count, self.safe_graph = safe
         grid = self.grid
         #: what the query's kernels take of the roadmap (:mod:`.query_kernel`)
         self.arrays = Roadmap(
@@ -138,11 +153,14 @@ class RoadmapPair:
         by = np.lexsort((edges[:, 1], edges[:, 0]))
         self.edges, self.edge_cost, self.edge_safe = edges[by], self.edge_cost[by], self.edge_safe[by]
 
-    def _graph(self, edges: np.ndarray, cost: np.ndarray, mask: np.ndarray, labels: np.ndarray, landmarks: int):
-        """The :class:`.astar.Graph` of the roadmap of ``edges[mask]`` (components ``labels``)."""
+    def _graph(self, edges: np.ndarray, cost: np.ndarray, mask: np.ndarray, landmarks: int) -> tuple:
+        """The roadmap of ``edges[mask]``: its components (a label per milestone, how many) and its
+        :class:`.astar.Graph` with that many ``landmarks``."""
+        labels, count = component_labels(self.n, edges, mask)
         rows = csr_rows(self.n, edges, cost, mask, 1e-15)
-        far = landmark_distances(*rows, self.grid.points, labels, landmarks, bucket_width(cost, BUCKET_FRACTION))
-        return search_graph(*rows, self.grid.points, far, bucket_width(cost))
+        points = self.grid.points
+        far = landmark_distances(*rows, points, labels, landmarks, bucket_width(cost, BUCKET_FRACTION))
+        return labels, count, search_graph(*rows, points, far, bucket_width(cost))
 
     # ------------------------------------------------------------------ structure
     @property
@@ -297,9 +315,20 @@ def sample_milestones(
 
 
 def build_roadmaps(
-    space: Space, *, milestones: int, k: int, s: float, d_thresh: float, seed: int, progress=None
+    space: Space,
+    *,
+    milestones: int,
+    k: int,
+    s: float,
+    d_thresh: float,
+    seed: int,
+    progress=None,
+    threads: int | None = None,
 ) -> RoadmapPair:
-    """The learning phase (Algorithm 1, for R and R_safe at once)."""
+    """The learning phase (Algorithm 1, for R and R_safe at once), on ``threads`` threads where it divides (the
+    neighbour search's slabs, the two roadmaps' landmarks; None: :func:`surgiplan.threads.cpu_threads`). The roadmaps
+    are the same whatever the threads."""
+    threads = cpu_threads() if threads is None else max(int(threads), 1)
     from surgiplan.progress import NullProgress
 
     progress = progress or NullProgress()
@@ -314,7 +343,7 @@ def build_roadmaps(
         safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
         # the body must also stay in the workspace along an edge (the gimbal's tip may leave the box)
         inside = space.workspace_slack(q)
-        pairs, length = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, int(k), float(s))
+        pairs, length = k_s_pairs(grid.points, grid.origin, grid.dims, grid.cell, grid.first, int(k), float(s), threads)
         # a space with Euclidean motions: the pairs' lengths (measured by the neighbour search, the same numbers
         # space.distance gives) are the motions' speed bounds and the edges' costs
         euclidean = space.euclidean_motions
@@ -329,7 +358,7 @@ def build_roadmaps(
         q,
         clearance,
         safe,
-        pairs.astype(np.int64),
+        pairs.astype(np.int64, copy=False),
         cost,
         edge_safe,
         float(d_thresh),
@@ -337,4 +366,5 @@ def build_roadmaps(
         float(s),
         covered_edges=covered_free,
         grid=grid,
+        threads=threads,
     )
