@@ -98,6 +98,9 @@ class Recording:
             if not self.threads:  # after the sample's time is taken: it costs that sample nothing
                 self.threads = stage_threads()
 
+    def threads(self) -> list[int]:
+        return self.inner.threads() if self.inner is not None else []
+
     def close(self) -> None:
         if self.inner is not None:
             self.inner.close(timeout=10)

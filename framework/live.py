@@ -42,6 +42,12 @@ class LiveFeed:
         """Stop publishing (the run calls it when it ends); this feed holds nothing to flush."""
         pass
 
+    def threads(self) -> list[int]:
+        """The native ids of the threads this feed runs (a sender): a stage that paces real time runs them at its
+        own scheduling while it does (a sender that holds Python's GIL when something preempts it would hold up
+        the stage until it runs again); none here."""
+        return []
+
 
 # ----------------------------------------------------------------------------- a feed to a live viewer
 
@@ -148,6 +154,9 @@ class WebSocketFeed(LiveFeed):
             self.dropped += 1
         self._queue.append((channel, payload))
         self._wake.set()
+
+    def threads(self) -> list[int]:
+        return [self._thread.native_id] if self._thread.is_alive() and self._thread.native_id else []
 
     def close(self, timeout: float = 3.0) -> None:
         """Send what is queued (for at most ``timeout`` seconds), then close the connection."""

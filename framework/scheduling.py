@@ -69,6 +69,28 @@ def restore_priority(previous: tuple[int, int] | SchedAttr | None, thread_id: in
         os.sched_setscheduler(thread_id, previous[0], os.sched_param(previous[1]))
 
 
+@contextlib.contextmanager
+def helpers_scheduled(priority: int | None, thread_ids):
+    """For the body, the threads ``thread_ids`` (native ids) that a paced loop depends on (a live feed's sender)
+    under its scheduling: SCHED_FIFO one below ``priority`` (at least 1), so that the loop still preempts them, and
+    so that no ordinary task preempts them while they hold Python's GIL, which the loop would wait for until they
+    ran again; ``priority`` None: the short slice the loop asks for. Restored at exit; a thread that has ended
+    meanwhile is left alone."""
+    helper = None if priority is None else max(1, priority - 1)
+    previous = []
+    try:
+        for tid in thread_ids:
+            try:
+                previous.append((tid, set_realtime_priority(helper, tid)))
+            except ProcessLookupError:  # ended already
+                continue
+        yield
+    finally:
+        for tid, before in previous:
+            with contextlib.suppress(ProcessLookupError):
+                restore_priority(before, tid)
+
+
 def sched_attr(thread_id: int = 0, attr: SchedAttr | None = None) -> SchedAttr | None:
     """A thread's scheduling attributes (``attr`` None), or set them to ``attr``; None where the system cannot."""
     calls = _SCHED_ATTR_CALLS.get(os.uname().machine) if hasattr(os, "uname") else None

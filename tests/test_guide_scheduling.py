@@ -100,3 +100,62 @@ def test_a_guide_attempt_with_a_realtime_priority_runs_under_sched_fifo(tmp_path
         run_pipeline(load_pipeline(path))
     assert seen == []
     assert len(closed) == 1  # the source made for the attempt is closed, though it never opened
+
+
+def test_the_live_feeds_sender_runs_just_below_the_attempt_while_it_runs(tmp_path, monkeypatch):
+    """A live feed's sender thread holds the GIL while it encodes; preempted then by an ordinary task (a browser
+    rendering the page), it would hold up the stage's SCHED_FIFO thread until it ran again. While the attempt runs
+    it is under SCHED_FIFO one below guidance.realtime_priority, and as it was afterwards."""
+    import threading
+
+    from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.live import LiveFeed
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:
+        pytest.skip("SCHED_FIFO is not allowed here")
+
+    class Sending(LiveFeed):
+        """A feed with a sender thread of its own, as WebSocketFeed has."""
+
+        active = True
+
+        def __init__(self):
+            self.stop = threading.Event()
+            self.sender = threading.Thread(target=self.stop.wait, args=(60,), daemon=True)
+            self.sender.start()
+
+        def threads(self):
+            return [self.sender.native_id]
+
+    feed = Sending()
+    sender = feed.sender.native_id
+    seen = _at_the_sixth_sample(monkeypatch, lambda: (os.sched_getscheduler(sender), os.sched_getparam(sender)))
+    import surgiplan.runner as runner
+
+    original = runner.StageContext
+    monkeypatch.setattr(runner, "StageContext", lambda *a, **k: original(*a, **{**k, "live": feed}))
+    try:
+        outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path, guidance={"realtime_priority": 7})))
+        assert outcome.results[1].status in ("completed", "incomplete")
+        ((policy, param),) = seen
+        assert (policy, param.sched_priority) == (os.SCHED_FIFO, 6)
+        assert os.sched_getscheduler(sender) == os.SCHED_OTHER and os.sched_getparam(sender).sched_priority == 0
+    finally:
+        feed.stop.set()
+
+
+def test_a_feed_names_its_sender_thread():
+    """WebSocketFeed.threads: its sender's native id while it runs (here trying to reach a viewer nobody started),
+    none once closed; the feed nobody watches has none."""
+    from surgiplan.live import LiveFeed, WebSocketFeed
+
+    assert LiveFeed().threads() == []
+    feed = WebSocketFeed("ws://127.0.0.1:9/feed", retry_for=5.0, open_timeout=0.2)
+    try:
+        assert feed.threads() == [feed._thread.native_id] and feed.threads()[0] > 0
+    finally:
+        feed.close(timeout=3.0)
+    assert feed.threads() == []

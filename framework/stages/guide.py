@@ -64,7 +64,7 @@ from ..kinds import (
 from ..models import StrictModel
 from ..outputs.report.timeline import motion_report
 from ..results import StageResult
-from ..scheduling import paced_section, precise_timer_slack, set_realtime_priority
+from ..scheduling import helpers_scheduled, paced_section, precise_timer_slack, set_realtime_priority
 from ..status import GuideStatus
 from ..validation import validate_model
 
@@ -342,6 +342,8 @@ class GuideKind(StageKind):
             attempt.callback(_close_quietly, source)  # last: after the scheduling is given back
             try:
                 attempt.enter_context(paced_section(settings.realtime_priority, switch_interval=None))
+                # the live feed's sender too (one below): preempted while holding the GIL, it held this thread up
+                attempt.enter_context(helpers_scheduled(settings.realtime_priority, live.threads()))
             except OSError as exc:
                 raise StageError(
                     f"guide stage '{spec.name}': guidance.realtime_priority {settings.realtime_priority} "
