@@ -88,15 +88,15 @@ class Recording:
     def __init__(self, inner=None) -> None:
         self.inner = inner
         self.done: list[tuple[float, float]] = []  # (the sample's t, perf_counter after its publication)
-        self.threads: dict[int, str] = {}  # the stage's threads, taken at its first sample (stage_threads)
+        self.traced: dict[int, str] = {}  # the stage's threads, taken at its first sample (stage_threads)
 
     def publish(self, channel: str, payload) -> None:
         if self.inner is not None:
             self.inner.publish(channel, payload)
         if channel == "tip":
             self.done.append((float(payload["t"]), time.perf_counter()))
-            if not self.threads:  # after the sample's time is taken: it costs that sample nothing
-                self.threads = stage_threads()
+            if not self.traced:  # after the sample's time is taken: it costs that sample nothing
+                self.traced = stage_threads()
 
     def threads(self) -> list[int]:
         return self.inner.threads() if self.inner is not None else []
@@ -261,7 +261,7 @@ def watched_attempt(
                 "feed_drops": got["drops"]["feed"],
                 "stalled_cut_after_s": round(cut[0], 2) if cut else None,
             },
-            feed.threads,
+            feed.traced,
         )
 
 
@@ -333,8 +333,8 @@ def main() -> None:
                         feed = Recording()
                         alone.append(attempt(path, feed))
                     alone_stalled = during_stalls(witness_alone, feed.done_at(), alone[-1]) & (alone[-1] > LATE_MS)
-                    wakeups, trace_alone = traced_attempt(trace, feed.threads)
-                    late_alone = slowest_wakeups(wakeups, feed.threads, feed.done_at(), alone[-1], alone[-1] > LATE_MS)
+                    wakeups, trace_alone = traced_attempt(trace, feed.traced)
+                    late_alone = slowest_wakeups(wakeups, feed.traced, feed.done_at(), alone[-1], alone[-1] > LATE_MS)
                     trace = SchedTrace()
                     with Witness() as witness_watched:
                         lateness, done, info, threads = watched_attempt(path, browser, trace)
