@@ -270,16 +270,16 @@ class DriveSimulator(
         if span <= 0:
             return
         # Python lists: numpy's per-call cost is most of it on a few axes, at every SYNC
-        powered = [(s == OE or s == QS) and a for s, a in zip(self.state.tolist(), self.alive.tolist(), strict=True)]
-        if self.hand is not None:
+        alive = self.alive.tolist()
+        powered = [(s == OE or s == QS) and a for s, a in zip(self.state.tolist(), alive, strict=True)]
+        if self.hand is not None and any(a and not p for p, a in zip(powered, alive, strict=True)):
             # unpowered axes moved by hand (a trainee holding the instrument): they go where the hand takes them
             by_hand = ~np.array(powered, dtype=bool) & self.alive
-            if by_hand.any():
-                where = np.asarray(self.hand(t), dtype=float)
-                self.vel[by_hand] = (where[by_hand] - self.pos[by_hand]) / span
-                self.pos[by_hand] = where[by_hand]
-                for i in np.flatnonzero(by_hand):
-                    self.reference.hold(i, t, self.pos[i])
+            where = np.asarray(self.hand(t), dtype=float)
+            self.vel[by_hand] = (where[by_hand] - self.pos[by_hand]) / span
+            self.pos[by_hand] = where[by_hand]
+            for i in np.flatnonzero(by_hand):
+                self.reference.hold(i, t, self.pos[i])
         if not any(powered):
             if self.hand is not None:
                 self.t = t
