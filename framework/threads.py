@@ -22,6 +22,17 @@ _POOL: ThreadPoolExecutor | None = None
 _POOL_SIZE = 0
 
 
+def _forget_pool() -> None:
+    """In a child made by fork: the parent's pool came without its threads (fork copies only the calling thread),
+    and work handed to it would wait forever; the child starts a pool of its own when it needs one."""
+    global _POOL, _POOL_SIZE
+    _POOL, _POOL_SIZE = None, 0
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def cpu_threads() -> int:
     """Threads worth splitting work into: 2 where this process may run on two CPUs or more, else 1."""
     return 2 if len(os.sched_getaffinity(0)) >= 2 else 1

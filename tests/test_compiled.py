@@ -195,3 +195,17 @@ def test_in_parallel_returns_every_result_in_order_and_raises_a_calls_error():
 
     with pytest.raises(ValueError, match="second"):
         in_parallel([(pow, (2, 3)), (fail, ("second",)), (pow, (3, 2))])
+
+
+def test_a_child_forked_after_the_pool_started_runs_in_parallel_too():
+    """fork copies only the calling thread: a child must not hand work to the parent's pool, whose threads it has
+    not got (the crash walk forks a child per run after a build used the pool; it waited forever)."""
+    import multiprocessing
+
+    from surgiplan.threads import in_parallel
+
+    assert in_parallel([(pow, (2, 3)), (pow, (3, 2))]) == [8, 9]  # the pool exists in this process now
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        result = pool.apply_async(in_parallel, ([(pow, (2, 5)), (pow, (5, 2))],))
+        assert result.get(timeout=60) == [32, 25]
