@@ -43,6 +43,7 @@ what the page got and was told it lost. The machine is shared: the load average 
 
 from __future__ import annotations
 
+import gc
 import os
 import re
 import socket
@@ -78,6 +79,8 @@ TCP_CLOSE, TCP_CLOSE_WAIT = 7, 8
 TRACED = "ftrace sched_waking/wakeup/switch"
 #: the late samples whose slowest wake-up a run's results list (all are counted)
 LISTED = 20
+#: a delayed sample during a collector pass this long (ms) or longer is counted as delayed during a collection
+GC_MS = 0.5
 
 
 class Recording:
@@ -89,6 +92,18 @@ class Recording:
         self.inner = inner
         self.done: list[tuple[float, float]] = []  # (the sample's t, perf_counter after its publication)
         self.traced: dict[int, str] = {}  # the stage's threads, taken at its first sample (stage_threads)
+        #: the garbage collector's passes in this process while the feed is open: (start, end perf_counter s,
+        #: generation); a pass holds the GIL, so every thread of the stage waits for it
+        self.collections: list[tuple[float, float, int]] = []
+        self._collecting: float | None = None
+        gc.callbacks.append(self._collector)
+
+    def _collector(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._collecting = time.perf_counter()
+        elif self._collecting is not None:
+            self.collections.append((self._collecting, time.perf_counter(), int(info["generation"])))
+            self._collecting = None
 
     def publish(self, channel: str, payload) -> None:
         if self.inner is not None:
@@ -102,8 +117,19 @@ class Recording:
         return self.inner.threads() if self.inner is not None else []
 
     def close(self) -> None:
+        if self._collector in gc.callbacks:
+            gc.callbacks.remove(self._collector)
         if self.inner is not None:
             self.inner.close(timeout=10)
+
+    def collection_during(self, start: float, end: float) -> tuple[float, int | None]:
+        """The longest collector pass that overlapped ``start``-``end`` (perf_counter s): its length (s) and
+        generation (None: none)."""
+        longest, generation = 0.0, None
+        for a, b, g in self.collections:
+            if a < end and b > start and b - a > longest:
+                longest, generation = b - a, g
+        return longest, generation
 
     def lateness_ms(self) -> np.ndarray:
         t, done = np.asarray(self.done).T
@@ -129,12 +155,14 @@ def slowest_wakeups(
     done: np.ndarray,
     lateness_ms: np.ndarray,
     which: np.ndarray,
+    feed: Recording | None = None,
 ) -> list[dict]:
     """For each sample ``which`` picks: the slowest wake-up of the stage's ``threads`` (``rows``:
     :meth:`SchedTrace.wakeups`) from its due time (when it would have been done as quickly as the attempt's best:
     ``done`` less its lateness, the span :func:`during_stalls` asks the witness about) to ``done``: its thread, its
-    delivery (the host's), its wait in a run queue, in all (ms), and its cause as ``wakeup_cause`` says it. None
-    (no trace): none."""
+    delivery (the host's), its wait in a run queue, in all (ms), and its cause as ``wakeup_cause`` says it; with the
+    ``feed``, also the longest garbage collector pass in that span (``gc_ms``, ``gc_generation``). None (no trace):
+    none."""
     if rows is None:
         return []
     out = []
@@ -149,6 +177,9 @@ def slowest_wakeups(
             "run_queue_ms": round(1e3 * (wait - delivery), 3),
             "wakeup_ms": round(1e3 * wait, 3),
         }
+        if feed is not None:
+            collecting, generation = feed.collection_during(done[i] - lateness_ms[i] / 1000, done[i])
+            row["gc_ms"], row["gc_generation"] = round(1e3 * collecting, 3), generation
         row["cause"] = wakeup_cause(row["wakeup_ms"], row["delivery_ms"])
         out.append(row)
     return out
@@ -211,12 +242,10 @@ def tcp_state(sock: socket.socket) -> int:
     return struct.unpack("B", sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1))[0]
 
 
-def watched_attempt(
-    path: Path, browser: Browser, trace: SchedTrace
-) -> tuple[np.ndarray, np.ndarray, dict, dict[int, str]]:
+def watched_attempt(path: Path, browser: Browser, trace: SchedTrace) -> tuple[np.ndarray, np.ndarray, dict, Recording]:
     """The watched attempt's lateness per sample (ms), when each was done (perf_counter s), what the page and
-    the stalled client went through, and the stage's threads (:func:`stage_threads`); ``trace`` records the attempt
-    itself (not the viewer's and the page's start)."""
+    the stalled client went through, and its recording feed (the stage's threads, the collector's passes);
+    ``trace`` records the attempt itself (not the viewer's and the page's start)."""
     from surgiplan.live import WebSocketFeed
 
     with live_view(exit_after=600) as url:
@@ -261,7 +290,7 @@ def watched_attempt(
                 "feed_drops": got["drops"]["feed"],
                 "stalled_cut_after_s": round(cut[0], 2) if cut else None,
             },
-            feed.traced,
+            feed,
         )
 
 
@@ -296,6 +325,18 @@ def case_trace(attempts: list[dict], late: list[dict], delayed: list[dict] | Non
     if delayed is not None:
         out["delayed_wakeup_causes"] = causes(delayed)
     return out
+
+
+def collector(feed: Recording, case: str) -> dict:
+    """The garbage collector's passes during an attempt: how many of each generation, and the longest (ms)."""
+    passes = feed.collections
+    counts = [sum(1 for *_, g in passes if g == generation) for generation in (0, 1, 2)]
+    longest, generation = max(((b - a, g) for a, b, g in passes), default=(0.0, None))
+    return {
+        f"gc_passes_{case}": counts,
+        f"gc_longest_ms_{case}": round(1e3 * longest, 3),
+        f"gc_longest_generation_{case}": generation,
+    }
 
 
 def run_trace(alone: dict, watched: dict, late_alone: list[dict], late: list[dict], delayed: list[dict]) -> dict:
@@ -334,18 +375,22 @@ def main() -> None:
                         alone.append(attempt(path, feed))
                     alone_stalled = during_stalls(witness_alone, feed.done_at(), alone[-1]) & (alone[-1] > LATE_MS)
                     wakeups, trace_alone = traced_attempt(trace, feed.traced)
-                    late_alone = slowest_wakeups(wakeups, feed.traced, feed.done_at(), alone[-1], alone[-1] > LATE_MS)
+                    late_alone = slowest_wakeups(
+                        wakeups, feed.traced, feed.done_at(), alone[-1], alone[-1] > LATE_MS, feed
+                    )
                     trace = SchedTrace()
                     with Witness() as witness_watched:
-                        lateness, done, info, threads = watched_attempt(path, browser, trace)
+                        lateness, done, info, watched_feed = watched_attempt(path, browser, trace)
                     watched.append(lateness)
                     n = min(lateness.size, alone[-1].size)
                     paired.append(lateness[:n] - alone[-1][:n])
                     delayed = paired[-1] > LATE_MS
                     stalled_delays = during_stalls(witness_watched, done[:n], lateness[:n]) & delayed
                     late = int(np.count_nonzero(lateness > LATE_MS))
-                    wakeups, trace_watched = traced_attempt(trace, threads)
-                    late_watched = slowest_wakeups(wakeups, threads, done, lateness, lateness > LATE_MS)
+                    wakeups, trace_watched = traced_attempt(trace, watched_feed.traced)
+                    late_watched = slowest_wakeups(
+                        wakeups, watched_feed.traced, done, lateness, lateness > LATE_MS, watched_feed
+                    )
                     for s in late_watched:  # a sample the viewer delayed is late (it is no earlier alone)
                         if s["sample"] < n:
                             s["delayed_ms"] = round(float(paired[-1][s["sample"]]), 3)
@@ -370,6 +415,9 @@ def main() -> None:
                         "witness_late_max_ms_watched": witness_watched.summary()["witness_late_max_ms"],
                         "witness": witness_watched.policy,
                         **run_trace(trace_alone, trace_watched, late_alone, late_watched, late_delayed),
+                        **collector(feed, "alone"),
+                        **collector(watched_feed, "watched"),
+                        "delayed_during_collections": sum(1 for d in late_delayed if d.get("gc_ms", 0) >= GC_MS),
                     })  # fmt: skip
                     print({k: v for k, v in viewer_runs[-1].items() if not isinstance(v, list)}, flush=True)
                     for s in late_delayed[:LISTED]:

@@ -135,7 +135,11 @@ def precise_timer_slack() -> bool:
 
 @contextlib.contextmanager
 def paced_section(
-    priority: int | None = None, *, pause_collector: bool = False, switch_interval: float | None = SWITCH_INTERVAL
+    priority: int | None = None,
+    *,
+    pause_collector: bool = False,
+    freeze_heap: bool = False,
+    switch_interval: float | None = SWITCH_INTERVAL,
 ):
     """Run the body as a loop that keeps real time, on the calling thread:
 
@@ -149,7 +153,11 @@ def paced_section(
     * ``pause_collector``: the cyclic garbage collector off and what exists at entry frozen out of its sight (a full
       collection of a large heap stops every thread of the process for tens of milliseconds); what the loop frees
       goes by reference counting; the collector back on and the heap unfrozen at exit. For bounded loops (a
-      trajectory, a device's session), not for ones a user may leave running for hours.
+      trajectory, a device's session), not for ones a user may leave running for hours;
+    * ``freeze_heap``: only the freezing, the collector left on: its passes scan what the loop made, not the whole
+      heap (a full pass over a pipeline's heap holds the GIL for milliseconds, while the loop's thread waits);
+      what existed at entry and became cyclic garbage meanwhile goes at the first pass after. For loops of any
+      length.
     """
     previous = set_realtime_priority(priority)
     switch = sys.getswitchinterval()
@@ -159,16 +167,16 @@ def paced_section(
         precise_timer_slack()
         if pause_collector:
             gc.disable()
-            if not frozen:  # a heap frozen already (a device's, at activation) stays as its owner froze it
-                gc.freeze()
+        if (pause_collector or freeze_heap) and not frozen:
+            gc.freeze()  # a heap frozen already (a device's, at activation) stays as its owner froze it
         if switch_interval is not None:
             sys.setswitchinterval(switch_interval)
         yield
     finally:
         sys.setswitchinterval(switch)
+        if (pause_collector or freeze_heap) and not frozen:  # frozen here, not by someone before
+            gc.unfreeze()
         if pause_collector:
-            if not frozen:  # frozen here, not by someone before
-                gc.unfreeze()
             if collecting:
                 gc.enable()
         restore_priority(previous)

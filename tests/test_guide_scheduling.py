@@ -159,3 +159,20 @@ def test_a_feed_names_its_sender_thread():
     finally:
         feed.close(timeout=3.0)
     assert feed.threads() == []
+
+
+def test_a_guide_attempt_freezes_the_heap_it_starts_with_and_keeps_collecting(tmp_path, monkeypatch):
+    """While the attempt runs, what existed before it is frozen out of the collector's sight (its passes, which
+    hold the GIL, scan only what the attempt makes) and the collector stays on; afterwards the heap is as before."""
+    import gc
+
+    from surgiplan import load_pipeline, run_pipeline
+
+    before = gc.get_freeze_count()
+    assert before == 0 and gc.isenabled()
+    seen = _at_the_sixth_sample(monkeypatch, lambda: (gc.get_freeze_count(), gc.isenabled()))
+    outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
+    assert outcome.results[1].status in ("completed", "incomplete")
+    ((frozen, enabled),) = seen
+    assert frozen > 10_000 and enabled
+    assert gc.get_freeze_count() == 0 and gc.isenabled()

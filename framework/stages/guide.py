@@ -337,11 +337,13 @@ class GuideKind(StageKind):
         # has run longer (a browser rendering the live view). Python's switch interval stays: the live feed's sender
         # releases the GIL on its send within tens of microseconds, and a short interval would make this thread
         # hand the GIL over in the middle of a sample's analysis (measured: SCHED_FIFO with 0.2 ms, the viewer
-        # delayed a sample by up to 1.9 ms; with Python's 5 ms, 0.25 ms)
+        # delayed a sample by up to 1.9 ms; with Python's 5 ms, 0.25 ms). The heap as it stands is frozen out of the
+        # collector's sight, so that its passes scan only what the attempt makes (with the viewer's payloads to
+        # encode, a pass held the GIL for up to 2.5 ms while this thread waited)
         with contextlib.ExitStack() as attempt:
             attempt.callback(_close_quietly, source)  # last: after the scheduling is given back
             try:
-                attempt.enter_context(paced_section(settings.realtime_priority, switch_interval=None))
+                attempt.enter_context(paced_section(settings.realtime_priority, freeze_heap=True, switch_interval=None))
                 # the live feed's sender too (one below): preempted while holding the GIL, it held this thread up
                 attempt.enter_context(helpers_scheduled(settings.realtime_priority, live.threads()))
             except OSError as exc:
