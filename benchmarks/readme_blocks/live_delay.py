@@ -73,6 +73,12 @@ def render_live_delay(results: Path) -> str:
                 if traced and delayed
                 else ""
             )
+            + (
+                f"; {sum(r['delayed_during_collections'] for r in mine):,} came during a pass of Python's garbage "
+                "collector of 0.5 ms or more (which holds the GIL)"
+                if delayed and all("delayed_during_collections" in r for r in mine)
+                else ""
+            )
             + f"; p99 of the difference {watched['paired_p99_ms']:.2f} ms, max {watched['paired_max_ms']:.1f} ms)"
         )
     cut = [r["stalled_cut_after_s"] for r in runs if r["stalled_cut_after_s"] is not None]
