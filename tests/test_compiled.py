@@ -197,6 +197,65 @@ def test_in_parallel_returns_every_result_in_order_and_raises_a_calls_error():
         in_parallel([(pow, (2, 3)), (fail, ("second",)), (pow, (3, 2))])
 
 
+def test_a_real_time_caller_or_a_budget_of_one_runs_every_call_itself(monkeypatch):
+    """The pool's threads run at ordinary priority: a SCHED_FIFO caller waiting on them would wait on whatever
+    preempts them, so it runs its calls itself, as under ``thread_budget(1)``; the results are the same."""
+    import os
+    import threading
+
+    from surgiplan import threads
+
+    def where(k):
+        return threading.get_ident(), k * k
+
+    calls = [(where, (k,)) for k in range(3)]
+    me = threading.get_ident()
+    monkeypatch.setattr(threads.os, "sched_getaffinity", lambda pid: {0, 1})
+    spread = threads.in_parallel(calls)
+    assert [k for _, k in spread] == [0, 1, 4] and {ident for ident, _ in spread[:-1]}.isdisjoint({me})
+    with threads.thread_budget(1) as budget:
+        assert budget == 1 and threads.cpu_threads() == 1
+        assert threads.in_parallel(calls) == [(me, 0), (me, 1), (me, 4)]
+    assert threads.cpu_threads() == 2  # the budget ends with its block
+    with threads.thread_budget(None) as budget:
+        assert budget == 2
+    monkeypatch.setattr(threads.os, "sched_getscheduler", lambda pid: os.SCHED_FIFO)
+    assert threads.cpu_threads() == 1
+    assert threads.in_parallel(calls) == [(me, 0), (me, 1), (me, 4)]
+    with threads.thread_budget(2):
+        assert threads.cpu_threads() == 1  # a budget does not override the policy
+
+
+def test_a_thread_really_under_sched_fifo_runs_its_calls_itself():
+    """The same on a thread that the kernel runs under SCHED_FIFO (where this host lets a test set it)."""
+    import os
+    import threading
+
+    from surgiplan import threads
+
+    seen: dict = {}
+
+    def body():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        except PermissionError:
+            seen["refused"] = True
+            return
+        try:
+            me = threading.get_ident()
+            seen["idents"] = {ident for ident in threads.in_parallel([(threading.get_ident, ())] * 3)}
+            seen["me"] = me
+        finally:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+    worker = threading.Thread(target=body)
+    worker.start()
+    worker.join(30)
+    if seen.get("refused"):
+        pytest.skip("this host does not let a test set SCHED_FIFO")
+    assert seen["idents"] == {seen["me"]}
+
+
 def test_a_child_forked_after_the_pool_started_runs_in_parallel_too():
     """fork copies only the calling thread: a child must not hand work to the parent's pool, whose threads it has
     not got (the crash walk forks a child per run after a build used the pool; it waited forever)."""

@@ -161,6 +161,30 @@ def test_the_build_is_the_same_on_one_thread_or_several(block_world, space_kind)
             np.testing.assert_array_equal(mine.indices, theirs.indices)
 
 
+class _RefusingPool:
+    """Stands in for :mod:`surgiplan.threads`' pool: any work handed to it fails the test."""
+
+    def submit(self, *args, **kwargs):
+        raise AssertionError("work went to the pool's threads")
+
+
+def test_threads_1_keeps_the_whole_build_on_the_callers_thread(block_world, monkeypatch):
+    """``threads: 1`` covers every split below the build, the scene's batched distances among them (a batch of
+    1,500 sampled milestones is above the split size), not only the neighbour search and the landmarks."""
+    from surgiplan import threads
+    from surgiplan.geometry import compiled
+
+    assert 1500 >= compiled.SPLIT_AT
+    monkeypatch.setattr(threads, "_POOL", _RefusingPool())
+    monkeypatch.setattr(threads, "_POOL_SIZE", 64)
+    monkeypatch.setattr(threads.os, "sched_getaffinity", lambda pid: {0, 1})  # two CPUs, whatever this host has
+    problem = PlanningProblem(block_world, R3Space(block_world))
+    built = SafePRM(SafePRMSettings(proficiency="intermediate", milestones=1500, seed=5, threads=1)).build(problem)
+    assert built.roadmap.threads == 1 and len(built.roadmap.edges) > 5000
+    with pytest.raises(AssertionError, match="pool's threads"):  # two threads do use the pool
+        SafePRM(SafePRMSettings(proficiency="intermediate", milestones=1500, seed=5, threads=2)).build(problem)
+
+
 def test_every_edge_is_certified(block_world):
     """No R edge touches an obstacle, no R_safe edge crosses the 4 mm virtual boundary: re-measured with coal."""
     space = R3Space(block_world, tip_radius=0.5 * MM)

@@ -168,8 +168,9 @@ class SafePRMSettings(StrictModel):
     k: PositiveInt = 15
     s: PositiveLength | None = None
     seed: int = 0
-    #: threads the roadmaps' build may use (the neighbour search's slabs; R's and R_safe's landmarks at once);
-    #: the default, two where the process may run on two CPUs. The roadmaps are the same whatever the number
+    #: threads the roadmaps' build may use (the neighbour search's slabs, the scene's batched distances, R's and
+    #: R_safe's landmarks at once; 1 keeps all of it on the calling thread); the default, two where the process
+    #: may run on two CPUs, one on a real-time thread. The roadmaps are the same whatever the number
     threads: PositiveInt | None = None
     smoothing: SmoothingSettings = Field(default_factory=SmoothingSettings)
 

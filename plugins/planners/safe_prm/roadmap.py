@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 from surgiplan.spaces.base import Space
-from surgiplan.threads import cpu_threads, in_parallel
+from surgiplan.threads import in_parallel, thread_budget, threads_or_default
 
 from .astar import Workspace, bucket_width, search_graph
 from .kernels import (
@@ -101,7 +101,12 @@ class RoadmapPair:
     threads: int | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        self.threads = cpu_threads() if self.threads is None else max(int(self.threads), 1)
+        self.threads = threads_or_default(self.threads)
+        with thread_budget(self.threads):
+            self._prepare()
+
+    def _prepare(self) -> None:
+        """The grid, the slack and the searches' arrays (on :attr:`threads` threads where the work divides)."""
         if self.grid is None:
             self.grid, order = Grid.sorting(self.scaled(self.milestones).reshape(len(self.milestones), -1), self.s)
             if np.any(order != np.arange(len(order))):
@@ -129,7 +134,7 @@ class RoadmapPair:
                 (self._graph, (edges, cost, edge_safe, SAFE_LANDMARKS)),
                 (self._graph, (edges, cost, every, FREE_LANDMARKS)),
             ]
-            safe, free = in_parallel(calls) if self.threads > 1 else [call(*args) for call, args in calls]
+            safe, free = in_parallel(calls)
             self.free_labels, self.free_count, self.free_graph = free
             self.safe_labels, self.safe_count, self.safe_graph = safe
         grid = self.grid
@@ -328,7 +333,12 @@ def build_roadmaps(
     """The learning phase (Algorithm 1, for R and R_safe at once), on ``threads`` threads where it divides (the
     neighbour search's slabs, the two roadmaps' landmarks; None: :func:`surgiplan.threads.cpu_threads`). The roadmaps
     are the same whatever the threads."""
-    threads = cpu_threads() if threads is None else max(int(threads), 1)
+    with thread_budget(threads) as budget:
+        return _build_roadmaps(space, milestones, k, s, d_thresh, seed, progress, budget)
+
+
+def _build_roadmaps(space, milestones, k, s, d_thresh, seed, progress, threads: int) -> RoadmapPair:
+    """:func:`build_roadmaps` within its thread budget."""
     from surgiplan.progress import NullProgress
 
     progress = progress or NullProgress()
