@@ -18,11 +18,13 @@ import numpy as np
 from numba import njit
 
 #: how many landmarks a roadmap gets. A query searches R once and R_safe once for each stretch it repairs, and a
-#: repair's search is the longer (it goes around what R's path went through): on the block world at 5,000
-#: milestones, 8 for R and 32 for R_safe settle a quarter fewer nodes than 16 and 16, at the same cost of
-#: Dijkstras (R_safe has fewer edges). When R_safe is R (d_thresh 0) its 16 serve both. Each costs one Dijkstra
-#: at build and two bytes of a milestone's row of marks (:func:`.astar.search_graph`: 32 fill a cache line)
-FREE_LANDMARKS = 8
+#: repair's search is the longer (it goes around what R's path went through). The build computes R's and R_safe's
+#: landmarks at once (:func:`surgiplan.threads.in_parallel`), so R's count is as many as finish within R_safe's:
+#: on the block world at 5,000 milestones, R_safe's 32 Dijkstras take 11-12 ms and R's 16 (R has more edges)
+#: 10.5 ms; 16 for R in place of 8 settle 12 % fewer nodes a query (20 would outlast R_safe's). When R_safe is R
+#: (d_thresh 0) its 16 serve both. Each costs one Dijkstra at build and two bytes of a milestone's row of marks
+#: (:func:`.astar.search_graph`: 32 fill a cache line)
+FREE_LANDMARKS = 16
 SAFE_LANDMARKS = 32
 ONLY_LANDMARKS = 16
 #: :func:`dijkstra`'s bucket width, as a fraction of the mean edge cost: an edge shorter than a bucket can
