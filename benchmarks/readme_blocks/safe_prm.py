@@ -114,8 +114,10 @@ def render_safe_prm(results: Path) -> str:
         + (
             f" The same queries back to back, caches warm (as VAMP's 35 µs and OMPL's `solve` here are measured): "
             f"{sig(1e3 * f(s_big['query_warm_ms']), 2)} µs expert, {sig(1e3 * f(s_big['query_repair_warm_ms_4mm']), 2)}"
-            f" / {sig(1e3 * f(s_big['query_repair_warm_ms_8mm']), 2)} µs with repair; the plan stage's query follows "
-            "the previous query's smoothing, which leaves the roadmap's arrays out of cache."
+            f" / {sig(1e3 * f(s_big['query_repair_warm_ms_8mm']), 2)} µs with repair (the target measured this way: "
+            f"{met(max(f(s_big['query_repair_warm_ms_4mm']), f(s_big['query_repair_warm_ms_8mm'])) <= QUERY_MS)}); "
+            "the plan stage's query follows the previous query's smoothing, which leaves the roadmap's arrays out of "
+            "cache."
             if "query_warm_ms" in s_big
             else ""
         )
