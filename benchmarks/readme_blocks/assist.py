@@ -68,7 +68,8 @@ def render_assist(results: Path) -> str:
     rows, held = [], {}
     answered = ("sync_to_tpdos_p50_ms", "sync_to_tpdos_p99_ms", "sync_to_tpdos_max_ms")
     stalled = 0  # attempts whose slowest answer came while the stall witness was late too
-    traced = all("span_wakeup_max_ms" in r or _held(r, target) for r in loop["realtime"])
+    # the trace's account of a missed answer exists for the attempts that ended on one
+    traced = all("span_wakeup_max_ms" in r for r in loop["realtime"] if r["ended"])
     for r in loop["realtime"]:
         rate = r["cycle_rate_hz"]
         ok = _held(r, target)
@@ -140,12 +141,14 @@ def render_assist(results: Path) -> str:
     short = sum(1 for r in loop["realtime"] if not _held(r, target))
     cpus = [r["drives_cpu_per_sync_ms"] for r in loop["realtime"] if r.get("drives_cpu_per_sync_ms") is not None]
     cpu_note = f"; {min(cpus):.2f}-{max(cpus):.2f} ms of its CPU a SYNC" if cpus else ""
+    lasted_short = [r for r in loop["realtime"] if not _held(r, target) and not r["ended"]]
+    short -= len(lasted_short)  # below: the attempts whose assistance ended
     if short and traced:
         causes = [wakeup_cause(r.get("span_wakeup_max_ms"), r.get("span_delivery_ms")) for r in loop["realtime"]
-                  if not _held(r, target)]  # fmt: skip
+                  if r["ended"]]  # fmt: skip
         host, queued = causes.count("host"), causes.count("queue")
         verdict += (
-            f" Of the {short} attempts that fell short, {host} had a wake-up whose delivery by the host took "
+            f" Of the {short} attempts whose assistance ended, {host} had a wake-up whose delivery by the host took "
             f"{HOST_DELIVERY_MS:g} ms or more while the missed answer was awaited (a halted CPU run again late: the "
             f"machine's), {queued} a wake-up of {QUEUED_MS:g} ms or more that waited in a run queue, and the stall "
             f"witnesses were late in {stalled}; in the remaining {short - host - queued} neither the trace nor the "
@@ -154,9 +157,22 @@ def render_assist(results: Path) -> str:
         )
     elif short and any("witness_late_max_ms" in r for r in loop["realtime"]):
         verdict += (
-            f" Of the {short} attempts that fell short, the stall witness was late too while the slowest answer was "
-            f"awaited in {stalled} (the machine stopped); in the other {short - stalled} it was on time: the "
-            "simulated drives' answer itself came late (a Python process handling the SYNC, its motors and the "
+            f" Of the {short} attempts whose assistance ended, the stall witness was late too while the slowest "
+            f"answer was awaited in {stalled} (the machine stopped); in the other {short - stalled} it was on time: "
+            "the simulated drives' answer itself came late (a Python process handling the SYNC, its motors and the "
             f"hand{cpu_note})."
+        )
+    if lasted_short:
+        slowest = [
+            f"{r['drives']}, run {r.get('run', 0) + 1}: {r['missed_syncs']} missed, the slowest wake-up of its threads "
+            f"{r['wakeup_max_ms']:.2f} ms, {r['delivery_max_ms']:.2f} ms of it the delivery "
+            f"({wakeup_cause(r['wakeup_max_ms'], r['delivery_max_ms'])})"
+            if r.get("wakeup_max_ms") is not None
+            else f"{r['drives']}, run {r.get('run', 0) + 1}: {r['missed_syncs']} missed"
+            for r in lasted_short
+        ]
+        verdict += (
+            f" {len(lasted_short)} attempt{'s' if len(lasted_short) > 1 else ''} lasted but missed SYNCs (a cycle "
+            f"began more than a period late): {'; '.join(slowest)}."
         )
     return "\n\n".join((section(head, body, tail), realtime, wrap(verdict)))
