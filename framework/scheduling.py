@@ -162,19 +162,20 @@ def paced_section(
     previous = set_realtime_priority(priority)
     switch = sys.getswitchinterval()
     collecting = gc.isenabled()
-    frozen = gc.get_freeze_count()
+    # freeze here only a heap not frozen already (a device's, at activation, stays as its owner froze it)
+    freezing = (pause_collector or freeze_heap) and not gc.get_freeze_count()
     try:
         precise_timer_slack()
         if pause_collector:
             gc.disable()
-        if (pause_collector or freeze_heap) and not frozen:
-            gc.freeze()  # a heap frozen already (a device's, at activation) stays as its owner froze it
+        if freezing:
+            gc.freeze()
         if switch_interval is not None:
             sys.setswitchinterval(switch_interval)
         yield
     finally:
         sys.setswitchinterval(switch)
-        if (pause_collector or freeze_heap) and not frozen:  # frozen here, not by someone before
+        if freezing:  # frozen here, not by someone before
             gc.unfreeze()
         if pause_collector:
             if collecting:
