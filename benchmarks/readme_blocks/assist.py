@@ -138,14 +138,13 @@ def render_assist(results: Path) -> str:
     verdict = f"Target ({target:.0f} Hz, 0 missed SYNCs, the assistance lasting the attempt, in every run): " + (
         f"met ({'; '.join(best)})." if best else "not met in any configuration."
     )
-    short = sum(1 for r in loop["realtime"] if not _held(r, target))
+    ended = [r for r in loop["realtime"] if r["ended"]]  # below: the attempts whose assistance ended
+    lasted_short = [r for r in loop["realtime"] if not _held(r, target) and not r["ended"]]
+    short = len(ended)
     cpus = [r["drives_cpu_per_sync_ms"] for r in loop["realtime"] if r.get("drives_cpu_per_sync_ms") is not None]
     cpu_note = f"; {min(cpus):.2f}-{max(cpus):.2f} ms of its CPU a SYNC" if cpus else ""
-    lasted_short = [r for r in loop["realtime"] if not _held(r, target) and not r["ended"]]
-    short -= len(lasted_short)  # below: the attempts whose assistance ended
     if short and traced:
-        causes = [wakeup_cause(r.get("span_wakeup_max_ms"), r.get("span_delivery_ms")) for r in loop["realtime"]
-                  if r["ended"]]  # fmt: skip
+        causes = [wakeup_cause(r.get("span_wakeup_max_ms"), r.get("span_delivery_ms")) for r in ended]
         host, queued = causes.count("host"), causes.count("queue")
         verdict += (
             f" Of the {short} attempts whose assistance ended, {host} had a wake-up whose delivery by the host took "
