@@ -363,7 +363,7 @@ def unique_pairs(index, distance, counts):
                 pairs[total, 1] = partner[e]
                 lengths[total] = length[e]
                 total += one
-    return pairs[:total].copy(), lengths[:total].copy()
+    return pairs[:total], lengths[:total]  # views: a copy would cost more than the spare entries (page faults)
 
 
 def k_s_pairs(points, origin, dims, cell, first, k, s, threads=1):

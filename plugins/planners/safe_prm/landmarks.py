@@ -30,25 +30,33 @@ ONLY_LANDMARKS = 16
 #: :func:`dijkstra`'s bucket width, as a fraction of the mean edge cost: an edge shorter than a bucket can
 #: improve a node of the bucket being emptied, which is then expanded again (:func:`.astar.bucket_width`)
 BUCKET_FRACTION = 1.0 / 8.0
+#: :func:`dijkstra`'s units: a bucket's width over 2**shift, each shift in turn until the distances fit in 32 bits
+#: (2**16: an edge loses under a 500,000th of a mean edge to the rounding; the roadmap's distances may reach
+#: 8,192 mean edges before the next, 2**8)
+_SHIFTS = (16, 8, 1)
+#: :func:`dijkstra`'s mark of a node it has not reached
+UNREACHED = np.uint32(0xFFFFFFFF)
 #: :func:`dijkstra`'s buckets (a ring, a power of two): a key beyond the ring's span waits in its slot until
 #: the sweep comes round (bucket counted whole, so it is not taken early)
 _RING = 1 << 12
 
 
 @njit(cache=True, nogil=True)
-def dijkstra(indptr, indices, data, delta, source, out, ring_head, entry_node, entry_bucket, entry_next):
-    """The roadmap distance from ``source`` to every node into ``out`` (``inf`` where unreachable), over CSR
-    rows with unsigned indices. Buckets of width ``delta`` in a ring (``ring_head``, -1 when empty, left so);
-    within a bucket nodes come out in any order and one improved after it came out is expanded again, so every
-    node ends with its exact distance once the buckets are empty (an entry older than its node's last
-    improvement is skipped). Returns the entries used, or -1 when ``entry_*`` ran out (call again with more)."""
+def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, entry_node, entry_bucket, entry_next):
+    """The roadmap distance from ``source`` to every node into ``out`` (:data:`UNREACHED` where unreachable), in
+    the integer units of ``weights`` (each edge's cost in units, unsigned 32-bit), over CSR rows with unsigned
+    indices. Buckets of ``2**shift`` units in a ring (``ring_head``, -1 when empty, left so); within a bucket
+    nodes come out in any order and one improved after it came out is expanded again, so every node ends with its
+    exact distance once the buckets are empty (an entry older than its node's last improvement is skipped).
+    Integer sums are exact: no round-off to bound. Returns the entries used, -1 when ``entry_*`` ran out (call
+    again with more), -2 when a node beyond ``limit`` (the largest distance that any edge's weight keeps within
+    32 bits) is expanded (call again with coarser units)."""
     n = indptr.shape[0] - 1
     for v in range(n):
-        out[v] = np.inf
+        out[v] = UNREACHED
     mask = ring_head.shape[0] - 1
-    inverse = 1.0 / delta
     capacity = entry_node.shape[0]
-    out[source] = 0.0
+    out[source] = 0
     entry_node[0] = source
     entry_bucket[0] = 0
     entry_next[0] = -1
@@ -73,18 +81,22 @@ def dijkstra(indptr, indices, data, delta, source, out, ring_head, entry_node, e
         pending -= 1
         v = entry_node[e]
         g = out[v]
-        if int(g * inverse) != current:
+        if np.int64(g >> shift) != current:
             continue  # improved since: a later entry of v holds its distance
+        if g > limit:
+            for s in range(ring_head.shape[0]):
+                ring_head[s] = -1
+            return -2
         for k in range(indptr[v], indptr[v + 1]):
             w = indices[k]
-            c = g + data[k]
+            c = g + weights[k]
             if c < out[w]:
-                out[w] = c
                 if used == capacity:
                     for s in range(ring_head.shape[0]):
                         ring_head[s] = -1
                     return -1
-                bucket = max(int(c * inverse), current)
+                out[w] = c
+                bucket = max(np.int64(c >> shift), current)
                 entry_node[used] = w
                 entry_bucket[used] = bucket
                 entry_next[used] = ring_head[bucket & mask]
@@ -95,10 +107,27 @@ def dijkstra(indptr, indices, data, delta, source, out, ring_head, entry_node, e
 
 
 @njit(cache=True, nogil=True)
+def _units(data, unit, weights):
+    """Each cost in whole units of ``unit``, rounded down (a sum of them never exceeds the costs' sum), into
+    ``weights``; returns the largest distance from which every edge stays within 32 bits, -1 when none does."""
+    heaviest = 0.0
+    for k in range(data.shape[0]):
+        units = np.floor(data[k] / unit)
+        if not units < UNREACHED:
+            return -1
+        weights[k] = np.uint32(units)
+        heaviest = max(heaviest, units)
+    return np.int64(UNREACHED) - 1 - np.int64(heaviest)
+
+
+@njit(cache=True, nogil=True)
 def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
     """``count`` landmarks of the largest component (farthest strategy) and every node's roadmap distance to
-    each: (n, count), ``inf`` where a node cannot reach it; fewer columns when the component is smaller
-    (``indptr``, ``indices``: unsigned; ``delta``: :func:`dijkstra`'s bucket width)."""
+    each: (n, count), ``inf`` where a node cannot reach it; fewer columns when the component is smaller, none when
+    its distances do not fit :func:`dijkstra`'s coarsest units (``indptr``, ``indices``: unsigned; ``delta``: the
+    buckets' width). The distances are of the costs rounded down to :data:`_SHIFTS`' units (a bucket's width over
+    2**16 at first): never above the true ones, below them by less than a unit an edge; every edge (v, w) keeps
+    ``far[w] <= far[v] + cost``, so the landmarks' bounds stay admissible."""
     n = scaled.shape[0]
     if n == 0 or count == 0:
         return np.empty((n, 0))
@@ -125,28 +154,43 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
             if total > best:
                 first, best = v, total
     far = np.empty((n, count))
-    column = np.empty(n)
-    nearest = np.full(n, np.inf)  # each node's distance to the nearest landmark so far
+    column = np.empty(n, dtype=np.uint32)
     ring_head = np.full(_RING, -1, dtype=np.int32)
     entries = indices.shape[0] // 4 + n + 64
     entry_node = np.empty(entries, dtype=np.uint32)
     entry_bucket = np.empty(entries, dtype=np.int64)
     entry_next = np.empty(entries, dtype=np.int32)
-    landmark = first
-    for j in range(count):
-        while dijkstra(indptr, indices, data, delta, landmark, column, ring_head, entry_node, entry_bucket,
-                       entry_next) < 0:  # fmt: skip
-            entries *= 2  # ran out of entries (re-expansions): again with twice as many
-            entry_node = np.empty(entries, dtype=np.uint32)
-            entry_bucket = np.empty(entries, dtype=np.int64)
-            entry_next = np.empty(entries, dtype=np.int32)
-        landmark, best = -1, -1.0
-        for v in range(n):
-            far[v, j] = column[v]
-            nearest[v] = min(nearest[v], column[v])
-            if labels[v] == largest and nearest[v] > best:
-                landmark, best = v, nearest[v]
-    return far
+    weights = np.empty(data.shape[0], dtype=np.uint32)
+    for shift in _SHIFTS:
+        unit = delta / 2.0**shift
+        limit = _units(data, unit, weights)
+        if limit < 0:
+            continue
+        nearest = np.full(n, np.inf)  # each node's distance to the nearest landmark so far
+        landmark = first
+        j = 0
+        while j < count:
+            used = dijkstra(indptr, indices, weights, np.uint32(limit), np.uint32(shift), landmark, column, ring_head,
+                            entry_node, entry_bucket, entry_next)  # fmt: skip
+            if used == -2:
+                break  # too long for these units: all again in coarser ones
+            if used == -1:
+                entries *= 2  # ran out of entries (re-expansions): again with twice as many
+                entry_node = np.empty(entries, dtype=np.uint32)
+                entry_bucket = np.empty(entries, dtype=np.int64)
+                entry_next = np.empty(entries, dtype=np.int32)
+                continue
+            landmark, best = -1, -1.0
+            for v in range(n):
+                distance = column[v] * unit if column[v] != UNREACHED else np.inf
+                far[v, j] = distance
+                nearest[v] = min(nearest[v], distance)
+                if labels[v] == largest and nearest[v] > best:
+                    landmark, best = v, nearest[v]
+            j += 1
+        if j == count:
+            return far
+    return np.empty((n, 0))
 
 
 def _compile() -> None:
