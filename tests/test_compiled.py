@@ -151,6 +151,7 @@ def test_builds_and_queries_compile_nothing():
         "surgiplan.plugins.planners.safe_prm.kernels.unique_pairs",
         "surgiplan.plugins.planners.safe_prm.kernels.k_s_neighbours",
         "surgiplan.plugins.planners.safe_prm.kernels.cover_pairs",
+        "surgiplan.plugins.planners.safe_prm.kernels.cover_by_midpoint",
         "surgiplan.plugins.planners.safe_prm.kernels.csr_rows",
         "surgiplan.plugins.planners.safe_prm.kernels.component_labels",
         "surgiplan.plugins.planners.safe_prm.landmarks.landmark_distances",

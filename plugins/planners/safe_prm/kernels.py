@@ -419,6 +419,35 @@ def cover_pairs(pairs, reach, clearance, inside, safe, d_thresh):
 
 
 @njit(**_FLAGS)
+def cover_by_midpoint(need, pairs, state, ok, clear_m, inside_m, first, second, clearance, inside, margin, gate):
+    """The midpoint step of :func:`.roadmap.certify_roadmap_edges` for one roadmap (R: ``margin`` 0, where a
+    clearance must be positive; R_safe: ``margin`` d_thresh, where it may be zero, and only the pairs that
+    ``gate`` (R's decisions) let through). Of the pairs ``need[x]`` still undecided (``state`` 2), the midpoint's
+    clearance and slack (``clear_m[x]``, ``inside_m[x]``) less the margin, if it keeps it, and the ends' cover the
+    two halves (speed bounds ``first[x]``, ``second[x]``): certified into ``ok``. Returns how many, and the x
+    whose midpoint keeps the margin without covering them (they need the exact check)."""
+    strict = margin == 0.0
+    exact = np.empty(need.shape[0], dtype=np.int64)
+    count = 0
+    covered = 0
+    for x in range(need.shape[0]):
+        e = need[x]
+        if state[e] != 2 or not gate[e]:
+            continue
+        m = min(clear_m[x] - margin, inside_m[x])
+        if m > 0 or (m == 0 and not strict):
+            i, j = pairs[e, 0], pairs[e, 1]
+            a, b = min(clearance[i] - margin, inside[i]), min(clearance[j] - margin, inside[j])
+            if a + m > first[x] and m + b > second[x]:
+                ok[e] = True
+                covered += 1
+            else:
+                exact[count] = x
+                count += 1
+    return covered, exact[:count]
+
+
+@njit(**_FLAGS)
 def csr_rows(n, edges, cost, mask, floor):
     """Both directions of ``edges[mask]`` as CSR (indptr, indices, data; the indices unsigned, as the searches
     take them): row i lists, in edge order, first the edges (i, j), then the edges (j, i); costs at least
@@ -496,7 +525,10 @@ def _compile() -> None:
     k_s_neighbours(points, points, origin, dims, 1.0, first, 2, 2.0)
     pairs, lengths = k_s_pairs(points, origin, dims, 1.0, first, 2, 2.0)
     mask = np.ones(len(pairs), dtype=np.bool_)
-    cover_pairs(pairs, lengths, np.ones(2), np.ones(2), mask[:1].repeat(2), 0.5)
+    free_state, _, _ = cover_pairs(pairs, lengths, np.ones(2), np.ones(2), mask[:1].repeat(2), 0.5)
+    need = np.arange(len(pairs), dtype=np.int64)
+    some = np.ones(len(pairs))
+    cover_by_midpoint(need, pairs, free_state, mask.copy(), some, some, some, some, np.ones(2), np.ones(2), 0.0, mask)
     csr_rows(2, pairs, np.ones(len(pairs)), mask, 1e-15)
     component_labels(2, pairs, mask)
 

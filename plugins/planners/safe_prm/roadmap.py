@@ -41,6 +41,7 @@ from surgiplan.threads import in_parallel, thread_budget, threads_or_default
 from .astar import Workspace, bucket_width, search_graph
 from .kernels import (
     component_labels,
+    cover_by_midpoint,
     cover_pairs,
     csr_rows,
     grid_build,
@@ -225,6 +226,10 @@ class RoadmapPair:
         }
 
 
+#: half a straight motion's length, rounded up past round-off: the speed bound of each of its halves
+_HALF = 0.5 * (1 + 1e-12)
+
+
 def certify_roadmap_edges(
     space: Space,
     q: np.ndarray,
@@ -259,28 +264,21 @@ def certify_roadmap_edges(
         i, j = pairs[need, 0], pairs[need, 1]
         a, b = q[i], q[j]
         mid = space.interpolate(a, b, 0.5)
-        clear_m = space.clearance(mid, cutoff=d_thresh + reach[need])
-        inside_m = space.workspace_slack(mid)
-        first = space.motion_speed_bound(a, mid)
-        second = space.motion_speed_bound(mid, b)
-        free_a, free_b = np.minimum(clearance[i], inside[i]), np.minimum(clearance[j], inside[j])
+        clear_m = np.ascontiguousarray(space.clearance(mid, cutoff=d_thresh + reach[need]), dtype=float)
+        inside_m = np.ascontiguousarray(space.workspace_slack(mid), dtype=float)
+        if space.euclidean_motions:  # each half of a straight motion is half its length (and round-off)
+            first = second = np.ascontiguousarray(reach[need], dtype=float) * _HALF
+        else:
+            first = np.ascontiguousarray(space.motion_speed_bound(a, mid), dtype=float)
+            second = np.ascontiguousarray(space.motion_speed_bound(mid, b), dtype=float)
+        ends = (clear_m, inside_m, first, second, clearance, inside)
         # R: margin 0, strict (touching is a collision)
-        sel = free_state[need] == 2
-        m = np.minimum(clear_m, inside_m)[sel]
-        three = (m > 0) & (free_a[sel] + m > first[sel]) & (m + free_b[sel] > second[sel])
-        free_ok[need[sel][three]] = True
-        covered += int(np.count_nonzero(three))
-        exact = np.flatnonzero(sel)[(m > 0) & ~three]
+        more, exact = cover_by_midpoint(need, pairs, free_state, free_ok, *ends, 0.0, free_ok | True)
+        covered += more
         if exact.size:
             free_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], 0.0)
-        if d_thresh > 0:
-            safe_a = np.minimum(clearance[i] - d_thresh, inside[i])
-            safe_b = np.minimum(clearance[j] - d_thresh, inside[j])
-            sel = (safe_state[need] == 2) & free_ok[need]
-            m = np.minimum(clear_m - d_thresh, inside_m)[sel]
-            three = (m >= 0) & (safe_a[sel] + m > first[sel]) & (m + safe_b[sel] > second[sel])
-            safe_ok[need[sel][three]] = True
-            exact = np.flatnonzero(sel)[(m >= 0) & ~three]
+        if d_thresh > 0:  # R_safe: only what R kept
+            _, exact = cover_by_midpoint(need, pairs, safe_state, safe_ok, *ends, float(d_thresh), free_ok)
             if exact.size:
                 safe_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], d_thresh)
     edge_safe = (safe_ok & free_ok) if d_thresh > 0 else free_ok.copy()
