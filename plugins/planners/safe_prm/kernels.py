@@ -19,6 +19,7 @@ Compiled when the module is imported (cached on disk by numba), so a roadmap's b
 from __future__ import annotations
 
 from itertools import pairwise
+from threading import Lock
 
 import numpy as np
 from numba import njit
@@ -28,6 +29,8 @@ _FLAGS = {"cache": True, "nogil": True}
 #: a milestone's first guess of its k-th nearest neighbour's distance: this times the previous milestone's (a guess
 #: too short costs one more scan of the block; one too long, more candidates to sort)
 _GUESS = 1.2
+#: :func:`k_s_pairs`' slabs a thread: enough that the last slab handed out ends about when the others do
+_SLABS_A_THREAD = 4
 
 
 @njit(**_FLAGS)
@@ -369,25 +372,34 @@ def unique_pairs(index, distance, counts):
 def k_s_pairs(points, origin, dims, cell, first, k, s, threads=1):
     """The undirected pairs (lo, hi) of points where one is among the other's K-S neighbours, each once, sorted by
     lo then hi (``points``: sorted by cell, as :class:`.roadmap.Grid` holds them), and their lengths (Euclidean,
-    in the points' coordinates). With ``threads`` > 1 the neighbour rows are found in that many slabs of cells at
-    once (:func:`surgiplan.threads.in_parallel`), split where the points are halved; the answer is the same."""
+    in the points' coordinates). With ``threads`` > 1 the neighbour rows are found in slabs of cells
+    (:data:`_SLABS_A_THREAD` a thread, split where the points are, and handed out in turn to whichever thread is
+    free: one slab's points can take longer than another's) on that many threads at once
+    (:func:`surgiplan.threads.in_parallel`); the answer is the same."""
     n = points.shape[0]
     kk = max(int(k), 1)
     index = np.empty((n, kk), dtype=np.int64)
     distance = np.empty((n, kk))
     counts = np.zeros(n, dtype=np.int64)
     if k > 0 and n:
+        threads = max(int(threads), 1)
         per_slab = int(np.prod(dims[1:]))
         slab_first = np.asarray(first[::per_slab])  # the first point of each slab (and, last, n)
-        cuts = np.searchsorted(slab_first, np.linspace(0, n, max(int(threads), 1) + 1)[1:-1])
+        parts = 1 if threads == 1 else threads * _SLABS_A_THREAD
+        cuts = np.searchsorted(slab_first, np.linspace(0, n, parts + 1)[1:-1])
         bounds = [0, *sorted(set(int(c) for c in cuts)), int(dims[0])]
-        in_parallel(
-            [
-                (neighbour_rows, (points, origin, dims, cell, first, k, s, lo, hi, index, distance, counts))
-                for lo, hi in pairwise(bounds)
-                if hi > lo
-            ]
-        )
+        slabs = iter([(lo, hi) for lo, hi in pairwise(bounds) if hi > lo])
+        taking = Lock()
+
+        def work() -> None:
+            while True:
+                with taking:
+                    slab = next(slabs, None)
+                if slab is None:
+                    return
+                neighbour_rows(points, origin, dims, cell, first, k, s, *slab, index, distance, counts)
+
+        in_parallel([(work, ())] * threads)
     return unique_pairs(index, distance, counts)
 
 
