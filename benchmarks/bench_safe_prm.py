@@ -71,6 +71,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from common import package_version, save, table
 from helpers import coal_scene_segment_distance
 from surgiplan import PlanningProblem, load_scene
+from surgiplan.allocator import keep_freed_memory
 from surgiplan.plugins.planners.safe_prm.planner import SafePRM, SafePRMSettings
 from surgiplan.spaces import R3Space
 from surgiplan.threads import cpu_threads
@@ -393,6 +394,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--quick", action="store_true", help="2 seeds, 500 and 2000 milestones; writes no results")
     args = parser.parse_args()
+    keep_freed_memory()  # as ``surgiplan`` does; for the whole process, so OMPL's runs too (surgiplan.allocator)
     load = os.getloadavg()
     started = time.perf_counter()
     sizes = (500, 2000) if args.quick else (500, 2000, 5000)

@@ -16,6 +16,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+from surgiplan.allocator import policy as allocator_policy
+
 RESULTS = Path(__file__).resolve().parent / "results"
 ROOT = RESULTS.parent.parent
 #: the load average (1, 5, 15 min) when the benchmark started
@@ -60,6 +62,7 @@ def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
         "load_before": [round(x, 2) for x in START_LOAD],
         "load_after": [round(x, 2) for x in os.getloadavg()],
         "peers": dict(peers or {}),
+        "allocator": allocator_policy(),  # the whole process's, peers included (surgiplan.allocator)
     }
 
 

@@ -16,6 +16,7 @@ import logging
 import sys
 import traceback
 
+from ..allocator import keep_freed_memory
 from ..errors import SurgiplanError, debug_enabled
 from . import benchmark, benchmark_task, can_decode, canopen_conformance, cohort, export, plugins, run, trainee, view
 
@@ -84,6 +85,7 @@ def _where_the_record_is(exc: BaseException) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    keep_freed_memory()  # a command's stages allocate and free tens of megabytes each (surgiplan.allocator)
     debug = args.debug or debug_enabled()
     restore_logging = _setup_logging(args.verbose)
     try:
