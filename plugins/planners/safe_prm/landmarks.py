@@ -19,14 +19,15 @@ from numba import njit
 
 #: how many landmarks a roadmap gets. A query searches R once and R_safe once for each stretch it repairs, and a
 #: repair's search is the longer (it goes around what R's path went through). The build computes R's and R_safe's
-#: landmarks at once (:func:`surgiplan.threads.in_parallel`), so the two counts are as many as end together: on
-#: the block world at 5,000 milestones a Dijkstra takes about 500 us on R (every milestone) and 300 us on R_safe
-#: (its largest component, three fifths of them), so R's 16 and R_safe's 28 take about 8 ms each. Over 24 queries
-#: (8 seeds, three levels) they settle 7,651 nodes; 16 and 32 settle 7,218 (6 % fewer) but outlast R's by 2 ms,
-#: 20 and 28 settle 7,303 but double R's marks (:func:`.astar.search_graph`: a row of 16 is half a cache line,
-#: of up to 32 a whole one). When R_safe is R (d_thresh 0) its 16 serve both.
+#: landmarks at once (:func:`surgiplan.threads.in_parallel`): on the block world at 5,000 milestones a Dijkstra
+#: takes about 500 us on R (every milestone) and 300 us on R_safe (its largest component, three fifths of them),
+#: so R's 16 take about 8 ms and R_safe's 32 about 10. Over 24 queries (8 seeds, three levels) 16 and 32 settle
+#: 7,218 nodes; 16 and 28, which end together, settle 7,651 (6 % more), and the query with repair, timed back to
+#: back and interleaved, took 83 against 77 us at 4 mm: the query's 100 us is the closer target, so R_safe keeps
+#: its 32. 20 for R would settle fewer but double R's marks a node (:func:`.astar.search_graph`: a row of 16 is
+#: half a cache line, of up to 32 a whole one). When R_safe is R (d_thresh 0) its 16 serve both.
 FREE_LANDMARKS = 16
-SAFE_LANDMARKS = 28
+SAFE_LANDMARKS = 32
 ONLY_LANDMARKS = 16
 #: :func:`dijkstra`'s bucket width, as a fraction of the mean edge cost: an edge shorter than a bucket can
 #: improve a node of the bucket being emptied, which is then expanded again (:func:`.astar.bucket_width`)
