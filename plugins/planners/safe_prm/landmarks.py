@@ -36,8 +36,8 @@ BUCKET_FRACTION = 1.0 / 8.0
 #: (2**16: an edge loses under a 500,000th of a mean edge to the rounding; the roadmap's distances may reach
 #: 8,192 mean edges before the next, 2**8)
 _SHIFTS = (16, 8, 1)
-#: :func:`dijkstra`'s mark of a node it has not reached
-UNREACHED = np.uint32(0xFFFFFFFF)
+#: :func:`dijkstra`'s distance of a node it has not reached (not :data:`.astar.UNREACHED`, a 16-bit mark's)
+_UNREACHED_UNITS = np.uint32(0xFFFFFFFF)
 #: :func:`dijkstra`'s buckets (a ring, a power of two): a key beyond the ring's span waits in its slot until
 #: the sweep comes round (bucket counted whole, so it is not taken early)
 _RING = 1 << 12
@@ -46,7 +46,7 @@ _RING = 1 << 12
 @njit(cache=True, nogil=True)
 def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, entry_node, entry_bucket, entry_next,
              better):  # fmt: skip
-    """The roadmap distance from ``source`` to every node into ``out`` (:data:`UNREACHED` where unreachable), in
+    """The roadmap distance from ``source`` to every node into ``out`` (:data:`_UNREACHED_UNITS` where unreachable), in
     the integer units of ``weights`` (each edge's cost in units, unsigned 32-bit), over CSR rows with unsigned
     indices. Buckets of ``2**shift`` units in a ring (``ring_head``, -1 when empty, left so); within a bucket
     nodes come out in any order and one improved after it came out is expanded again, so every node ends with its
@@ -58,7 +58,7 @@ def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, ent
     nothing, and a branch on each mispredicts on the few that do: 11 % less time a landmark set)."""
     n = indptr.shape[0] - 1
     for v in range(n):
-        out[v] = UNREACHED
+        out[v] = _UNREACHED_UNITS
     mask = ring_head.shape[0] - 1
     capacity = entry_node.shape[0]
     out[source] = 0
@@ -123,11 +123,11 @@ def _units(data, unit, weights):
     heaviest = 0.0
     for k in range(data.shape[0]):
         units = np.floor(data[k] / unit)
-        if not units < UNREACHED:
+        if not units < _UNREACHED_UNITS:
             return -1
         weights[k] = np.uint32(units)
         heaviest = max(heaviest, units)
-    return np.int64(UNREACHED) - 1 - np.int64(heaviest)
+    return np.int64(_UNREACHED_UNITS) - 1 - np.int64(heaviest)
 
 
 @njit(cache=True, nogil=True)
@@ -196,7 +196,7 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
                 continue
             landmark, best = -1, -1.0
             for v in range(n):
-                distance = column[v] * unit if column[v] != UNREACHED else np.inf
+                distance = column[v] * unit if column[v] != _UNREACHED_UNITS else np.inf
                 far[v, j] = distance
                 nearest[v] = min(nearest[v], distance)
                 if labels[v] == largest and nearest[v] > best:

@@ -273,7 +273,7 @@ def certify_roadmap_edges(
             second = np.ascontiguousarray(space.motion_speed_bound(mid, b), dtype=float)
         ends = (clear_m, inside_m, first, second, clearance, inside)
         # R: margin 0, strict (touching is a collision)
-        more, exact = cover_by_midpoint(need, pairs, free_state, free_ok, *ends, 0.0, free_ok | True)
+        more, exact = cover_by_midpoint(need, pairs, free_state, free_ok, *ends, 0.0, np.ones_like(free_ok))  # no gate
         covered += more
         if exact.size:
             free_ok[need[exact]] = space.motion_is_clear(a[exact], b[exact], 0.0)
