@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .geometry import boxes
 from .geometry import primitives as prim
 from .geometry.groups import VECTORISED as COMPILED
 from .geometry.groups import ShapeGroup, centre_inside, group_obstacles
@@ -91,8 +92,7 @@ class Scene:
     def in_bounds(self, points) -> np.ndarray:
         """Per point (an (N, 3) array or one [x, y, z], m), whether it lies inside the workspace bounds (boundary
         included): a bool array of N."""
-        points = np.asarray(points, dtype=float).reshape(-1, 3)
-        return np.all((points >= self.bounds_min) & (points <= self.bounds_max), axis=1)
+        return boxes.inside(np.asarray(points, dtype=float).reshape(-1, 3), self.bounds_min, self.bounds_max)
 
     # ------------------------------------------------------------------ distances
     def _prepare(self) -> None:

@@ -154,7 +154,7 @@ def test_builds_and_queries_compile_nothing():
         "surgiplan.plugins.planners.safe_prm.kernels.cover_by_midpoint",
         "surgiplan.plugins.planners.safe_prm.kernels.csr_rows",
         "surgiplan.plugins.planners.safe_prm.kernels.component_labels",
-        "surgiplan.plugins.planners.safe_prm.landmarks.landmark_distances",
+        "surgiplan.plugins.planners.safe_prm.landmarks._landmark_distances",
         "surgiplan.plugins.planners.safe_prm.query_fused.link_search_repair",
         "surgiplan.plugins.planners.safe_prm.query_kernel.link_ends",
         "surgiplan.plugins.planners.safe_prm.query_kernel.search_and_repair",

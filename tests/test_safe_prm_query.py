@@ -11,13 +11,15 @@ from surgiplan.spaces import R3Space
 from test_safe_prm import _random_roadmap_graph, query_as_the_reference
 
 
-def test_landmark_distances_are_scipys_dijkstra():
-    """Every column: the roadmap distances from one milestone of the largest component (scipy's Dijkstra from
-    it), inf in the other components, never above scipy's and below it by less than a unit (a bucket's width over
-    2**16) an edge of a path; across every edge they change by no more than its cost (what keeps the landmarks' bounds
-    admissible); the landmarks are distinct and spread (each the farthest from the former)."""
+@pytest.mark.parametrize("bits", [16, 32])
+def test_landmark_distances_are_scipys_dijkstra(bits):
+    """Every column, with each edge's far node packed in 16 bits and in 32: the roadmap distances from one
+    milestone of the largest component (scipy's Dijkstra from it), inf in the other components, never above scipy's
+    and below it by less than a unit (a bucket's width over 2**shift, the finest shift whose weights fit the
+    packing) an edge of a path; across every edge they change by no more than its cost (what keeps the landmarks'
+    bounds admissible); the landmarks are distinct and spread (each the farthest from the former)."""
     from scipy.sparse.csgraph import connected_components, dijkstra
-    from surgiplan.plugins.planners.safe_prm.landmarks import landmark_distances
+    from surgiplan.plugins.planners.safe_prm.landmarks import _SHIFTS, landmark_distances
 
     rng = np.random.default_rng(11)
     for _ in range(3):
@@ -31,6 +33,7 @@ def test_landmark_distances_are_scipys_dijkstra():
             labels.astype(np.int64),
             6,
             0.002,
+            bits,
         )
         largest = np.argmax(np.bincount(labels))
         assert far.shape == (300, min(6, np.count_nonzero(labels == largest)))
@@ -40,7 +43,10 @@ def test_landmark_distances_are_scipys_dijkstra():
         expected = dijkstra(graph, directed=False, indices=chosen).T
         finite = np.isfinite(expected)
         assert np.array_equal(np.isfinite(far), finite)
-        unit = 0.002 / 2**16
+        heaviest = graph.data.max() / 0.002  # the longest edge in buckets
+        shift = next(s for s in _SHIFTS if np.floor(heaviest * 2**s) < min(2**bits - 1, 2**32 - 1))
+        assert shift == (16 if bits == 32 else 8)  # both packings and a shift past the first are what is tested
+        unit = 0.002 / 2**shift
         shortfall = expected[finite] - far[finite]
         assert shortfall.min() >= -1e-12 * expected[finite].max()
         assert shortfall.max() < (np.count_nonzero(labels == largest) - 1) * unit  # < a unit an edge of a path
@@ -54,6 +60,29 @@ def test_landmark_distances_are_scipys_dijkstra():
         for j in range(1, far.shape[1]):
             nearest = far[:, :j].min(axis=1)
             assert nearest[chosen[j]] == pytest.approx(nearest[inside].max(), rel=1e-12)
+
+
+def test_landmark_distances_pack_edges_in_32_bits_when_a_weight_does_not_fit_16():
+    """A chain whose middle edge is 100,000 buckets long: no shift gives it a 16-bit weight, so the distances come
+    from the 32-bit packing (the same as asking for it), exact to a unit an edge; asking for 16 bits gives none."""
+    from surgiplan.plugins.planners.safe_prm.landmarks import landmark_distances
+
+    delta = 1e-3
+    cost = np.array([1.0, 100_000.0, 2.0]) * delta  # the chain 0 - 1 - 2 - 3
+    indptr = np.array([0, 1, 3, 5, 6], dtype=np.uint32)
+    indices = np.array([1, 0, 2, 1, 3, 2], dtype=np.uint32)
+    data = np.array([cost[0], cost[0], cost[1], cost[1], cost[2], cost[2]])
+    points = np.zeros((4, 3))
+    labels = np.zeros(4, dtype=np.int64)
+    args = (indptr, indices, data, points, labels, 2, delta)
+    assert landmark_distances(*args, 16).shape == (4, 0)
+    far = landmark_distances(*args)
+    np.testing.assert_array_equal(far, landmark_distances(*args, 32))
+    expected = np.array([[0.0, 100_003.0], [1.0, 100_002.0], [100_001.0, 2.0], [100_003.0, 0.0]]) * delta
+    assert far.shape == (4, 2)
+    assert np.all(far <= expected) and np.all(expected - far < 3 * delta / 2**16)
+    with pytest.raises(ValueError, match="70000 milestones cannot pack its edges in 16 bits"):
+        landmark_distances(indptr, indices, data, np.zeros((70_000, 3)), labels, 2, delta, 16)
 
 
 @pytest.mark.parametrize("level", ["expert", "beginner"])

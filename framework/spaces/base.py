@@ -18,6 +18,7 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel
 
+from ..geometry import boxes
 from ..scene import Scene, meets_margin
 
 
@@ -88,8 +89,7 @@ class Space(ABC):
     def within_limits(self, q) -> np.ndarray:
         """Per configuration (one, or (n, dimension)), whether every coordinate is within :attr:`low` and
         :attr:`high` (to 1e-12): a bool array of n."""
-        q = np.atleast_2d(q)
-        return np.all((q >= self.low - 1e-12) & (q <= self.high + 1e-12), axis=1)
+        return boxes.inside(np.atleast_2d(q), self.low - 1e-12, self.high + 1e-12)
 
     # ------------------------------------------------------------------ body placement
     @abstractmethod

@@ -23,6 +23,7 @@ import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
 from ..errors import PlanningInputError
+from ..geometry import boxes
 from ..models import AngleRange, PoseModel, StrictModel
 from ..units import Length, PositiveLength
 from .base import Space
@@ -105,7 +106,7 @@ class CastGimbalSpace(Space):
         return self._weights
 
     def sample(self, rng, n):
-        return rng.uniform(self._low, self._high, size=(n, 4))
+        return boxes.uniform(rng, self._low, self._high, n)
 
     def distance(self, q1, q2):
         diff = (np.asarray(q2, float) - np.asarray(q1, float)) * self._weights

@@ -8,6 +8,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from ..errors import PlanningInputError
+from ..geometry import boxes
 from ..models import StrictModel
 from ..units import Length
 from .base import Space
@@ -59,7 +60,7 @@ class R3Space(Space):
         return np.ones(3)
 
     def sample(self, rng, n):
-        return rng.uniform(self.low, self.high, size=(n, 3))
+        return boxes.uniform(rng, self.low, self.high, n)
 
     def distance(self, q1, q2):
         return np.linalg.norm(np.asarray(q2, float) - np.asarray(q1, float), axis=-1)

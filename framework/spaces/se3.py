@@ -21,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
 from ..errors import PlanningInputError
+from ..geometry import boxes
 from ..geometry.transforms import canonical_quaternion, quaternion_angle, quaternion_to_matrix, slerp
 from ..models import PoseModel, StrictModel
 from ..units import Length, PositiveLength, Vec3
@@ -130,7 +131,7 @@ class SE3Space(Space):
     def sample(self, rng, n):
         from scipy.spatial.transform import Rotation  # scipy.spatial: at first use, not when spaces are listed
 
-        position = rng.uniform(self.scene.bounds_min, self.scene.bounds_max, size=(n, 3))
+        position = boxes.uniform(rng, self.scene.bounds_min, self.scene.bounds_max, n)
         rotation = canonical_quaternion(Rotation.random(n, random_state=rng).as_quat())
         return np.concatenate([position, rotation], axis=1)
 

@@ -516,12 +516,28 @@ def component_labels(n, edges, mask):
     return labels, count
 
 
+@njit(**_FLAGS)
+def _extent(points):
+    """Each column's largest value less its smallest (``np.ptp(points, axis=0)``; numpy reduces the rows of a
+    narrow array one element at a time)."""
+    n, d = points.shape
+    out = np.zeros(d)
+    for k in range(d):
+        low = points[0, k]
+        high = low
+        for i in range(1, n):
+            low = min(low, points[i, k])
+            high = max(high, points[i, k])
+        out[k] = high - low
+    return out
+
+
 def grid_cell(points: np.ndarray, s: float) -> float:
     """The cell side for :func:`grid_build`: about eight points a cell (the 15 nearest of a point then lie in its
     block of 27 cells, mostly), and at least s / 8 (bounded work a ring)."""
     if len(points) == 0:
         return max(s, 1e-9)
-    extent = np.ptp(points, axis=0)
+    extent = _extent(np.ascontiguousarray(points, dtype=float))  # np.ptp(points, axis=0): 0.35 ms at 5,000 x 3
     extent = extent[extent > 0]
     if not extent.size:
         return max(s, 1e-9)
@@ -533,6 +549,7 @@ def _compile() -> None:
     """Load (or compile) every kernel for the types the roadmap passes."""
     points = np.zeros((2, 3))
     points[1] = 1.0
+    grid_cell(points, 1.0)
     origin, dims, first, _ = grid_build(points, 1.0)
     k_s_neighbours(points, points, origin, dims, 1.0, first, 2, 2.0)
     pairs, lengths = k_s_pairs(points, origin, dims, 1.0, first, 2, 2.0)

@@ -32,10 +32,17 @@ ONLY_LANDMARKS = 16
 #: :func:`dijkstra`'s bucket width, as a fraction of the mean edge cost: an edge shorter than a bucket can
 #: improve a node of the bucket being emptied, which is then expanded again (:func:`.astar.bucket_width`)
 BUCKET_FRACTION = 1.0 / 8.0
-#: :func:`dijkstra`'s units: a bucket's width over 2**shift, each shift in turn until the distances fit in 32 bits
-#: (2**16: an edge loses under a 500,000th of a mean edge to the rounding; the roadmap's distances may reach
-#: 8,192 mean edges before the next, 2**8)
-_SHIFTS = (16, 8, 1)
+#: :func:`dijkstra`'s units: a bucket's width over 2**shift, each shift in turn until every edge's weight fits its
+#: field of the packed edge (16 or 32 bits, :func:`landmark_distances`) and the distances fit in 32 bits. 2**16: an
+#: edge loses under a 500,000th of a mean edge to the rounding (the roadmap's distances may reach 8,192 mean edges
+#: before the next); 2**11, the finest whose weights fit 16 bits at 5,000 milestones (the longest K-S edge there is
+#: about 2.4 mean edges, 19 buckets): under a 16,000th of a mean edge, where a landmark's 16-bit mark
+#: (:func:`.astar.search_graph`) rounds to about a 650th
+_SHIFTS = (16, 11, 8, 4, 1)
+#: a roadmap of at most this many milestones gets each edge packed in 32 bits: the far node in the low 16, the
+#: weight in the high 16 (half the bytes of two 32-bit arrays, so R's rows at 5,000 milestones, 350 kB, stay in a
+#: core's 512 kB L2 through its 16 Dijkstras: 17 % less time a landmark set); a larger one in 64 bits (32 and 32)
+_SMALL = 1 << 16
 #: :func:`dijkstra`'s distance of a node it has not reached (not :data:`.astar.UNREACHED`, a 16-bit mark's)
 _UNREACHED_UNITS = np.uint32(0xFFFFFFFF)
 #: :func:`dijkstra`'s buckets (a ring, a power of two): a key beyond the ring's span waits in its slot until
@@ -44,13 +51,14 @@ _RING = 1 << 12
 
 
 @njit(cache=True, nogil=True)
-def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, entry_node, entry_bucket, entry_next,
+def dijkstra(indptr, packed, bits, limit, shift, source, out, ring_head, entry_node, entry_bucket, entry_next,
              better):  # fmt: skip
     """The roadmap distance from ``source`` to every node into ``out`` (:data:`_UNREACHED_UNITS` where unreachable), in
-    the integer units of ``weights`` (each edge's cost in units, unsigned 32-bit), over CSR rows with unsigned
-    indices. Buckets of ``2**shift`` units in a ring (``ring_head``, -1 when empty, left so); within a bucket
-    nodes come out in any order and one improved after it came out is expanded again, so every node ends with its
-    exact distance once the buckets are empty (an entry older than its node's last improvement is skipped).
+    the integer units of the edges' weights, over CSR rows whose entries are ``packed``: the far node in the low
+    ``bits`` bits, the edge's cost in units above them (:func:`_pack`; 16 and 32 bits, or 32 and 64). Buckets of
+    ``2**shift`` units in a ring (``ring_head``, -1 when empty, left so); within a bucket nodes come out in any
+    order and one improved after it came out is expanded again, so every node ends with its exact distance once the
+    buckets are empty (an entry older than its node's last improvement is skipped).
     Integer sums are exact: no round-off to bound. Returns the entries used, -1 when ``entry_*`` ran out (call
     again with more), -2 when a node beyond ``limit`` (the largest distance that any edge's weight keeps within
     32 bits) is expanded (call again with coarser units). ``better``: room for a node's edges: the ones that
@@ -59,6 +67,8 @@ def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, ent
     n = indptr.shape[0] - 1
     for v in range(n):
         out[v] = _UNREACHED_UNITS
+    bits = np.uint64(bits)  # every field in unsigned 64-bit arithmetic (a signed operand would make it float)
+    low = (np.uint64(1) << bits) - np.uint64(1)
     mask = ring_head.shape[0] - 1
     capacity = entry_node.shape[0]
     out[source] = 0
@@ -94,12 +104,13 @@ def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, ent
             return -2
         found = 0
         for k in range(indptr[v], indptr[v + 1]):
-            better[found] = k
-            found += g + weights[k] < out[indices[k]]
+            p = np.uint64(packed[k])
+            better[found] = p
+            found += g + (p >> bits) < out[p & low]
         for x in range(found):
-            k = better[x]
-            w = indices[k]
-            c = g + weights[k]
+            p = np.uint64(better[x])
+            w = p & low
+            c = g + (p >> bits)
             if c < out[w]:  # an earlier edge of v to w (a repeated one) may have improved it since
                 if used == capacity:
                     for s in range(ring_head.shape[0]):
@@ -117,27 +128,44 @@ def dijkstra(indptr, indices, weights, limit, shift, source, out, ring_head, ent
 
 
 @njit(cache=True, nogil=True)
-def _units(data, unit, weights):
-    """Each cost in whole units of ``unit``, rounded down (a sum of them never exceeds the costs' sum), into
-    ``weights``; returns the largest distance from which every edge stays within 32 bits, -1 when none does."""
+def _pack(indices, data, unit, bits, packed):
+    """Each edge into ``packed``: its far node, and above it (``bits`` up) its cost in whole units of ``unit``,
+    rounded down (a sum of them never exceeds the costs' sum); returns the largest distance from which every edge
+    stays within 32 bits, -1 when a weight does not fit its ``bits`` (or 32) bits."""
     heaviest = 0.0
+    most = min(2.0**bits - 1.0, np.float64(_UNREACHED_UNITS))
     for k in range(data.shape[0]):
         units = np.floor(data[k] / unit)
-        if not units < _UNREACHED_UNITS:
+        if not units < most:
             return -1
-        weights[k] = np.uint32(units)
+        packed[k] = np.uint64(indices[k]) | (np.uint64(units) << np.uint64(bits))
         heaviest = max(heaviest, units)
     return np.int64(_UNREACHED_UNITS) - 1 - np.int64(heaviest)
 
 
-@njit(cache=True, nogil=True)
-def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
+def landmark_distances(indptr, indices, data, scaled, labels, count, delta, bits=None):
     """``count`` landmarks of the largest component (farthest strategy) and every node's roadmap distance to
     each: (n, count), ``inf`` where a node cannot reach it; fewer columns when the component is smaller, none when
     its distances do not fit :func:`dijkstra`'s coarsest units (``indptr``, ``indices``: unsigned; ``delta``: the
-    buckets' width). The distances are of the costs rounded down to :data:`_SHIFTS`' units (a bucket's width over
-    2**16 at first): never above the true ones, below them by less than a unit an edge; every edge (v, w) keeps
-    ``far[w] <= far[v] + cost``, so the landmarks' bounds stay admissible."""
+    buckets' width). The distances are of the costs rounded down to :data:`_SHIFTS`' units (the finest whose
+    weights fit): never above the true ones, below them by less than a unit an edge; every edge (v, w) keeps
+    ``far[w] <= far[v] + cost``, so the landmarks' bounds stay admissible. ``bits``: each edge's far node in 16
+    bits (up to :data:`_SMALL` milestones) or 32 (None: the smaller that holds them; 32 too when no weight
+    fits 16 bits)."""
+    small = len(scaled) <= _SMALL
+    chosen = bits or (16 if small else 32)
+    if chosen not in (16, 32) or (chosen == 16 and not small):
+        raise ValueError(f"a roadmap of {len(scaled)} milestones cannot pack its edges in {bits} bits")
+    packed = np.empty(len(indices), dtype=np.uint32 if chosen == 16 else np.uint64)
+    far = _landmark_distances(indptr, indices, data, scaled, labels, count, delta, packed, chosen)
+    if bits is None and chosen == 16 and far.shape[1] == 0 and count > 0 and len(scaled) > 0:
+        return landmark_distances(indptr, indices, data, scaled, labels, count, delta, 32)  # no 16-bit weights fit
+    return far
+
+
+@njit(cache=True, nogil=True)
+def _landmark_distances(indptr, indices, data, scaled, labels, count, delta, packed, bits):
+    """:func:`landmark_distances` with each edge packed into ``packed`` (its dtype twice ``bits`` wide)."""
     n = scaled.shape[0]
     if n == 0 or count == 0:
         return np.empty((n, 0))
@@ -170,21 +198,20 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
     entry_node = np.empty(entries, dtype=np.uint32)
     entry_bucket = np.empty(entries, dtype=np.int64)
     entry_next = np.empty(entries, dtype=np.int32)
-    weights = np.empty(data.shape[0], dtype=np.uint32)
     degree = 0
     for v in range(n):
         degree = max(degree, np.int64(indptr[v + 1]) - np.int64(indptr[v]))
-    better = np.empty(degree, dtype=np.int64)
+    better = np.empty(degree, dtype=packed.dtype)
     for shift in _SHIFTS:
         unit = delta / 2.0**shift
-        limit = _units(data, unit, weights)
+        limit = _pack(indices, data, unit, bits, packed)
         if limit < 0:
             continue
         nearest = np.full(n, np.inf)  # each node's distance to the nearest landmark so far
         landmark = first
         j = 0
         while j < count:
-            used = dijkstra(indptr, indices, weights, np.uint32(limit), np.uint32(shift), landmark, column, ring_head,
+            used = dijkstra(indptr, packed, bits, np.uint32(limit), np.uint32(shift), landmark, column, ring_head,
                             entry_node, entry_bucket, entry_next, better)  # fmt: skip
             if used == -2:
                 break  # too long for these units: all again in coarser ones
@@ -210,7 +237,8 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta):
 def _compile() -> None:
     indptr = np.array([0, 1, 2], dtype=np.uint32)
     indices = np.array([1, 0], dtype=np.uint32)
-    landmark_distances(indptr, indices, np.ones(2), np.zeros((2, 3)), np.zeros(2, dtype=np.int64), 2, 0.1)
+    for bits in (16, 32):  # both packings (the second for roadmaps of more than _SMALL milestones)
+        landmark_distances(indptr, indices, np.ones(2), np.zeros((2, 3)), np.zeros(2, dtype=np.int64), 2, 0.1, bits)
 
 
 _compile()

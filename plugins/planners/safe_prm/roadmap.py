@@ -71,7 +71,8 @@ class Grid(NamedTuple):
         ``scaled[order[i]]``)."""
         cell = grid_cell(scaled, s)
         origin, dims, first, order = grid_build(scaled, cell)
-        return cls(cell, origin, dims, first, np.ascontiguousarray(scaled[order], dtype=float)), order
+        # np.take along the rows: an index array on a 2-D array takes numpy's general path (3x)
+        return cls(cell, origin, dims, first, np.take(np.asarray(scaled, dtype=float), order, axis=0)), order
 
 
 @dataclass
@@ -347,7 +348,7 @@ def _build_roadmaps(space, milestones, k, s, d_thresh, seed, progress, threads: 
     with progress.task("connecting milestones (K-S)", total=1) as task:
         # the milestones numbered in the grid's order (see the module docstring)
         grid, order = Grid.sorting(q * space.coordinate_weights, s)
-        q, clearance = q[order], clearance[order]
+        q, clearance = np.take(q, order, axis=0), clearance[order]
         safe = clearance >= d_thresh if d_thresh > 0 else clearance > 0
         # the body must also stay in the workspace along an edge (the gimbal's tip may leave the box)
         inside = space.workspace_slack(q)
