@@ -7,16 +7,21 @@ the *start* n (its links are the source's out-edges) and the *goal* n+1 (a
 milestone linked to it ends a path there at the link's cost), plus an
 optional direct start-goal motion (:class:`Ends`).
 
-The heuristic is the larger of two lower bounds on the cost to go: the
-space's distance to the target, ``|w * (x - x_t)|`` (the edge costs are that
-same weighted Euclidean distance), scaled down by one part in 10^12 so that
-round-off can never make it exceed a true remaining cost, and the bound of
-the roadmap's landmarks (:mod:`.landmarks`), which follows the roadmap
-around obstacles. Both are admissible, so the search returns a shortest path
-(Hart, Nilsson & Raphael 1968) while expanding only the nodes whose cost
-plus heuristic is below the answer, not the whole roadmap as a Dijkstra
-search from the source does. ``tests/test_safe_prm.py`` checks the paths
-and costs against scipy's Dijkstra.
+The heuristic is a lower bound on the cost to go: the bound of the
+roadmap's landmarks (:mod:`.landmarks`), which follows the roadmap around
+obstacles (0 for a node in a component no landmark reaches), or, on a
+roadmap without landmarks, the space's distance to the target,
+``|w * (x - x_t)|`` (the edge costs are that same weighted Euclidean
+distance), scaled down by one part in 10^12 so that round-off can never make
+it exceed a true remaining cost. Both are admissible, so the search returns
+a shortest path (Hart, Nilsson & Raphael 1968) while expanding only the
+nodes whose cost plus heuristic is below the answer, not the whole roadmap
+as a Dijkstra search from the source does. ``tests/test_safe_prm.py`` checks
+the paths and costs against scipy's Dijkstra. The larger of the two bounds
+settles 6-14 % fewer nodes than the landmarks' alone (block world, 5,000
+milestones, 15 queries a level), but reading each node's position and taking
+a square root cost more than that: queries took 24-32 % longer (interleaved,
+both orders).
 
 The landmark distances are stored as 16-bit *marks*: a mark q of a distance
 d is ``floor(d / quantum)``, the quantum the roadmap's longest landmark
@@ -24,9 +29,9 @@ distance over 65,534 (a few micrometres), so d lies within one quantum of
 ``q * quantum`` either way, round-off included. For a target t the bound of
 landmark L on a node v's cost to go is then ``(|q_t - q_v| - 2) * quantum``:
 the triangle inequality's ``|d(L, t) - d(L, v)|`` less the two marks' slack,
-still admissible. A node's position and its 16 marks fill one 64-byte record
-(:func:`search_graph`), so a node reached for the first time costs one cache
-line of roadmap data, and the marks' bounds are integer lanes the compiler
+still admissible. A node's marks fill at most one 64-byte cache line
+(:func:`search_graph`), so a node reached for the first time costs one line
+of roadmap data, and the marks' bounds are integer lanes the compiler
 vectorises.
 
 The open set is a bucket queue, not a heap: entries go to buckets of width
@@ -213,11 +218,13 @@ def search(graph, source, target, start, goal, direct_cost, work):
     nothing = np.int32(-_NO_BOUND)
 
     def heuristic(v):
-        """The larger of the straight-line bound and the landmarks' on v's cost to go (see the module docstring)."""
+        """The landmarks' bound on v's cost to go, the straight line's when the roadmap has no landmarks (see the
+        module docstring)."""
         total = 0.0
-        for d in range(dimension):
-            diff = points[v, d] - goal_at[d]
-            total += diff * diff
+        if landmarks == 0:
+            for d in range(dimension):
+                diff = points[v, d] - goal_at[d]
+                total += diff * diff
         best = nothing
         for j in range(unsigned_landmarks):  # int32 lanes, eight to a vector instruction
             mark = np.int32(marks[v, j])
