@@ -1,8 +1,9 @@
 """Shared helpers for benchmarks: repeated timing with medians, and result files that carry their provenance.
 
 Every results file records what produced it (:func:`provenance`): the commit and whether the tree had
-uncommitted changes, the machine and Python, the load average when the benchmark started (this module's
-import) and when it saved, and the peers it was measured against with their versions and settings.
+uncommitted changes, the machine and Python, the load average and the time of a fixed reference workload
+(:func:`host_reference`) when the benchmark started (this module's import) and when it saved, and the peers it
+was measured against with their versions and settings.
 """
 
 from __future__ import annotations
@@ -23,6 +24,29 @@ ROOT = RESULTS.parent.parent
 #: the load average (1, 5, 15 min) when the benchmark started
 START_LOAD = os.getloadavg()
 START_TIME = time.strftime("%Y-%m-%dT%H:%M:%S%z")
+#: the reference workload (:func:`host_reference`): what it is, and how many times it runs at each probe
+REFERENCE = "numpy argsort of 262,144 seeded random doubles (quicksort), 7 runs: the fastest and the median (ms)"
+_REFERENCE_RUNS = 7
+
+
+def host_reference() -> dict[str, float]:
+    """How fast this machine is now, on one fixed workload (:data:`REFERENCE`): a virtual machine's neighbours
+    can halve its speed without any load of its own (the load average does not see it), and every absolute time
+    of a results file moves with it; the same workload timed when a benchmark starts and when it saves lets runs
+    on the same machine be compared."""
+    import numpy as np
+
+    values = np.random.default_rng(0).random(1 << 18)
+    times = []
+    for _ in range(_REFERENCE_RUNS):
+        started = time.perf_counter()
+        np.argsort(values, kind="quicksort")
+        times.append(time.perf_counter() - started)
+    return {"fastest_ms": round(1e3 * min(times), 3), "median_ms": round(1e3 * statistics.median(times), 3)}
+
+
+#: the reference workload when the benchmark started
+START_REFERENCE = host_reference()
 
 
 #: what the dirty flag ignores: files that a benchmark's own results change
@@ -63,6 +87,9 @@ def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
         "load_after": [round(x, 2) for x in os.getloadavg()],
         "peers": dict(peers or {}),
         "allocator": allocator_policy(),  # the whole process's, peers included (surgiplan.allocator)
+        "reference": REFERENCE,
+        "reference_before": START_REFERENCE,
+        "reference_after": host_reference(),
     }
 
 

@@ -1,5 +1,6 @@
 """Every committed benchmark result carries its provenance: the commit it ran on and whether the tree was dirty,
-the load average before and after, the machine, and the peers' versions and settings (benchmarks/common.py)."""
+the load average (and, since it was added, a reference workload's time) before and after, the machine, and the
+peers' versions and settings (benchmarks/common.py)."""
 
 from __future__ import annotations
 
@@ -32,6 +33,23 @@ def test_a_result_names_the_commit_the_load_and_its_peers(path: Path):
     assert provenance["cpus"] >= 1 and provenance["machine"] and provenance["python"]
     for name, peer in provenance.get("peers", {}).items():
         assert peer.get("version"), f"{path.name}: peer {name} has no version"
+    if "reference" in provenance:  # results saved since the reference workload was added
+        for key in ("reference_before", "reference_after"):
+            speed = provenance[key]
+            assert 0 < speed["fastest_ms"] <= speed["median_ms"], f"{path.name}: {key} {speed!r}"
+
+
+def test_the_reference_workload_times_the_same_work_each_run():
+    """benchmarks/common.host_reference: the fastest of its runs at most their median, both positive and of the
+    order a sort of 262,144 doubles takes (between 1 and 1,000 ms on any machine this runs on)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from common import REFERENCE, host_reference
+
+    speed = host_reference()
+    assert 1.0 < speed["fastest_ms"] <= speed["median_ms"] < 1000.0
+    assert "262,144" in REFERENCE
 
 
 @pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="not a git checkout")
