@@ -34,7 +34,9 @@ def test_the_witness_notes_a_stop_with_its_time_and_length():
     inside = stopped + 0.02  # a moment inside the stop
     assert witness.late_during(inside, inside) >= 0.045
     before = stopped - 0.05
-    assert witness.late_during(before, before) == 0.0  # before it, on time
+    # before it, not late by the stop: a witness at ordinary priority on a shared host may still be a few ms late
+    # (2.5 ms seen once in CI), never by the 50 ms of the stop
+    assert witness.late_during(before, before) < 0.02
 
 
 #: a piece of ftrace's text (two CPUs): thread 700 woken from CPU 0 onto the idle CPU 1, which takes the wake-up
