@@ -126,7 +126,8 @@ def percent_span(fractions: list[float]) -> str:
 
 def provenance_note(results: Path, sources: tuple[str, ...]) -> str:
     """The line that opens a block: the commit each of its results files came from (``benchmarks/common.py``
-    records it, and whether the tree had uncommitted changes), and the load average around the measurement."""
+    records it, and whether the tree had uncommitted changes), and the load average and the reference workload's
+    time (the host's speed, where recorded) around the measurement."""
     parts = []
     for name in sources:
         info = load(results, name).get("provenance") or {}
@@ -136,7 +137,11 @@ def provenance_note(results: Path, sources: tuple[str, ...]) -> str:
             load_avg = ""
             if info.get("load_before") and info.get("load_after"):
                 load_avg = f", load {info['load_before'][0]:g} → {info['load_after'][0]:g}"
-            parts.append(f"`{name}.json`: commit `{commit[:10]}`{dirty}{load_avg}")
+            speed = ""
+            if info.get("reference_before") and info.get("reference_after"):  # the host's speed (common.py)
+                before, after = info["reference_before"]["fastest_ms"], info["reference_after"]["fastest_ms"]
+                speed = f", reference workload {before:.3g} → {after:.3g} ms"
+            parts.append(f"`{name}.json`: commit `{commit[:10]}`{dirty}{load_avg}{speed}")
         else:
             parts.append(f"`{name}.json`: commit not recorded")
     return "*Measured at " + "; ".join(parts) + ".*"
