@@ -159,7 +159,10 @@ def landmark_distances(indptr, indices, data, scaled, labels, count, delta, bits
     packed = np.empty(len(indices), dtype=np.uint32 if chosen == 16 else np.uint64)
     far = _landmark_distances(indptr, indices, data, scaled, labels, count, delta, packed, chosen)
     if bits is None and chosen == 16 and far.shape[1] == 0 and count > 0 and len(scaled) > 0:
-        return landmark_distances(indptr, indices, data, scaled, labels, count, delta, 32)  # no 16-bit weights fit
+        # Empty only because no unit's weights fit 16 bits: a shortest path has at most _SMALL - 1 edges of under
+        # 2**16 - 1 units each, so its distance stays within dijkstra's limit (2**32 - 2 less the heaviest
+        # weight) in any unit whose weights fit; a too-long roadmap cannot be the cause here, as it can at 32 bits
+        return landmark_distances(indptr, indices, data, scaled, labels, count, delta, 32)
     return far
 
 
