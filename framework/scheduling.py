@@ -118,6 +118,43 @@ def _ask_slice(thread_id: int, slice_s: float) -> SchedAttr | None:
     return previous if sched_attr(thread_id, wanted) is not None else None
 
 
+#: :class:`SlackCollector`: how many times the collector's first threshold a loop with samples always waiting may
+#: let its young generation grow before a pass runs anyway (a bound on memory, should the loop never be idle)
+BACKLOG_FACTOR = 8
+
+
+class SlackCollector:
+    """The cyclic garbage collector's passes over the young generations, run where a paced loop has time to spare
+    (after a cycle's work, before the next one is due) instead of wherever an allocation happens to cross the
+    collector's threshold, in the middle of a cycle, in whichever thread made it (a pass holds the GIL: every thread
+    of the process waits for it; 0.25 ms a generation-0 pass of a guide attempt, 1-2 ms beside a live page, 2-8 ms a
+    generation-1 pass).
+
+    For a loop in :func:`paced_section` with ``pause_collector`` (the automatic passes off): call it once a cycle,
+    when the cycle's work is done. It follows CPython's own rule for when a pass is due and which: a pass once
+    ``gc.get_count()[0]`` (allocations less deallocations of tracked objects since the last pass) exceeds the
+    first threshold, of generation 1 instead of 0 once more than the second threshold of generation-0 passes have
+    run since the last generation-1 pass. ``idle`` False (work is already waiting): the pass waits until the young
+    generation has grown to :data:`BACKLOG_FACTOR` times the threshold. The oldest generation is left to the end of
+    the section, so the loop may run for hours: what a full pass finds (cycles of objects that outlived two young
+    passes, then became garbage) waits for it."""
+
+    def __init__(self) -> None:
+        self.threshold, self.every, _ = gc.get_threshold()
+        #: the passes this collector ran, per generation (0 and 1)
+        self.passes = [0, 0]
+
+    def __call__(self, idle: bool = True) -> int | None:
+        """Run the pass that is due, if one is; returns its generation (None: none due)."""
+        young, middle, _ = gc.get_count()
+        if young <= (self.threshold if idle else BACKLOG_FACTOR * self.threshold) or self.threshold == 0:
+            return None
+        generation = 1 if middle > self.every else 0
+        gc.collect(generation)
+        self.passes[generation] += 1
+        return generation
+
+
 #: the GIL's switch interval (s) while a paced loop runs (Python's default: 5 ms): a thread that runs Python keeps the
 #: GIL up to this long while the loop, awake, waits for it
 SWITCH_INTERVAL = 0.0002
@@ -138,7 +175,6 @@ def paced_section(
     priority: int | None = None,
     *,
     pause_collector: bool = False,
-    freeze_heap: bool = False,
     switch_interval: float | None = SWITCH_INTERVAL,
 ):
     """Run the body as a loop that keeps real time, on the calling thread:
@@ -153,17 +189,14 @@ def paced_section(
     * ``pause_collector``: the cyclic garbage collector off and what exists at entry frozen out of its sight (a full
       collection of a large heap stops every thread of the process for tens of milliseconds); what the loop frees
       goes by reference counting; the collector back on and the heap unfrozen at exit. For bounded loops (a
-      trajectory, a device's session), not for ones a user may leave running for hours;
-    * ``freeze_heap``: only the freezing, the collector left on: its passes scan what the loop made, not the whole
-      heap (a full pass over a pipeline's heap holds the GIL for milliseconds, while the loop's thread waits);
-      what existed at entry and became cyclic garbage meanwhile goes at the first pass after. For loops of any
-      length.
+      trajectory, a device's session), or for a loop of any length that runs a :class:`SlackCollector` in its idle
+      time.
     """
     previous = set_realtime_priority(priority)
     switch = sys.getswitchinterval()
     collecting = gc.isenabled()
     # freeze here only a heap not frozen already (a device's, at activation, stays as its owner froze it)
-    freezing = (pause_collector or freeze_heap) and not gc.get_freeze_count()
+    freezing = pause_collector and not gc.get_freeze_count()
     try:
         precise_timer_slack()
         if pause_collector:

@@ -161,18 +161,58 @@ def test_a_feed_names_its_sender_thread():
     assert feed.threads() == []
 
 
-def test_a_guide_attempt_freezes_the_heap_it_starts_with_and_keeps_collecting(tmp_path, monkeypatch):
+def test_a_guide_attempt_collects_garbage_between_samples_only(tmp_path, monkeypatch):
     """While the attempt runs, what existed before it is frozen out of the collector's sight (its passes, which
-    hold the GIL, scan only what the attempt makes) and the collector stays on; afterwards the heap is as before."""
+    hold the GIL, scan only what the attempt makes) and the automatic passes are off; the stage's thread runs the
+    passes itself once a sample is done (scheduling.SlackCollector): every pass of the attempt falls between two
+    samples' analyses, none inside one, and none in the source's thread. Afterwards the heap is as before."""
     import gc
+    import threading
+    import time
 
     from surgiplan import load_pipeline, run_pipeline
+    from surgiplan.guidance.analysis import Guide
+    from surgiplan.scheduling import BACKLOG_FACTOR
 
     before = gc.get_freeze_count()
     assert before == 0 and gc.isenabled()
-    seen = _at_the_sixth_sample(monkeypatch, lambda: (gc.get_freeze_count(), gc.isenabled()))
-    outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
+    made: list = []
+
+    def probe():  # in the source's thread: enough new objects that a pass is due even with samples waiting
+        made.extend([] for _ in range(BACKLOG_FACTOR * gc.get_threshold()[0] + 1))
+        return gc.get_freeze_count(), gc.isenabled()
+
+    seen = _at_the_sixth_sample(monkeypatch, probe)
+    analyses: list[tuple[float, float, int]] = []  # each sample's analysis: start, end, its thread
+    passes: list[tuple[float, int, int]] = []  # each pass: its start, generation, thread
+    measure = Guide.measure
+
+    def timed(self, sample):
+        start = time.perf_counter()
+        try:
+            return measure(self, sample)
+        finally:
+            analyses.append((start, time.perf_counter(), threading.get_native_id()))
+
+    def noted(phase, info):
+        if phase == "start":
+            passes.append((time.perf_counter(), info["generation"], threading.get_native_id()))
+
+    monkeypatch.setattr(Guide, "measure", timed)
+    gc.callbacks.append(noted)
+    try:
+        outcome = run_pipeline(load_pipeline(guide_pipeline(tmp_path)))
+    finally:
+        gc.callbacks.remove(noted)
     assert outcome.results[1].status in ("completed", "incomplete")
     ((frozen, enabled),) = seen
-    assert frozen > 10_000 and enabled
+    assert frozen > 10_000 and not enabled
     assert gc.get_freeze_count() == 0 and gc.isenabled()
+    first, last = analyses[0][0], analyses[-1][1]
+    during = [p for p in passes if first <= p[0] <= last]
+    stage = analyses[0][2]
+    assert len(analyses) > 100 and {a[2] for a in analyses} == {stage}
+    assert len(during) >= 1 and {p[1] for p in during} <= {0, 1}, during  # young passes ran, in time
+    assert all(thread == stage for _, _, thread in during)
+    for start, _, _ in during:  # never inside an analysis
+        assert not any(a <= start <= b for a, b, _ in analyses), start

@@ -48,3 +48,91 @@ def test_without_pausing_the_collector_keeps_running_and_nothing_is_frozen(unfro
         assert gc.isenabled()
         assert gc.get_freeze_count() == 0
     assert gc.isenabled()
+
+
+# ----------------------------------------------------------------------------- SlackCollector
+
+
+class _Passes:
+    """The collector's passes while the ``with`` block runs, as gc.callbacks reports them: their generations."""
+
+    def __enter__(self):
+        self.generations: list[int] = []
+        gc.callbacks.append(self._seen)
+        return self
+
+    def _seen(self, phase, info):
+        if phase == "start":
+            self.generations.append(info["generation"])
+
+    def __exit__(self, *exc):
+        gc.callbacks.remove(self._seen)
+
+
+def _young_to(count: int, keep: list) -> None:
+    """Tracked objects made (and kept) until the young generation's count is just above ``count``."""
+    while gc.get_count()[0] <= count:
+        keep.append([])
+
+
+def test_the_slack_collector_runs_cpythons_pass_when_one_is_due_and_frees_cycles(unfrozen_collector):
+    import weakref
+
+    from surgiplan.scheduling import SlackCollector
+
+    with paced_section(pause_collector=True, switch_interval=None):
+        collect = SlackCollector()
+        threshold, every, _ = gc.get_threshold()
+        gc.collect(1)  # a known start: both young generations empty, no generation-0 pass since
+        keep: list = []
+        with _Passes() as seen:
+            _young_to(threshold // 2, keep)
+            assert collect() is None and seen.generations == []  # not due: nothing runs
+            # a cycle that becomes garbage: only the collector can free it
+            freed = []
+            node = type("Node", (), {})()
+            node.me = node
+            probe = weakref.ref(node, lambda _: freed.append(True))
+            del node
+            _young_to(threshold, keep)
+            assert gc.isenabled() is False and probe() is not None  # the automatic passes are off: still there
+            assert collect() == 0 and seen.generations == [0]
+            assert freed == [True] and probe() is None
+            assert gc.get_count()[0] <= 1
+        # once more than `every` generation-0 passes ran since the last generation-1 pass, the next is of 1
+        with _Passes() as seen:
+            for _ in range(every):
+                _young_to(threshold, keep)
+                assert collect() == 0
+            _young_to(threshold, keep)
+            assert collect() == 1
+            assert seen.generations == [0] * every + [1] and collect.passes == [every + 1, 1]
+
+
+def test_the_slack_collector_waits_while_work_is_waiting_up_to_a_bound(unfrozen_collector):
+    from surgiplan.scheduling import BACKLOG_FACTOR, SlackCollector
+
+    with paced_section(pause_collector=True, switch_interval=None):
+        collect = SlackCollector()
+        threshold = gc.get_threshold()[0]
+        gc.collect(1)
+        keep: list = []
+        with _Passes() as seen:
+            _young_to(threshold, keep)
+            assert collect(idle=False) is None and seen.generations == []  # due, but a cycle's work is waiting
+            _young_to(BACKLOG_FACTOR * threshold, keep)
+            assert collect(idle=False) == 0 and seen.generations == [0]  # the bound: it runs anyway
+
+
+def test_the_slack_collector_runs_nothing_where_collection_is_switched_off(unfrozen_collector):
+    from surgiplan.scheduling import SlackCollector
+
+    thresholds = gc.get_threshold()
+    gc.set_threshold(0)
+    try:
+        with paced_section(pause_collector=True, switch_interval=None), _Passes() as seen:
+            collect = SlackCollector()
+            keep = [[] for _ in range(20_000)]
+            assert collect() is None and collect(idle=False) is None and seen.generations == [] and keep
+    finally:
+        gc.set_threshold(*thresholds)

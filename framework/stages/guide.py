@@ -64,7 +64,7 @@ from ..kinds import (
 from ..models import StrictModel
 from ..outputs.report.timeline import motion_report
 from ..results import StageResult
-from ..scheduling import helpers_scheduled, paced_section, precise_timer_slack, set_realtime_priority
+from ..scheduling import SlackCollector, helpers_scheduled, paced_section, precise_timer_slack, set_realtime_priority
 from ..status import GuideStatus
 from ..validation import validate_model
 
@@ -338,12 +338,16 @@ class GuideKind(StageKind):
         # releases the GIL on its send within tens of microseconds, and a short interval would make this thread
         # hand the GIL over in the middle of a sample's analysis (measured: SCHED_FIFO with 0.2 ms, the viewer
         # delayed a sample by up to 1.9 ms; with Python's 5 ms, 0.25 ms). The heap as it stands is frozen out of the
-        # collector's sight, so that its passes scan only what the attempt makes (with the viewer's payloads to
-        # encode, a pass held the GIL for up to 2.5 ms while this thread waited)
+        # collector's sight, so that its passes scan only what the attempt makes, and the automatic passes are off:
+        # _follow runs them itself once a sample is done and none is waiting (SlackCollector). An automatic pass
+        # falls inside a sample's analysis: 0.25 ms a generation-0 pass of an attempt, 1-2 ms beside a live page
+        # (two of the five samples a viewer delayed in one benchmark run)
         with contextlib.ExitStack() as attempt:
             attempt.callback(_close_quietly, source)  # last: after the scheduling is given back
             try:
-                attempt.enter_context(paced_section(settings.realtime_priority, freeze_heap=True, switch_interval=None))
+                attempt.enter_context(
+                    paced_section(settings.realtime_priority, pause_collector=True, switch_interval=None)
+                )
                 # the live feed's sender too (one below): preempted while holding the GIL, it held this thread up
                 attempt.enter_context(helpers_scheduled(settings.realtime_priority, live.threads()))
             except OSError as exc:
@@ -469,11 +473,13 @@ class GuideKind(StageKind):
 
 def _follow(reader: _Reader, spec, settings, space, guide: Guide, ghost, live, task) -> tuple[GuideStatus, str]:
     """Measure each sample the source sends as it arrives, until its end, a stop or a silence (the attempt's status
-    and message then); publishes each to the live view. Raises StageError for a plugin that failed, and
-    _InvalidSample for a sample that is not one."""
+    and message then); publishes each to the live view, then runs the collector's pass if one is due (the
+    automatic passes are off). Raises StageError for a plugin that failed, and _InvalidSample for a sample that is
+    not one."""
     status, message = GuideStatus.INCOMPLETE, ""
     previous_t = -math.inf
     received = 0
+    collect = SlackCollector()
     while True:
         try:
             arrived, item = reader.queue.get(timeout=settings.silence_timeout)
@@ -526,4 +532,5 @@ def _follow(reader: _Reader, spec, settings, space, guide: Guide, ghost, live, t
                     {"t": m.t, "change": what, **event.to_json(), "message": guide.describe(event)},
                 )
         task.update(100.0 * min(m.progress / max(guide.length, 1e-12), 1.0))
+        collect(idle=reader.queue.empty())  # the sample is done: the collector's pass, if one is due, now
     return status, message
