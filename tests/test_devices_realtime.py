@@ -177,3 +177,35 @@ def test_the_master_waits_for_a_syncs_answers_no_longer_than_it_is_told(block_wo
         device.simulator.sync_drop = None
         master.sync()
         assert master.wait_for_answers(2.0)  # answered again: at once, not after the timeout
+
+
+def test_a_fault_while_holding_quick_stops_every_axis_and_the_next_motion_is_refused_naming_it(block_world, tmp_path):
+    """Between trajectories the device holds (SYNC and the hold targets go on in a thread). A node whose heartbeat
+    stops then is a fault while holding: every axis is quick-stopped at once, the drives stay so, and the next
+    trajectory is refused before any motion, naming the drives' states and the fault (which node, what)."""
+    from surgiplan.plugins.devices.canopen import cia402 as p402
+
+    space = gimbal_space(block_world)
+    path = gimbal_path(space, GAP_TIPS)
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "heartbeat_period": 0.2}
+    settings["simulation"] = {"sync_timeout": 0.5, "initial": list(map(float, path[0]))}
+    with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+        simulator = device.simulator
+        assert set(device.drive_states().values()) == {p402.OPERATION_ENABLED}
+        held = simulator.positions().copy()
+        simulator.scheduler.call_at(device.clock.now(), simulator.nodes[2].nmt.stop_heartbeat)
+        for _ in range(300):  # bounded: 3 s, the timeout is 0.3 s
+            if set(device.drive_states().values()) == {p402.QUICK_STOP_ACTIVE}:
+                break
+            time.sleep(0.01)
+        assert set(device.drive_states().values()) == {p402.QUICK_STOP_ACTIVE}
+        faults = device.controller.pending_faults  # (a stall of this shared machine may add others)
+        assert any(f["kind"] == "heartbeat_timeout" and f["node"] == 2 for f in faults), faults
+        report = device.execute(Trajectory(path, space, "test"))
+        assert report.metrics["refused"] and report.status != "completed"
+        message = report.message
+        assert "'pitch' is QUICK STOP ACTIVE" in message and "'yaw' is QUICK STOP ACTIVE" in message
+        assert "while holding: heartbeat timeout on node 2 (no heartbeat for" in message
+        assert "reset_faults()" in message
+        # nothing moved: the axes stayed where they were held (quick stop from standstill)
+        assert np.all(np.abs(simulator.positions() - held) <= 3.0 / device.controller.cpu)

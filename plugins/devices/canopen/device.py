@@ -418,13 +418,16 @@ class Cia402Device(Device):
         stopped = {name: state for name, state in states.items() if state != cia402.OPERATION_ENABLED}
         if stopped or self.controller.pending_faults:
             # after a stop the drives stay stopped until the user resets them: never restart by itself
+            # both what the drives are in and why, where the holding loop saw it (a fault while holding
+            # quick-stops every axis: the states alone would not say which node, or what, stopped them)
             what = ", ".join(f"'{name}' is {state}" for name, state in stopped.items())
             pending = "; ".join(
-                f"{f['kind'].replace('_', ' ')} on node {f.get('node')}" for f in self.controller.pending_faults
+                f"{f['kind'].replace('_', ' ')} on node {f.get('node')}"
+                + (f" ({f['detail']})" if f.get("detail") else "")
+                for f in self.controller.pending_faults
             )
-            return refused(
-                f"the drives are not ready ({what or pending}): reset_faults() (a fault reset and re-enable) first"
-            )
+            why = "; ".join(part for part in (what, f"while holding: {pending}" if pending else "") if part)
+            return refused(f"the drives are not ready ({why}): reset_faults() (a fault reset and re-enable) first")
         current = self.joint_positions()
         try:
             joint_path = self.joint_path(trajectory, current)
