@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import gc
 import os
-import re
 import socket
 import struct
 import subprocess
@@ -196,9 +195,7 @@ def traced_attempt(trace: SchedTrace, threads: dict[int, str]) -> tuple[dict[int
     info = schedtrace_summary(trace, threads)
     if not trace.available:
         return None, info
-    written = re.search(r"entries-in-buffer/entries-written: (\d+)/(\d+)", trace.text)
-    lost = int(written.group(2)) - int(written.group(1)) if written else None
-    return trace.wakeups(threads), {"sched_trace": TRACED, **info, "trace_events_lost": lost}
+    return trace.wakeups(threads), {"sched_trace": TRACED, **info, "trace_events_lost": trace.events_lost()}
 
 
 def during_stalls(witness: Witness, done: np.ndarray, lateness_ms: np.ndarray) -> np.ndarray:

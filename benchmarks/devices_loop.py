@@ -204,7 +204,7 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
                 before_execute = time.process_time()
                 before_lapses = len(device.controller.missed_log)
                 threads = benchmark_threads(pid)
-                with Witness() as witness, SchedTrace() as trace:
+                with Witness() as witness, SchedTrace(tids=threads) as trace:
                     report = device.execute(Trajectory(path[::-1] if k % 2 else path, space, "bench"))
                 traced |= trace.available
                 witness_worst = max(witness_worst, witness.worst)

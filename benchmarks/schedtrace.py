@@ -14,6 +14,11 @@ The stall witnesses (:mod:`witness`) cannot see the first kind: each wakes by it
 A thread switched out while still runnable (preempted: ``prev_state=R``) waits in the run queue too, from then
 until it runs again; :meth:`SchedTrace.wakeups` lists those waits beside the wake-ups (no delivery).
 
+With ``tids`` the kernel records only those threads' events (a filter on each event), and the trace is read
+back in chunks of :data:`CHUNK` bytes and parsed line by line: no single call holds the interpreter's lock for
+long. A benchmark that reads a whole 30 MB trace at once (one decode, one ``splitlines``) stops every other thread
+of its process for some 100 ms, the master's holding loop among them; the drives' SYNC watchdog then trips.
+
 Needs root and tracefs (``/sys/kernel/tracing`` or ``/sys/kernel/debug/tracing``); elsewhere ``available`` is
 False and every answer empty. The trace clock is CLOCK_MONOTONIC (``mono``): ``time.perf_counter`` on Linux, the
 loop's clock. The tracer's settings are restored on exit.
@@ -29,6 +34,8 @@ import numpy as np
 
 ROOTS = (Path("/sys/kernel/tracing"), Path("/sys/kernel/debug/tracing"))
 EVENTS = "sched:sched_waking sched:sched_wakeup sched:sched_switch\n"
+#: bytes read from the trace at a time (each read and decode a short hold of the interpreter's lock)
+CHUNK = 1 << 18
 _LINE = re.compile(r"^\s*.+?-\d+\s+\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_\w+): (.*)$")
 _PID = re.compile(r"(?:^| )pid=(\d+)")
 _NEXT = re.compile(r"next_pid=(\d+)")
@@ -36,17 +43,38 @@ _PREV = re.compile(r"prev_pid=(\d+) .*?prev_state=(\S+)")
 
 
 class SchedTrace:
-    """Trace the scheduler for the ``with`` block (see the module); ``buffer_kb`` per CPU."""
+    """Trace the scheduler for the ``with`` block (see the module); ``buffer_kb`` per CPU; only the threads
+    ``tids`` if given (the kernel filters), else every thread."""
 
-    def __init__(self, buffer_kb: int = 60_000) -> None:
+    def __init__(self, buffer_kb: int = 60_000, tids=None) -> None:
         self.buffer_kb = buffer_kb
+        self.tids = sorted({int(t) for t in tids}) if tids is not None else None
         self.root = next((r for r in ROOTS if (r / "tracing_on").exists()), None)
         self.available = False
-        self.text = ""
+        #: the trace's lines (its header's comment lines first)
+        self.lines: list[str] = []
         self._saved: dict[str, str] = {}
+        self._filtered: list[str] = []
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    @text.setter
+    def text(self, value: str) -> None:
+        self.lines = value.splitlines()
 
     def _write(self, name: str, value: str) -> None:
         (self.root / name).write_text(value)
+
+    def filters(self) -> dict[str, str]:
+        """The kernel's filter per event for ``tids`` (a wake-up names its thread ``pid``; a switch, the thread
+        leaving and the one taking the CPU)."""
+        if not self.tids:
+            return {}
+        mine = " || ".join(f"pid == {t}" for t in self.tids)
+        switch = " || ".join(f"prev_pid == {t} || next_pid == {t}" for t in self.tids)
+        return {"sched_waking": mine, "sched_wakeup": mine, "sched_switch": switch}
 
     def __enter__(self) -> SchedTrace:
         if self.root is None:
@@ -60,6 +88,9 @@ class SchedTrace:
             self._write("tracing_on", "0")
             self._write("trace_clock", "mono")
             self._write("buffer_size_kb", str(self.buffer_kb))
+            for event, condition in self.filters().items():
+                self._filtered.append(event)
+                self._write(f"events/sched/{event}/filter", condition)
             self._write("set_event", EVENTS)
             self._write("trace", "")
             self._write("tracing_on", "1")
@@ -72,10 +103,29 @@ class SchedTrace:
         if not self.available:
             return
         self._write("tracing_on", "0")
-        self.text = (self.root / "trace").read_text()
+        self.lines = self._read()
         self._restore()
 
+    def _read(self) -> list[str]:
+        """The trace's lines, read and decoded a chunk at a time (see the module)."""
+        lines: list[str] = []
+        rest = ""
+        with open(self.root / "trace", "rb") as f:
+            while chunk := f.read(CHUNK):
+                part = (rest + chunk.decode(errors="replace")).split("\n")
+                rest = part.pop()
+                lines += part
+        if rest:
+            lines.append(rest)
+        return lines
+
     def _restore(self) -> None:
+        for event in self._filtered:
+            try:
+                self._write(f"events/sched/{event}/filter", "0")  # "0" clears an event's filter
+            except OSError:
+                pass
+        self._filtered = []
         for name in ("set_event", "buffer_size_kb", "trace_clock", "tracing_on"):
             if name in self._saved:
                 try:
@@ -88,6 +138,16 @@ class SchedTrace:
             except OSError:
                 pass
 
+    def events_lost(self) -> int | None:
+        """Events the trace's buffer could not hold (its header's count; None if it has none)."""
+        for line in self.lines:
+            if not line.startswith("#"):
+                break
+            written = re.search(r"entries-in-buffer/entries-written: (\d+)/(\d+)", line)
+            if written:
+                return int(written.group(2)) - int(written.group(1))
+        return None
+
     def wakeups(self, tids) -> dict[int, np.ndarray]:
         """Per thread id: every wake-up as (waking time, delivery, run-queue delay) in s (delivery nan when the
         wake-up was taken on the waker's CPU), in time order; and every preemption (switched out still runnable,
@@ -97,7 +157,7 @@ class SchedTrace:
         pending: dict[int, list] = {}
         preempted: dict[int, float] = {}
         out: dict[int, list] = {t: [] for t in wanted}
-        for line in self.text.splitlines():
+        for line in self.lines:
             m = _LINE.match(line)
             if m is None:
                 continue

@@ -148,3 +148,28 @@ def test_the_live_delay_says_when_the_trace_was_not_available():
     assert rows is None and info == {"sched_trace": "not available (needs root and tracefs)"}
     assert slowest_wakeups(rows, {}, np.array([1.0]), np.array([3.0]), np.array([True])) == []
     assert case_trace([info], []) == {"sched_trace": "not available (needs root and tracefs)"}
+
+
+def test_the_trace_is_read_back_a_chunk_at_a_time_without_losing_a_line(tmp_path, monkeypatch):
+    import schedtrace
+    from schedtrace import SchedTrace
+
+    monkeypatch.setattr(schedtrace, "CHUNK", 97)  # every line of _LIVE_TRACE split across chunks somewhere
+    (tmp_path / "trace").write_text(_LIVE_TRACE)
+    trace = SchedTrace()
+    trace.root = tmp_path
+    assert trace._read() == _LIVE_TRACE.splitlines()
+    trace.lines = trace._read()
+    assert trace.events_lost() == 2  # 9 written, 7 in the buffer
+    assert trace.wakeups([900])[900].tolist() == [[100.01, pytest.approx(2e-5), pytest.approx(0.0015)]]
+    trace.text = _TRACE
+    assert trace.events_lost() is None  # no header count
+
+
+def test_the_trace_can_keep_only_the_threads_asked_for():
+    from schedtrace import SchedTrace
+
+    assert SchedTrace().filters() == {}
+    filters = SchedTrace(tids=[800, 700, 700]).filters()
+    assert filters["sched_waking"] == filters["sched_wakeup"] == "pid == 700 || pid == 800"
+    assert filters["sched_switch"] == "prev_pid == 700 || next_pid == 700 || prev_pid == 800 || next_pid == 800"
