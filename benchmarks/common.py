@@ -73,6 +73,50 @@ def git_state() -> dict[str, Any]:
 START_GIT = git_state()
 
 
+def preemption(config: str, cmdline: str) -> str:
+    """The kernel's preemption model from its build configuration (``/proc/config.gz`` or ``/boot/config-*``) and
+    boot command line: ``preempt=`` on the command line wins where the build lets it choose (PREEMPT_DYNAMIC).
+    Under "none" (and "voluntary") kernel code runs until it yields: a kernel worker can hold a CPU for
+    milliseconds, and no SCHED_FIFO thread preempts it (a real-time loop's missed cycles then say nothing about
+    the loop). "unknown" where neither says."""
+    chosen = next((word.split("=", 1)[1] for word in cmdline.split() if word.startswith("preempt=")), None)
+    options = dict(line.split("=", 1) for line in config.splitlines() if line.startswith("CONFIG_") and "=" in line)
+    dynamic = options.get("CONFIG_PREEMPT_DYNAMIC") == "y"
+    if options.get("CONFIG_PREEMPT_RT") == "y":
+        return "full, real-time (PREEMPT_RT)"
+    if chosen and dynamic:
+        return f"{chosen} (boot option; dynamic)"
+    for model in ("LAZY", "NONE", "VOLUNTARY"):  # PREEMPT alone is "full"
+        if options.get(f"CONFIG_PREEMPT_{model}") == "y":
+            return f"{model.lower()}{' (build default; dynamic)' if dynamic else ''}"
+    if options.get("CONFIG_PREEMPT") == "y":
+        return f"full{' (build default; dynamic)' if dynamic else ''}"
+    return "unknown"
+
+
+def kernel() -> dict[str, Any]:
+    """The kernel as a real-time result depends on it: release, preemption model (:func:`preemption`), and how many
+    DAMON workers (``kdamond``: memory monitoring, kernel threads that take a CPU for their sampling) run."""
+    import gzip
+
+    config = ""
+    for path in (Path("/proc/config.gz"), Path(f"/boot/config-{platform.release()}")):
+        try:
+            config = gzip.decompress(path.read_bytes()).decode() if path.suffix == ".gz" else path.read_text()
+            break
+        except OSError:
+            continue
+    try:
+        cmdline = Path("/proc/cmdline").read_text()
+    except OSError:
+        cmdline = ""
+    try:
+        kdamonds = int(Path("/sys/kernel/mm/damon/admin/kdamonds/nr_kdamonds").read_text())
+    except (OSError, ValueError):
+        kdamonds = None
+    return {"release": platform.release(), "preemption": preemption(config, cmdline), "kdamonds": kdamonds}
+
+
 def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """What produced a result: commit, dirty flag, machine, load before and after, the peers' versions and
     settings (``{"OMPL": {"version": "1.7.0", "configuration": "..."}}``)."""
@@ -80,6 +124,7 @@ def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:
         **START_GIT,
         "machine": platform.platform(),
         "cpus": os.cpu_count(),
+        "kernel": kernel(),
         "python": platform.python_version(),
         "started": START_TIME,
         "saved": time.strftime("%Y-%m-%dT%H:%M:%S%z"),

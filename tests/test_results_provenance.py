@@ -65,3 +65,19 @@ def test_every_result_came_from_a_commit_of_this_history():
             ["git", "merge-base", "--is-ancestor", commit, "HEAD"], cwd=ROOT, capture_output=True, timeout=30
         )
         assert ancestor.returncode == 0, f"{commit} is not in this branch's history"
+
+
+def test_the_kernels_preemption_model_is_read_from_its_configuration_and_boot_line():
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from common import kernel, preemption
+
+    dynamic_none = "# a comment\nCONFIG_PREEMPT_NONE=y\n# CONFIG_PREEMPT is not set\nCONFIG_PREEMPT_DYNAMIC=y\n"
+    assert preemption(dynamic_none, "console=ttyS0 quiet") == "none (build default; dynamic)"
+    assert preemption(dynamic_none, "quiet preempt=full") == "full (boot option; dynamic)"
+    assert preemption("CONFIG_PREEMPT_NONE=y\n", "preempt=full") == "none"  # a fixed build ignores the option
+    assert preemption("CONFIG_PREEMPT=y\nCONFIG_PREEMPT_RT=y\n", "") == "full, real-time (PREEMPT_RT)"
+    assert preemption("CONFIG_PREEMPT=y\n", "") == "full"
+    assert preemption("", "") == "unknown"
+    assert set(kernel()) == {"release", "preemption", "kdamonds"}
