@@ -8,6 +8,7 @@ was measured against with their versions and settings.
 
 from __future__ import annotations
 
+import gzip
 import os
 import platform
 import statistics
@@ -97,8 +98,6 @@ def preemption(config: str, cmdline: str) -> str:
 def kernel() -> dict[str, Any]:
     """The kernel as a real-time result depends on it: release, preemption model (:func:`preemption`), and how many
     DAMON workers (``kdamond``: memory monitoring, kernel threads that take a CPU for their sampling) run."""
-    import gzip
-
     config = ""
     for path in (Path("/proc/config.gz"), Path(f"/boot/config-{platform.release()}")):
         try:

@@ -26,6 +26,7 @@ loop's clock. The tracer's settings are restored on exit.
 
 from __future__ import annotations
 
+import codecs
 import re
 import threading
 from pathlib import Path
@@ -40,6 +41,7 @@ _LINE = re.compile(r"^\s*.+?-\d+\s+\[(\d+)\]\s+\S+\s+(\d+\.\d+): (sched_\w+): (.
 _PID = re.compile(r"(?:^| )pid=(\d+)")
 _NEXT = re.compile(r"next_pid=(\d+)")
 _PREV = re.compile(r"prev_pid=(\d+) .*?prev_state=(\S+)")
+_WRITTEN = re.compile(r"entries-in-buffer/entries-written: (\d+)/(\d+)")
 
 
 class SchedTrace:
@@ -55,14 +57,6 @@ class SchedTrace:
         self.lines: list[str] = []
         self._saved: dict[str, str] = {}
         self._filtered: list[str] = []
-
-    @property
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    @text.setter
-    def text(self, value: str) -> None:
-        self.lines = value.splitlines()
 
     def _write(self, name: str, value: str) -> None:
         (self.root / name).write_text(value)
@@ -110,11 +104,13 @@ class SchedTrace:
         """The trace's lines, read and decoded a chunk at a time (see the module)."""
         lines: list[str] = []
         rest = ""
+        decoder = codecs.getincrementaldecoder("utf-8")(errors="replace")  # a character may span two chunks
         with open(self.root / "trace", "rb") as f:
             while chunk := f.read(CHUNK):
-                part = (rest + chunk.decode(errors="replace")).split("\n")
+                part = (rest + decoder.decode(chunk)).split("\n")
                 rest = part.pop()
                 lines += part
+        rest += decoder.decode(b"", final=True)
         if rest:
             lines.append(rest)
         return lines
@@ -143,7 +139,7 @@ class SchedTrace:
         for line in self.lines:
             if not line.startswith("#"):
                 break
-            written = re.search(r"entries-in-buffer/entries-written: (\d+)/(\d+)", line)
+            written = _WRITTEN.search(line)
             if written:
                 return int(written.group(2)) - int(written.group(1))
         return None

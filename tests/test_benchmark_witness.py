@@ -57,7 +57,7 @@ def test_the_scheduler_trace_splits_a_wake_up_into_the_hosts_delivery_and_the_ru
     from schedtrace import SchedTrace, summary
 
     trace = SchedTrace()
-    trace.available, trace.text = True, _TRACE
+    trace.available, trace.lines = True, _TRACE.splitlines()
     rows = trace.wakeups([700, 800, 900])
     assert rows[700].tolist() == [[100.0, pytest.approx(0.0027), pytest.approx(6e-6)]]
     ((waking, delivery, queue),) = rows[800]
@@ -79,7 +79,7 @@ def test_a_thread_preempted_while_runnable_waits_in_the_run_queue_until_it_runs_
 
     trace = SchedTrace()
     trace.available = True
-    trace.text = """\
+    trace.lines = """\
           python-700     [001] d..2.   200.000000: sched_switch: prev_comm=python prev_pid=700 prev_prio=79 \
 prev_state=R+ ==> next_comm=chrome next_pid=600 next_prio=120
           chrome-600     [001] d..2.   200.001200: sched_switch: prev_comm=chrome prev_pid=600 prev_prio=120 \
@@ -90,7 +90,7 @@ prev_state=S ==> next_comm=swapper/1 next_pid=0 next_prio=120
           python-600     [001] d..2.   200.003010: sched_wakeup: comm=python pid=700 prio=79 target_cpu=001
           python-600     [001] d..2.   200.003020: sched_switch: prev_comm=swapper/1 prev_pid=0 prev_prio=120 \
 prev_state=R ==> next_comm=python next_pid=700 next_prio=79
-"""
+""".splitlines()
     rows = trace.wakeups([700])[700]
     assert rows.shape == (2, 3)
     assert rows[0].tolist() == [200.0, 0.0, pytest.approx(0.0012)]
@@ -117,7 +117,7 @@ def test_the_live_delay_lays_each_late_sample_to_the_slowest_wake_up_of_the_stag
     from schedtrace import SchedTrace
 
     trace = SchedTrace()
-    trace.available, trace.text = True, _LIVE_TRACE
+    trace.available, trace.lines = True, _LIVE_TRACE.splitlines()
     threads = {700: "guide-source", 800: "stage", 900: "stage"}
     rows, info = traced_attempt(trace, threads)
     assert info["sched_trace"] == TRACED and info["trace_events_lost"] == 2 and info["wakeups"] == 3
@@ -162,8 +162,14 @@ def test_the_trace_is_read_back_a_chunk_at_a_time_without_losing_a_line(tmp_path
     trace.lines = trace._read()
     assert trace.events_lost() == 2  # 9 written, 7 in the buffer
     assert trace.wakeups([900])[900].tolist() == [[100.01, pytest.approx(2e-5), pytest.approx(0.0015)]]
-    trace.text = _TRACE
+    trace.lines = _TRACE.splitlines()
     assert trace.events_lost() is None  # no header count
+    # a thread's name outside ASCII, its two bytes on either side of a chunk's end, comes back whole
+    named = _TRACE.replace("comm=python pid=700", "comm=pythoné pid=700")
+    (tmp_path / "trace").write_text(named, encoding="utf-8")
+    cut = named.encode().index("é".encode()) + 1
+    monkeypatch.setattr(schedtrace, "CHUNK", cut)
+    assert trace._read() == named.splitlines()
 
 
 def test_the_trace_can_keep_only_the_threads_asked_for():
