@@ -6,6 +6,7 @@ kernel's count of minor page faults."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -31,8 +32,13 @@ print(json.dumps({"faults": faults() - before, "applied": applied, "policy": pol
 
 
 def _rounds(switch: str) -> dict:
+    # numpy asks for transparent huge pages on large arrays where the kernel offers them on request (THP
+    # "madvise"): a 2 MiB page then faults in once, not 512 times, and the count depends on whether the kernel
+    # had huge pages free at that moment (130 faults against the usual 1,000s, in one CI run). Without that
+    # request every page is a base page, and the counts below measure the allocator alone.
+    env = {**os.environ, "NUMPY_MADVISE_HUGEPAGE": "0"}
     done = subprocess.run(
-        [sys.executable, "-c", _ROUNDS, switch], capture_output=True, text=True, timeout=120, check=True
+        [sys.executable, "-c", _ROUNDS, switch], capture_output=True, text=True, timeout=120, check=True, env=env
     )
     return json.loads(done.stdout.strip().splitlines()[-1])
 
