@@ -105,7 +105,12 @@ def test_twenty_percent_packet_loss_both_ways_still_uploads_and_flies(tmp_path, 
     assert metrics["link_loss_out"] == metrics["messages_dropped_out"] / metrics["messages_sent"]
     # the vehicle holds exactly the mission that was sent: downloaded back and compared
     assert metrics["mission_verified"] is True
-    assert metrics["upload_requests"] >= metrics["mission_items"] and metrics["upload_repeated_requests"] > 0
+    # ... after recovering what the loss cost the upload. Which side recovers depends on timing, not only on
+    # the seeded drops (heartbeats and telemetry interleave with the transfer by wall clock): our re-send after
+    # ``mission_item`` s, or the vehicle's repeated request when it waited out its own timeout first. With 2 x
+    # (items + 1) messages each lost with p = 0.2, an upload without either would be a 1-in-10^5 draw.
+    assert metrics["upload_requests"] >= metrics["mission_items"] > 10
+    assert metrics["upload_repeated_requests"] + metrics["upload_retransmissions"] > 0
     flown = flight_log(outcome)[:, 1:4]
     assert coal_scene_segment_distance(load_scene(HALL), flown[:-1], flown[1:], RADIUS).min() > 0
 
