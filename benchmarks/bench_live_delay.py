@@ -10,7 +10,9 @@ time ``t`` that moment is, less the attempt's smallest such lag (the best any sa
 * **no viewer**: the stage publishes as it does when watched (the same payloads), but to nothing;
 * **viewer**: the feed goes to ``surgiplan view --live`` (another process, with its token), watched by one
   headless chromium page (Debian's, software WebGL) and one *stalled* client: a raw socket that upgrades to
-  ``/watch`` and then never reads (the viewer must drop it, not wait for it).
+  ``/watch`` and then never reads (the viewer must drop it, not wait for it). The page is a trainer's: nothing
+  automates it while the attempt runs (``benchmarks/unattended_page.py``; a page Playwright drives gets every
+  websocket frame serialised for Playwright's driver, work no trainer's browser does).
 
 Both with the stage's threads at ordinary priority (the shortest slice EEVDF grants) and under SCHED_FIFO 10
 (``guidance.realtime_priority``, as a real-time control loop runs): on 2 cores, a page rendering WebGL in software
@@ -61,12 +63,13 @@ ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from browser_support import Browser, feed_url, live_view, stalled_client, wait_for  # noqa: E402
+from browser_support import feed_url, live_view, stalled_client, wait_for  # noqa: E402
 from common import paced_run_arguments, save, table  # noqa: E402
 from pipeline_support import block_world_pipeline, recommended_stage  # noqa: E402
 from readme_blocks.formatting import wakeup_cause  # noqa: E402
 from schedtrace import SchedTrace, benchmark_threads, slowest_during  # noqa: E402
 from schedtrace import summary as schedtrace_summary  # noqa: E402
+from unattended_page import UnattendedBrowser  # noqa: E402
 from witness import Witness  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
@@ -239,7 +242,9 @@ def tcp_state(sock: socket.socket) -> int:
     return struct.unpack("B", sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 1))[0]
 
 
-def watched_attempt(path: Path, browser: Browser, trace: SchedTrace) -> tuple[np.ndarray, np.ndarray, dict, Recording]:
+def watched_attempt(
+    path: Path, browser: UnattendedBrowser, trace: SchedTrace
+) -> tuple[np.ndarray, np.ndarray, dict, Recording]:
     """The watched attempt's lateness per sample (ms), when each was done (perf_counter s), what the page and
     the stalled client went through, and its recording feed (the stage's threads, the collector's passes);
     ``trace`` records the attempt itself (not the viewer's and the page's start)."""
@@ -266,7 +271,10 @@ def watched_attempt(path: Path, browser: Browser, trace: SchedTrace) -> tuple[np
         with trace:
             lateness = attempt(path, feed)
         wait_for(page, "surgiplan.live.status !== null", 60_000)
-        got = page.evaluate("({tips: surgiplan.live.tips, drops: surgiplan.live.drops})")
+        got = page.evaluate(
+            "({tips: surgiplan.live.tips, drops: surgiplan.live.drops, frames: surgiplan.live.frames,"
+            " fps: surgiplan.live.fps, renderer: surgiplan.live.renderer})"
+        )
         problems = page.problems + page.evaluate("surgiplan.errors")
         page.close()
         for _ in range(200):  # the viewer drops a stalled page within seconds of its queue filling up
@@ -286,6 +294,10 @@ def watched_attempt(path: Path, browser: Browser, trace: SchedTrace) -> tuple[np
                 "page_drops": got["drops"]["page"],
                 "feed_drops": got["drops"]["feed"],
                 "stalled_cut_after_s": round(cut[0], 2) if cut else None,
+                # the frames the page drew in its budget (report.js: 30 a second on a software renderer)
+                "page_frames": got["frames"],
+                "page_fps_budget": got["fps"],
+                "page_renderer": got["renderer"],
             },
             feed,
         )
@@ -358,7 +370,7 @@ def main() -> None:
     rows, viewer_runs = [], []
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
-        browser = Browser()
+        browser = UnattendedBrowser()
         try:
             for scheduling, priority in SCHEDULING:
                 path = pipeline(tmp, seconds, priority)
@@ -456,7 +468,8 @@ def main() -> None:
             peers={
                 "chromium": {
                     "version": chromium,
-                    "configuration": "headless, SwiftShader (no GPU), tests/browser_support.py",
+                    "configuration": "headless, SwiftShader (no GPU), the flags of tests/browser_support.py; no "
+                    "automation attached during the attempt (benchmarks/unattended_page.py)",
                 }
             },
             extra={"viewer_runs": viewer_runs, "seconds": seconds, "late_ms": LATE_MS},

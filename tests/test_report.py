@@ -283,6 +283,18 @@ def test_view_needs_a_directory_or_live(cli):
     assert code == 2 and "not both" in err
 
 
+@pytest.mark.parametrize("fps", ["241", "0.5", "-1", "nan", "inf"])
+def test_the_live_views_frame_budget_is_refused_outside_its_range(cli, fps):
+    code, out, err = cli("view", "--live", "--fps", fps, "--no-browser", "--exit-after", "0", "--port", "0")
+    assert code == 2 and f"--fps {float(fps):g}: give 0 (the display's rate) or 1 to 240" in err
+    assert "Traceback" not in err and "http://" not in out  # refused before anything was served
+
+
+def test_the_frame_budget_is_the_live_views_only(cli, tmp_path):
+    code, _, err = cli("view", tmp_path, "--fps", "20", "--no-browser", "--exit-after", "0")
+    assert code == 2 and "--fps is the live view's" in err
+
+
 def test_view_writes_the_report_of_a_run_that_predates_reports(cli, tmp_path, with_example_plugin):
     code, _, err = cli("run", robot_file(tmp_path), "--quiet")
     assert code == 0, err

@@ -406,6 +406,47 @@ def test_the_live_page_shows_the_samples_the_feed_dropped(browser):
     assert got["shown"] == f"samples dropped: {dropped} (by the run's feed {dropped}, by the viewer for this page 0)"
 
 
+@pytest.mark.parametrize(("fps", "budget"), [(None, 30), ("10", 10), ("0", 0)])
+def test_the_live_view_draws_within_its_frame_budget_and_shows_the_newest_sample(browser, fps, budget):
+    """Without a GPU (SwiftShader here) the live page draws at most 30 frames a second, each with the newest sample;
+    ``--fps`` sets the budget, 0 lifts it. Samples paced at 100 a second for 1.5 s."""
+    from surgiplan.live import WebSocketFeed
+
+    process, url = _start(["--live", "--port", "0", *(["--fps", fps] if fps else [])])
+    try:
+        page = browser.page(url, ready="window.surgiplan && surgiplan.ready && surgiplan.live.connected")
+        feed = WebSocketFeed(feed_url(url))
+        feed.publish("stage", {"name": "s", "kind": "execute", "recommended": [[0, 0, 0], [0.1, 0, 0]]})
+        wait_for(page, "surgiplan.live.stage !== null", 30_000)
+        page.wait_for_timeout(300)  # the stage's frames drawn
+        counting = time.monotonic()  # frames are counted from here to the last evaluate below
+        before = page.evaluate("surgiplan.live.frames")
+        started = time.monotonic()
+        for i in range(150):
+            feed.publish("tip", {"t": i / 100, "tip": [i / 1500, 0.0, 0.0], "wall": time.time()})
+            time.sleep(max(0.0, started + (i + 1) / 100 - time.monotonic()))
+        wait_for(page, "surgiplan.live.tips === 150 && surgiplan.live.pending.length === 0", 30_000)
+        feed.close()
+        got = page.evaluate(
+            "({frames: surgiplan.live.frames, fps: surgiplan.live.fps, renderer: surgiplan.live.renderer,"
+            " last: surgiplan.live.last.t, shown: surgiplan.live.cueLatency.length})"
+        )
+        elapsed = time.monotonic() - counting
+        assert page.problems == [] and page.evaluate("surgiplan.errors") == []
+        page.close()
+    finally:
+        process.terminate()
+        process.wait(10)
+    frames = got["frames"] - before
+    assert "SwiftShader" in got["renderer"] and got["fps"] == budget
+    # every sample reached a drawn frame (its cue latency counted), the last one last
+    assert got["last"] == pytest.approx(1.49) and got["shown"] == 150
+    if budget:
+        assert 0.25 * budget * elapsed <= frames <= budget * elapsed + 2
+    else:  # no budget: more frames than 10 a second could hold
+        assert frames > 10 * elapsed + 2
+
+
 def test_many_obstacles_are_one_translucent_mesh_of_front_faces_without_outlines(browser, tmp_path):
     """configs/scanned_trainer.yaml's 117 boxes (more than outputs.merged.MAX_SEPARATE): one merged mesh, drawn
     front faces only and writing depth (no blending of every box along a pixel's ray), not outlined."""

@@ -19,6 +19,14 @@ def add_parsers(sub) -> None:
     view.add_argument("--live", action="store_true", help="the live viewer: watch a running execute or guide stage")
     view.add_argument("--port", type=int, default=None, help="port on 127.0.0.1 (default: any free one; --live 8765)")
     view.add_argument("--no-browser", action="store_true", help="print the address, do not open a browser")
+    view.add_argument(
+        "--fps",
+        type=float,
+        default=None,
+        metavar="N",
+        help="--live: the page draws at most N frames a second (0: every frame the display offers; default: 30 "
+        "when the browser renders WebGL in software, as without a GPU, where each frame takes CPU the stage needs)",
+    )
     view.add_argument("--exit-after", type=float, default=None, metavar="S", help="stop after S seconds")
     view.set_defaults(handler=_cmd_view)
 
@@ -35,14 +43,19 @@ def _cmd_view(args) -> int:
 
         if args.out_dir is not None:
             raise ConfigError("give OUT_DIR or --live, not both", location="view")
+        if args.fps is not None and not (args.fps == 0 or 1 <= args.fps <= 240):
+            raise ConfigError(f"--fps {args.fps:g}: give 0 (the display's rate) or 1 to 240", location="--fps")
         announce("surgiplan live view (Ctrl-C stops):")
         serve_live(
             port=DEFAULT_PORT if args.port is None else args.port,
             open_browser=not args.no_browser,
             exit_after=args.exit_after,
             announce=announce,
+            fps=args.fps,
         )
         return 0
+    if args.fps is not None:
+        raise ConfigError("--fps is the live view's (surgiplan view --live --fps N)", location="--fps")
     if args.out_dir is None:
         raise ConfigError("give a run's output directory (surgiplan view OUT_DIR), or --live", location="view")
     from ..outputs.report.server import serve_directory

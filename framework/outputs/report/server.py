@@ -160,7 +160,9 @@ def serve_directory(
 class LiveViewer:
     """The live viewer's state and its websocket server (see the module docstring)."""
 
-    def __init__(self, port: int = DEFAULT_PORT, *, token: str | None = None, **relay: Any) -> None:
+    def __init__(
+        self, port: int = DEFAULT_PORT, *, token: str | None = None, fps: float | None = None, **relay: Any
+    ) -> None:
         self.port = port
         #: each page's relay bounds (:class:`.relay.Watcher`'s keywords; its defaults when empty)
         self.relay = relay
@@ -175,6 +177,8 @@ class LiveViewer:
         self.page = page(
             {
                 "live": True,
+                # the page's frames a second (0: the display's rate); None: 30 on a software renderer (report.js)
+                **({"fps": float(fps)} if fps is not None else {}),
                 "run": {"name": "surgiplan live view", "status": "waiting", "length_unit": "mm", "unit_scale": 1e-3},
                 "scene": None,
                 "stages": [],
@@ -348,9 +352,11 @@ def serve_live(
     exit_after: float | None = None,
     announce: Callable[[str], None] = print,
     token: str | None = None,
+    fps: float | None = None,
 ) -> LiveViewer:
     """Run the live viewer on 127.0.0.1:``port`` until Ctrl-C (or ``exit_after`` seconds), for the holder of
-    ``token`` (None: a new one)."""
-    viewer = LiveViewer(port, token=token)
+    ``token`` (None: a new one); its page draws at most ``fps`` frames a second (0: the display's rate; None: 30
+    when the browser renders WebGL in software, the display's rate otherwise)."""
+    viewer = LiveViewer(port, token=token, fps=fps)
     asyncio.run(viewer.serve(open_browser=open_browser, exit_after=exit_after, announce=announce))
     return viewer

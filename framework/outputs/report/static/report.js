@@ -81,6 +81,21 @@
   const renderer = new THREE.WebGLRenderer({ antialias: !LIVE, preserveDrawingBuffer: true });
   renderer.setPixelRatio(window.devicePixelRatio || 1);
   view.insertBefore(renderer.domElement, view.firstChild);
+  // the live view's frame budget. Without a GPU the 3D view, the 2D overlay and the text are drawn and composited on
+  // the CPUs the watched stage needs, and a page redrawing at the display's rate for 100 samples/s delayed about
+  // three times as many samples beyond 2 ms as one drawing 30 frames a second (benchmarks/bench_live_delay.py,
+  // ordinary priority): so on a software renderer the live view draws at most SOFTWARE_FPS frames a second, each
+  // with the newest sample. `surgiplan view --live --fps N` sets the budget (0: every frame the display offers).
+  const SOFTWARE_FPS = 30;
+  const RENDERER = (() => {
+    try {
+      const gl = renderer.getContext(), info = gl.getExtension("WEBGL_debug_renderer_info");
+      return String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+    } catch (e) { return ""; }
+  })();
+  const SOFTWARE_WEBGL = /swiftshader|llvmpipe|softpipe|software/i.test(RENDERER);
+  const LIVE_FPS = !LIVE ? 0 : typeof DATA.fps === "number" ? DATA.fps : SOFTWARE_WEBGL ? SOFTWARE_FPS : 0;
+  const FRAME_MS = LIVE_FPS > 0 ? 1000 / LIVE_FPS : 0;
   const scene = new THREE.Scene();
   scene.background = new THREE.Color(0xf7f7f4);
   const camera = new THREE.PerspectiveCamera(40, 1, 1e-4, 1e4);
@@ -783,14 +798,20 @@
 
   // ------------------------------------------------------------------ render loop
   let liveDirty = false, deferred = false;
+  // when the live view last drew, and the live text's redraw (set by buildLive: true when it drew)
+  let lastDrawn = -Infinity, drawText = null;
   const PIXEL = new Uint8Array(4);
   const overlay = document.getElementById("overlay");
-  function loop() {
+  function loop(now) {
     requestAnimationFrame(loop);
+    // within the live view's budget (FRAME_MS, above): a frame early by under a millisecond is on time (the
+    // display's frames come 16.7 ms apart, so at 30 a second every other one)
+    if (FRAME_MS && now - lastDrawn < FRAME_MS - 1) return;
     if (LIVE && dirty && S.live.pending.length && drawOverlay && !deferred) {
       // a sample waits: its cues first, on their own frame; the 3D view (slow without a GPU) on the next one
       overlayDirty = false;
       deferred = true;
+      lastDrawn = now;
       cuesDrawn(drawOverlay(), false);
       return;
     }
@@ -812,7 +833,9 @@
       if (!S.ready) { S.ready = true; S.loadMs = performance.now(); }
     }
     if (!LIVE) return;
-    if ((overlayDirty || drew) && drawOverlay) { overlayDirty = false; cuesDrawn(drawOverlay(), drew); }
+    if ((overlayDirty || drew) && drawOverlay) { overlayDirty = false; cuesDrawn(drawOverlay(), drew); drew = true; }
+    if (drawText && drawText()) drew = true;
+    if (drew) { lastDrawn = now; S.live.frames++; }
   }
   // after the live view's overlay is drawn (at the instrument's pixel ``tip``): count the update, and each waiting
   // sample's latency; with #latency the pixels are read back first, so they exist
@@ -874,6 +897,8 @@
   S.live = {
     messages: 0, tips: 0, updates: 0, updateTimes: [], tipTimes: [], connected: false, stage: null, status: null,
     last: null, events: [], closed: false, cue: null,
+    // the frames drawn, the budget (frames a second, 0 none) and the WebGL renderer that chose it (FRAME_MS)
+    frames: 0, fps: LIVE_FPS, renderer: RENDERER,
     // samples dropped on the way (never delayed): by the run's feed (its queue full) and by the viewer for this page
     // (this page not keeping up: its queue in the viewer is bounded, the oldest go first)
     drops: { feed: 0, page: 0 },
@@ -1096,6 +1121,7 @@
       return tip;
     };
     let labelPending = false;
+    drawText = () => labelPending && (refreshLabel(), true);
     function refreshLabel() {
       labelPending = false;
       const p = S.live.last;
@@ -1146,7 +1172,7 @@
           break;
         }
       }
-      if (!labelPending) { labelPending = true; requestAnimationFrame(refreshLabel); }
+      labelPending = true; // redrawn in the next frame the budget allows (loop)
     }
     let attempts = 0;
     function connect() {
