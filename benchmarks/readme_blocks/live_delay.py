@@ -24,6 +24,22 @@ def _causes(runs: list[dict]) -> dict[str, int]:
     return {c: sum(r["delayed_wakeup_causes"][c] for r in runs) for c in ("host", "queue", "none")}
 
 
+def _page_words(runs: list[dict]) -> str:
+    """What the page was: its renderer and frame budget, and that nothing automated it (results since 0a7da3e)."""
+    if not all("page_frames" in r for r in runs):
+        return ""
+    budgets = sorted({r["page_fps_budget"] for r in runs})
+    renderer = runs[0]["page_renderer"]
+    software = "SwiftShader" in renderer or "llvmpipe" in renderer
+    return (
+        f" The page drew {', '.join(str(r['page_frames']) for r in runs)} frames in those runs, within its "
+        f"budget of {' and '.join(f'{b:g}' for b in budgets)} a second"
+        + (" (the live view's on a software renderer" if software else " (")
+        + f"; WebGL renderer: {renderer}); nothing automated it while the attempt ran "
+        "(`benchmarks/unattended_page.py`)."
+    )
+
+
 def render_live_delay(results: Path) -> str:
     data = load(results, "live_delay")
     late = data["late_ms"]
@@ -136,6 +152,7 @@ def render_live_delay(results: Path) -> str:
         + (f" ({', '.join(f'{c:.1f}' for c in cut)} s after it connected)" if cut else "")
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
         f"{sum(r['page_drops'] + r['feed_drops'] for r in runs)} dropped."
+        + _page_words(runs)
         + (
             " Time the host stole from this virtual machine per run (10 ms ticks, no viewer / viewer): "
             + ", ".join(
