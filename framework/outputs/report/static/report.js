@@ -82,10 +82,11 @@
   renderer.setPixelRatio(window.devicePixelRatio || 1);
   view.insertBefore(renderer.domElement, view.firstChild);
   // the live view's frame budget. Without a GPU the 3D view, the 2D overlay and the text are drawn and composited on
-  // the CPUs the watched stage needs, and a page redrawing at the display's rate for 100 samples/s delayed about
-  // three times as many samples beyond 2 ms as one drawing 30 frames a second (benchmarks/bench_live_delay.py,
-  // ordinary priority): so on a software renderer the live view draws at most SOFTWARE_FPS frames a second, each
-  // with the newest sample. `surgiplan view --live --fps N` sets the budget (0: every frame the display offers).
+  // the CPUs the watched stage needs. Beside a guide attempt at 100 samples/s at ordinary priority (2 cores,
+  // benchmarks/bench_live_delay.py --quick, 8 s, five interleaved pairs), a page redrawing at the display's rate
+  // delayed 18-108 samples beyond 2 ms, one drawing 30 frames a second 5-10. So on a software renderer the live
+  // view draws at most SOFTWARE_FPS frames a second, each with the newest sample (its cues' sample-to-pixels p99
+  // stays under 50 ms). `surgiplan view --live --fps N` sets the budget (0: every frame the display offers).
   const SOFTWARE_FPS = 30;
   const RENDERER = (() => {
     try {
