@@ -813,6 +813,7 @@
       overlayDirty = false;
       deferred = true;
       lastDrawn = now;
+      S.live.frames++;
       cuesDrawn(drawOverlay(), false);
       return;
     }
