@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from urllib.request import urlopen
 
-from browser_support import CHROMIUM_FLAGS, VIEWPORT, chromium_path
+from browser_support import CHROMIUM_FLAGS, VIEWPORT, chromium_path, wait_for
 
 
 class UnattendedPage:
@@ -102,11 +102,7 @@ class UnattendedBrowser:
         target = next(t for t in targets if t["type"] == "page")
         page = UnattendedPage(target["webSocketDebuggerUrl"])
         page._call("Page.navigate", url=url)
-        deadline = time.monotonic() + timeout / 1000
-        while not page.evaluate(ready):
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"{ready!r} still false after {timeout / 1000:.0f} s")
-            time.sleep(0.05)
+        wait_for(page, ready, timeout)  # the tests' poll: evaluate and wait_for_timeout are this page's too
         page.detach()
         return page
 
