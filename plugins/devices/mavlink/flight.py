@@ -50,6 +50,10 @@ from .stream import SetpointStream
 #: how long (s of vehicle time) the setpoints flow before the switch to offboard mode: 10 grid setpoints,
 #: so that a lossy link (20 % lost) still delivers some before the vehicle judges the stream
 SETPOINTS_BEFORE_SWITCH = 0.5
+#: how long a landing failsafe waits, once the vehicle says it landed, for the position report after it: this many
+#: report periods (``telemetry_rate``), at least :data:`TOUCHDOWN_REPORT_S` s
+TOUCHDOWN_REPORTS = 3
+TOUCHDOWN_REPORT_S = 1.0
 
 
 class Refusal(SurgiplanError):
@@ -489,6 +493,20 @@ class Flight:
         length = float(np.sum(np.linalg.norm(np.diff(self.route.points, axis=0), axis=1)))
         return 3.0 * length / self.settings.cruise_speed + 60.0
 
+    def _touchdown_report(self) -> None:
+        """Pump until a position report sent after the landed state was heard, so that the flight's log ends on the
+        floor: the vehicle reports its landed state and its position in two streams, and "landed" can arrive
+        before the report of the touchdown's last centimetres. Bounded (:data:`TOUCHDOWN_REPORTS`): the report may
+        be lost, and the log then ends with the last one heard."""
+        gcs = self.gcs
+        vehicle = gcs.vehicle
+        heard = vehicle.position
+        wait = max(TOUCHDOWN_REPORTS / self.settings.telemetry_rate, TOUCHDOWN_REPORT_S)
+        try:
+            gcs.wait_for(lambda: vehicle.position is not heard, wait, "a position report after landing")
+        except VehicleError:
+            pass
+
     def _failsafe(self, why: str) -> str:
         """Command the configured failsafe; watch what the vehicle does; say what happened."""
         gcs = self.gcs
@@ -520,6 +538,7 @@ class Flight:
                 gcs.wait_for(lambda: vehicle.on_ground or not vehicle.armed, s.timeouts.failsafe, "landed")
                 entry["landed"] = True
                 outcome += ", the vehicle landed"
+                self._touchdown_report()
             except VehicleError:
                 entry["landed"] = False
                 outcome += f", no landing seen within {s.timeouts.failsafe:g} s"
