@@ -26,6 +26,22 @@ class StrictModel(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+class RegionModel(StrictModel):
+    """An axis-aligned box: its ``min`` and ``max`` corners (length unit of the file), ``max`` not below ``min``
+    along any axis. A deformable model's regions of its rest mesh (materials, anchors, loads) and a retraction's
+    anchors and sampling workspace are such boxes."""
+
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        bad = [axis for axis, lo, hi in zip("xyz", self.min, self.max, strict=True) if hi < lo]
+        if bad:
+            raise ValueError(f"max must not be below min along {', '.join(bad)}")
+        return self
+
+
 class PoseModel(StrictModel):
     """A rigid pose: position ``xyz`` (length unit of the file) and ``rpy`` (radians, or '30 deg')."""
 

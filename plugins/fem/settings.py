@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import Field, PositiveFloat, PositiveInt, ValidationInfo, model_validator
-from surgiplan.models import PoseModel, StrictModel
+from surgiplan.models import PoseModel, RegionModel, StrictModel
 from surgiplan.units import LENGTH_SCALE_KEY, LENGTH_UNITS, Coordinate, Finite, PositiveLength, Vec3
 from surgiplan.validation import file_length_scale, input_path
 
@@ -34,20 +34,6 @@ PoissonRatio = Annotated[float, Field(ge=-0.99, lt=0.5)]
 
 def _resolve(path: str, info: ValidationInfo) -> str:
     return str(input_path(path, info))
-
-
-class RegionModel(StrictModel):
-    """An axis-aligned box of the rest configuration: the nodes (or element centroids) inside it."""
-
-    min: Vec3
-    max: Vec3
-
-    @model_validator(mode="after")
-    def _ordered(self):
-        bad = [axis for axis, lo, hi in zip("xyz", self.min, self.max, strict=True) if hi < lo]
-        if bad:
-            raise ValueError(f"max must not be below min along {', '.join(bad)}")
-        return self
 
 
 class BoxMeshModel(StrictModel):

@@ -23,24 +23,10 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, PositiveInt, ValidationError, ValidationInfo, model_validator
-from surgiplan.models import QuaternionPoseModel, StrictModel
+from surgiplan.models import QuaternionPoseModel, RegionModel, StrictModel
 from surgiplan.units import Angle, Coordinate, Length, PositiveLength, Vec3
 
 Fraction = Annotated[float, Field(gt=0, le=1)]
-
-
-class RegionModel(StrictModel):
-    """An axis-aligned box (m): of the rest mesh (anchors) or of the workspace (sampling)."""
-
-    min: Vec3
-    max: Vec3
-
-    @model_validator(mode="after")
-    def _ordered(self):
-        bad = [axis for axis, lo, hi in zip("xyz", self.min, self.max, strict=True) if hi < lo]
-        if bad:
-            raise ValueError(f"max must not be below min along {', '.join(bad)}")
-        return self
 
 
 class DeformableSpec(StrictModel):
