@@ -235,6 +235,8 @@ def nearest(kinds, rotations, translations, params, centres, radii, low, high, a
     for i in range(a.shape[0]):
         upper = np.inf
         for o in range(m):
+            # the bound of bvh._obstacle_bound, written out here: calling a shared function (returning the bound and
+            # the centre's gap) made this loop 1.5-2.5x slower (20,000 points, block world and hall)
             c = centres[o]
             box_gap = 0.0
             if segment:
