@@ -17,9 +17,13 @@ def render_safe_prm(results: Path) -> str:
     configs = data.get("provenance", {}).get("peers", {}).get("OMPL", {}).get("configurations", {})
     by: dict[tuple[str, int], dict] = {}
     stage = []
+    runs = []  # each run's figures when the benchmark ran more than once in a row (--runs)
     for r in data["rows"]:
         if r["planner"].startswith("safe_prm, plan stage"):
             stage.append(r)
+            continue
+        if r["planner"] == "safe_prm, every run":
+            runs.append(r)
             continue
         kind = (
             "safe" if r["planner"].startswith("safe_prm") else find(r"\(([\w-]+)\)", r["planner"], "planner").group(1)
@@ -69,16 +73,42 @@ def render_safe_prm(results: Path) -> str:
     took = find(r"run took (\d+) s", notes, "safe_prm_vs_ompl.json notes").group(1)
     largest = sizes[-1]
     s_big = by[("safe", largest)]
+    count = len({r["run"] for r in runs}) if runs else 1
     head = (
-        f"Measured by `python benchmarks/bench_safe_prm.py` (`benchmarks/results/safe_prm_vs_ompl.json`): medians of "
-        f"{s_big['seeds']} seeds, queries and simplification medians of 21 repeats; one run, side by side, {took} s, "
+        f"Measured by `python benchmarks/bench_safe_prm.py{f' --runs {count}' if count > 1 else ''}` "
+        f"(`benchmarks/results/safe_prm_vs_ompl.json`): medians of {s_big['seeds']} seeds, queries and simplification "
+        f"medians of 21 repeats; {'one run' if count == 1 else f'{count} runs in a row (the table: the last)'}, side "
+        f"by side, {took} s, "
         f"load average {load_avg} (1/5/15 min) at the start on the 2 shared cores. OMPL's configurations: "
         + "; ".join(f"`{c}`: {configs[c]}" for c in order if c in configs)
         + ". The strongest at a size is the one that builds fastest there."
     )
     strongest = s_big["strongest_ompl"]
-    build_ok = ratio(s_big, "build_ratio_vs_strongest") >= BUILD_RATIO
+    # the targets hold only if they hold in every run: judged on the worst run where there were several
+    every = [r for r in runs if r["milestones"] == largest] or [s_big]
+    build_ok = min(ratio(r, "build_ratio_vs_strongest") for r in every) >= BUILD_RATIO
     repair = [f(s_big["query_repair_ms_4mm"]), f(s_big["query_repair_ms_8mm"])]
+    repair_worst = max(max(f(r["query_repair_ms_4mm"]), f(r["query_repair_ms_8mm"])) for r in every)
+    warm_worst = (
+        max(max(f(r["query_repair_warm_ms_4mm"]), f(r["query_repair_warm_ms_8mm"])) for r in every)
+        if "query_warm_ms" in s_big
+        else None
+    )
+    several = ""
+    if len(every) > 1:
+        several = (
+            f" Every run ({len(every)} in a row, each against OMPL's own builds; the table is the last, and the "
+            "targets here are judged on the worst): build ratio "
+            + ", ".join(f"{ratio(r, 'build_ratio_vs_strongest'):.1f}× (`{r['strongest_ompl']}`)" for r in every)
+            + "; warm query with repair 4 / 8 mm "
+            + ", ".join(
+                f"{sig(1e3 * f(r['query_repair_warm_ms_4mm']), 2)} / {sig(1e3 * f(r['query_repair_warm_ms_8mm']), 2)}"
+                for r in every
+            )
+            + " µs; ticks stolen "
+            + ", ".join(str(r["steal_ticks"]) for r in every)
+            + "."
+        )
     clipping = by[(strongest, largest)].get("raw_paths_clipping", "—")
     ompl_margin = by[(strongest, largest)]["success_0_4_8mm"].split()[0].split("/")
     safe_margin = s_big["success_0_4_8mm"].split()[0].split("/")
@@ -110,17 +140,18 @@ def render_safe_prm(results: Path) -> str:
             else ""
         )
         + f"). Query with path repair at most {1e3 * QUERY_MS:g} µs median at {largest:,} milestones: "
-        f"{met(max(repair) <= QUERY_MS)} ({sig(1e3 * repair[0], 2)} / {sig(1e3 * repair[1], 2)} µs)."
+        f"{met(repair_worst <= QUERY_MS)} ({sig(1e3 * repair[0], 2)} / {sig(1e3 * repair[1], 2)} µs)."
         + (
             f" The same queries back to back, caches warm (as VAMP's 35 µs and OMPL's `solve` here are measured): "
             f"{sig(1e3 * f(s_big['query_warm_ms']), 2)} µs expert, {sig(1e3 * f(s_big['query_repair_warm_ms_4mm']), 2)}"
             f" / {sig(1e3 * f(s_big['query_repair_warm_ms_8mm']), 2)} µs with repair (the target measured this way: "
-            f"{met(max(f(s_big['query_repair_warm_ms_4mm']), f(s_big['query_repair_warm_ms_8mm'])) <= QUERY_MS)}); "
+            f"{met(warm_worst <= QUERY_MS)}); "
             "the plan stage's query follows the previous query's smoothing, which leaves the roadmap's arrays out of "
             "cache."
             if "query_warm_ms" in s_big
             else ""
         )
+        + several
         + pipeline
         + f" Both planners find the same {s_big['length_mm']} mm path for the expert (the straight line through the "
         f"three gaps, {s_big['min_clear_mm']} mm clearance; safe_prm's length against OMPL's: "
