@@ -106,9 +106,11 @@ def test_a_changed_result_changes_the_table(results: Path):
 
 
 def test_the_sentences_judge_the_targets_from_the_data(results: Path):
-    def faster(d):
+    def faster(d):  # the table's run and every run (when the benchmark ran several: --runs)
         for r in d["rows"]:
-            if r["planner"].startswith("safe_prm (") and r["milestones"] == 5000:
+            if (r["planner"].startswith("safe_prm (") or r["planner"] == "safe_prm, every run") and r[
+                "milestones"
+            ] == 5000:
                 r["build_ratio_vs_strongest"] = "12.5x"
                 r["query_repair_ms_4mm"], r["query_repair_ms_8mm"] = "0.083", "0.074"
 
@@ -119,7 +121,9 @@ def test_the_sentences_judge_the_targets_from_the_data(results: Path):
 
     def slower(d):
         for r in d["rows"]:
-            if r["planner"].startswith("safe_prm (") and r["milestones"] == 5000:
+            if (r["planner"].startswith("safe_prm (") or r["planner"] == "safe_prm, every run") and r[
+                "milestones"
+            ] == 5000:
                 r["build_ratio_vs_strongest"] = "8.1x"
                 r["query_repair_ms_8mm"] = "0.24"
 
@@ -217,6 +221,7 @@ def test_safe_prm_targets_are_judged_on_the_worst_of_several_runs(results: Path)
 
     def runs(slow_first: bool):
         def change(d):
+            d["rows"] = [r for r in d["rows"] if r["planner"] != "safe_prm, every run"]
             last = next(r for r in d["rows"] if r["planner"].startswith("safe_prm (") and r["milestones"] == 5000)
             last.update(
                 build_ratio_vs_strongest="14.5x",
