@@ -105,12 +105,17 @@ def test_a_changed_result_changes_the_table(results: Path):
     assert f"| mission | {tracking} | 0.123 m |" in rt.render_mavlink_hall(results)
 
 
+def safe_prm_at_5000(row: dict) -> bool:
+    """safe_prm's row at 5,000 milestones: the table's run, and each run when the benchmark ran several (--runs)."""
+    return row["milestones"] == 5000 and (
+        row["planner"].startswith("safe_prm (") or row["planner"] == "safe_prm, every run"
+    )
+
+
 def test_the_sentences_judge_the_targets_from_the_data(results: Path):
-    def faster(d):  # the table's run and every run (when the benchmark ran several: --runs)
+    def faster(d):
         for r in d["rows"]:
-            if (r["planner"].startswith("safe_prm (") or r["planner"] == "safe_prm, every run") and r[
-                "milestones"
-            ] == 5000:
+            if safe_prm_at_5000(r):
                 r["build_ratio_vs_strongest"] = "12.5x"
                 r["query_repair_ms_4mm"], r["query_repair_ms_8mm"] = "0.083", "0.074"
 
@@ -121,9 +126,7 @@ def test_the_sentences_judge_the_targets_from_the_data(results: Path):
 
     def slower(d):
         for r in d["rows"]:
-            if (r["planner"].startswith("safe_prm (") or r["planner"] == "safe_prm, every run") and r[
-                "milestones"
-            ] == 5000:
+            if safe_prm_at_5000(r):
                 r["build_ratio_vs_strongest"] = "8.1x"
                 r["query_repair_ms_8mm"] = "0.24"
 
