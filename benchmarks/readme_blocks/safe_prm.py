@@ -88,12 +88,13 @@ def render_safe_prm(results: Path) -> str:
     strongest = s_big["strongest_ompl"]
     build_ok = min(ratio(r, "build_ratio_vs_strongest") for r in every) >= BUILD_RATIO
     repair = [f(s_big["query_repair_ms_4mm"]), f(s_big["query_repair_ms_8mm"])]
-    repair_worst = max(max(f(r["query_repair_ms_4mm"]), f(r["query_repair_ms_8mm"])) for r in every)
-    warm_worst = (
-        max(max(f(r["query_repair_warm_ms_4mm"]), f(r["query_repair_warm_ms_8mm"])) for r in every)
-        if "query_warm_ms" in s_big
-        else None
-    )
+
+    def worst(*keys: str) -> float:
+        """The slowest of these figures over every run."""
+        return max(f(r[key]) for r in every for key in keys)
+
+    repair_worst = worst("query_repair_ms_4mm", "query_repair_ms_8mm")
+    warm_worst = worst("query_repair_warm_ms_4mm", "query_repair_warm_ms_8mm") if "query_warm_ms" in s_big else None
     several = ""
     if count > 1:
         several = (
