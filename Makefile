@@ -12,7 +12,7 @@ MAIN_JOB ?= configs/block_world_proficiency.yaml
 # builds the wheel and checks that setuptools warns of nothing)
 PIP_QUIET := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet
 
-.PHONY: run test lint bench clean browser docs
+.PHONY: run test lint bench clean browser docs rt-tests
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -56,7 +56,18 @@ docs: $(VENV)/.test-deps
 	@echo "serving build/docs on http://127.0.0.1:$(DOCS_PORT)/ (Ctrl-C stops)"
 	$(BIN)/python -m http.server --bind 127.0.0.1 --directory build/docs $(DOCS_PORT)
 
-bench: $(VENV)/.test-deps
+# The real-time benchmarks measure the machine's own floor with rt-tests' cyclictest (Debian package rt-tests);
+# installed with apt where we may, as chromium is; elsewhere that row of the results says it is missing.
+rt-tests:
+	@command -v cyclictest >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing rt-tests (apt) for the real-time benchmarks' floor"; \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q rt-tests >/dev/null 2>&1 || \
+	    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q rt-tests >/dev/null; } || \
+	    echo "warning: could not install rt-tests: the benchmarks' cyclictest floor will say so"; \
+	  else echo "warning: no cyclictest and no root to install it (apt-get install rt-tests)"; fi; }
+
+bench: $(VENV)/.test-deps rt-tests
 	$(BIN)/python benchmarks/run_all.py
 
 clean:

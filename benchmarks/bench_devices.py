@@ -63,7 +63,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import package_version, save, table
 from devices_kinematics import inverse_kinematics
-from devices_loop import ROOT, bus_ceiling, control_loop, garbage_collection, scheduling_floor, simulation_speed
+from devices_loop import (
+    ROOT,
+    bus_ceiling,
+    control_loop,
+    cyclictest_floor,
+    garbage_collection,
+    scheduling_floor,
+    simulation_speed,
+)
 from devices_table import PRIORITY, SEPARATE, SEPARATE_RT, THREAD, readme_table
 from surgiplan import load_scene
 
@@ -110,6 +118,9 @@ def main() -> None:
         loop += control_loop(scene, fast, max(2, runs // 2), THREAD, seconds)
     print("\n## the machine's own floor: a bare 1 kHz loop", flush=True)
     floor = scheduling_floor(5.0 if args.quick else 20.0)
+    print("\n## the same floor as rt-tests' cyclictest measures it, in runs as long as the control loop's", flush=True)
+    floor.append(cyclictest_floor(2 if args.quick else runs, seconds))
+    print(floor[-1], flush=True)
     print("\n## garbage collection and missed cycles", flush=True)
     collection = garbage_collection(scene, 2 if args.quick else 4)
     print("\n## the bus at 1 Mbit/s", flush=True)

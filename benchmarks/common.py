@@ -96,8 +96,10 @@ def preemption(config: str, cmdline: str) -> str:
 
 
 def kernel() -> dict[str, Any]:
-    """The kernel as a real-time result depends on it: release, preemption model (:func:`preemption`), and how many
-    DAMON workers (``kdamond``: memory monitoring, kernel threads that take a CPU for their sampling) run."""
+    """The kernel as a real-time result depends on it: release, preemption model (:func:`preemption`), how many
+    DAMON workers (``kdamond``: memory monitoring, kernel threads that take a CPU for their sampling) run, the
+    cpuidle driver (how an idle CPU waits: ``haltpoll`` on a KVM guest), and whether a real-time loop here may keep
+    the CPUs out of slow idle states (:func:`surgiplan.scheduling.cpu_latency_request`: root only)."""
     config = ""
     for path in (Path("/proc/config.gz"), Path(f"/boot/config-{platform.release()}")):
         try:
@@ -113,7 +115,19 @@ def kernel() -> dict[str, Any]:
         kdamonds = int(Path("/sys/kernel/mm/damon/admin/kdamonds/nr_kdamonds").read_text())
     except (OSError, ValueError):
         kdamonds = None
-    return {"release": platform.release(), "preemption": preemption(config, cmdline), "kdamonds": kdamonds}
+    try:
+        cpuidle = Path("/sys/devices/system/cpu/cpuidle/current_driver").read_text().strip()
+    except OSError:
+        cpuidle = None
+    from surgiplan.scheduling import CPU_LATENCY_FILE
+
+    return {
+        "release": platform.release(),
+        "preemption": preemption(config, cmdline),
+        "kdamonds": kdamonds,
+        "cpuidle": cpuidle,
+        "cpu_latency_request": os.access(CPU_LATENCY_FILE, os.W_OK),
+    }
 
 
 def provenance(peers: Mapping[str, Any] | None = None) -> dict[str, Any]:

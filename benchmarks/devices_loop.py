@@ -1,7 +1,8 @@
 """bench_devices.py, parts 1-3 and 5: the real-time CiA 402 loop with the gimbal's 4 drives, measured.
 
 The control loop at each rate with the drives in another process or in a thread (:func:`control_loop`), the
-machine's own floor for a 1 kHz loop (:func:`scheduling_floor`), the cost of a full garbage collection in the
+machine's own floor for a 1 kHz loop (:func:`scheduling_floor`; measured by rt-tests' cyclictest too,
+:func:`cyclictest_floor`), the cost of a full garbage collection in the
 loop (:func:`garbage_collection`), the bus's capacity for the cyclic frames (:func:`bus_ceiling`) and the
 simulated clock's speed (:func:`simulation_speed`). Imported by bench_devices.py, which puts benchmarks/ and
 tests/ on the import path (``common``, ``devices_support``).
@@ -11,11 +12,15 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import json
 import os
+import re
+import shutil
 import socket
 import statistics
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -319,55 +324,101 @@ def control_loop(scene, rates, runs: int, mode: str, seconds: float = 10.0) -> l
 def scheduling_floor(seconds: float) -> list[dict]:
     """What the machine gives any 1 kHz loop: a bare single-thread Python loop sleeping to each 1 ms deadline
     (1 us timer slack), no CAN, no GIL contention; with ordinary scheduling (the kernel's default slice, then the
-    short slice the control loop's threads ask for at ordinary priority) and under SCHED_FIFO."""
+    short slice the control loop's threads ask for at ordinary priority) and under SCHED_FIFO; the CPU wake-up
+    latency asked for as the control loop asks for it (:func:`surgiplan.scheduling.cpu_latency_request`)."""
     from surgiplan.plugins.devices.canopen.clock import (
         LOOP_SLICE,
         RealTimeClock,
         restore_priority,
         set_realtime_priority,
     )
+    from surgiplan.scheduling import cpu_latency_request
 
     rows = []
     short = f"ordinary, {LOOP_SLICE * 1e3:g} ms slice"
-    for policy in ("ordinary", short, f"SCHED_FIFO {PRIORITY}"):
-        try:
-            previous = None if policy == "ordinary" else set_realtime_priority(None if policy == short else PRIORITY)
-        except OSError as exc:
-            rows.append({"loop": f"bare 1 kHz sleep loop, {policy}", "error": str(exc)})
-            continue
-        RealTimeClock.precise()
-        wakes, lapses = [], []
-        stolen = steal_ticks()
-        try:
-            start = time.perf_counter()
-            deadline = start
-            for _ in range(int(seconds * 1000)):
-                deadline += 0.001
-                remaining = deadline - time.perf_counter()
-                if remaining > 0:
-                    time.sleep(remaining)
-                woke = time.perf_counter()
-                if woke - deadline > 0.001:  # more than a period late: a missed cycle, skipped as the loop does
-                    lapses.append(round((woke - deadline) * 1e3, 1))
-                    deadline = woke
-                wakes.append(woke)
-        finally:
-            restore_priority(previous)
-        periods = np.diff(wakes) * 1e3
-        rows.append(
-            {
-                "loop": f"bare 1 kHz sleep loop, {policy}",
-                "seconds": seconds,
-                "period_p50_ms": round(percentile(periods, 50), 3),
-                "period_p99_ms": round(percentile(periods, 99), 3),
-                "period_max_ms": round(float(periods.max()), 2),
-                "lapses_over_1_ms": len(lapses),
-                "lapses_ms": sorted(lapses, reverse=True)[:12],
-                "steal_ticks": steal_ticks() - stolen,
-            }
-        )
-        print(rows[-1], flush=True)
+    with cpu_latency_request() as held:  # as the control loop asks for it
+        for policy in ("ordinary", short, f"SCHED_FIFO {PRIORITY}"):
+            try:
+                previous = (
+                    None if policy == "ordinary" else set_realtime_priority(None if policy == short else PRIORITY)
+                )
+            except OSError as exc:
+                rows.append({"loop": f"bare 1 kHz sleep loop, {policy}", "error": str(exc)})
+                continue
+            RealTimeClock.precise()
+            wakes, lapses = [], []
+            stolen = steal_ticks()
+            try:
+                start = time.perf_counter()
+                deadline = start
+                for _ in range(int(seconds * 1000)):
+                    deadline += 0.001
+                    remaining = deadline - time.perf_counter()
+                    if remaining > 0:
+                        time.sleep(remaining)
+                    woke = time.perf_counter()
+                    if woke - deadline > 0.001:  # more than a period late: a missed cycle, skipped as the loop does
+                        lapses.append(round((woke - deadline) * 1e3, 1))
+                        deadline = woke
+                    wakes.append(woke)
+            finally:
+                restore_priority(previous)
+            periods = np.diff(wakes) * 1e3
+            rows.append(
+                {
+                    "loop": f"bare 1 kHz sleep loop, {policy}",
+                    "seconds": seconds,
+                    "period_p50_ms": round(percentile(periods, 50), 3),
+                    "period_p99_ms": round(percentile(periods, 99), 3),
+                    "period_max_ms": round(float(periods.max()), 2),
+                    "lapses_over_1_ms": len(lapses),
+                    "lapses_ms": sorted(lapses, reverse=True)[:12],
+                    "steal_ticks": steal_ticks() - stolen,
+                }
+            )
+            print(rows[-1], flush=True)
+    for row in rows:
+        row["cpu_latency_request"] = held
     return rows
+
+
+def cyclictest_floor(runs: int, seconds: float) -> dict:
+    """The machine's floor as rt-tests' ``cyclictest`` measures it (the Linux real-time community's latency test,
+    not ours): one thread under SCHED_FIFO at the control loop's priority, 1 kHz, memory locked, the CPU wake-up
+    latency 0 (its default, as the control loop asks), ``runs`` runs of ``seconds``. A wake-up more than a period
+    late is a lapse, as the control loop counts its missed cycles (cyclictest skips the missed intervals alike): a
+    run of the control loop cannot be clean more often than this bare C loop's."""
+    name = f"cyclictest (rt-tests), 1 kHz, SCHED_FIFO {PRIORITY}, {runs} x {seconds:g} s"
+    exe = shutil.which("cyclictest")
+    if exe is None:
+        return {"loop": name, "error": "cyclictest not installed (Debian: apt-get install rt-tests)"}
+    banner = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=30)
+    found = re.search(r"cyclictest V ?(\S+)", banner.stdout + banner.stderr)
+    lapses, worst = [], []
+    stolen = steal_ticks()
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "cyclictest.json"
+        for _ in range(runs):
+            command = [exe, "-m", "-q", "-t1", "-p", str(PRIORITY), "-i", "1000", "-l", str(round(seconds * 1000))]
+            done = subprocess.run(
+                [*command, "-h", "20000", f"--json={out}"], capture_output=True, text=True, timeout=seconds + 60
+            )
+            if done.returncode != 0 or not out.exists():
+                return {"loop": name, "error": f"cyclictest failed: {(done.stderr or done.stdout).strip()[:300]}"}
+            thread = json.loads(out.read_text())["thread"]["0"]
+            histogram = {int(k): int(v) for k, v in thread["histogram"].items()}
+            beyond = thread["cycles"] - sum(histogram.values())  # over the histogram's 20 ms
+            lapses.append(sum(v for k, v in histogram.items() if k > 1000) + beyond)
+            worst.append(round(thread["max"] / 1000, 2))
+    return {
+        "loop": name,
+        "version": found.group(1) if found else "unknown",
+        "command": " ".join(command),
+        "runs_without_lapse": f"{sum(n == 0 for n in lapses)}/{runs}",
+        "lapses_per_run": lapses,
+        "max_latency_ms_per_run": worst,
+        "steal_ticks": steal_ticks() - stolen,
+    }
 
 
 def garbage_collection(scene, runs: int) -> list[dict]:

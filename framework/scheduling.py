@@ -5,6 +5,12 @@ competes for the CPU with whatever else runs: a browser rendering the live view,
 priority, Linux's EEVDF scheduler (6.12 and later) lets a thread ask for a shorter slice: its wake-ups then get an
 earlier deadline and preempt a task that has run longer, with the same share of the CPU as before. Under
 SCHED_FIFO (CAP_SYS_NICE) it preempts every ordinary task.
+
+A thread woken on time is not yet running: an idle CPU that was halted must come out of its idle state first, and
+on a virtual machine a halted virtual CPU is the hypervisor's to run again (``benchmarks/schedtrace.py`` measures
+that delivery: 0.5 ms and more, often). A paced section therefore asks the kernel, through its PM QoS interface
+(``/dev/cpu_dma_latency``, as ``cyclictest`` from rt-tests does), for a CPU wake-up latency of
+:data:`CPU_LATENCY_US`: idle CPUs then poll instead of halting, for as long as the section runs.
 """
 
 from __future__ import annotations
@@ -22,6 +28,14 @@ from typing import NamedTuple
 #: task that has run longer instead of waiting for that one's slice (1.4 ms by default here) to end; its share of
 #: the CPU is unchanged. 0.1 ms is the shortest the kernel grants.
 LOOP_SLICE = 1e-4
+
+#: the CPU wake-up latency (us) a paced section asks for (:func:`cpu_latency_request`): 0, idle CPUs poll instead
+#: of entering any idle state that takes time to leave (halting, on a virtual machine); as cyclictest asks
+CPU_LATENCY_US = 0
+
+#: the kernel's PM QoS CPU latency interface: a request holds while its file stays open
+#: (the kernel's Documentation/power/pm_qos_interface.rst)
+CPU_LATENCY_FILE = "/dev/cpu_dma_latency"
 
 #: struct sched_attr, its first version
 _SCHED_ATTR = struct.Struct("<IIQiIQQQ")
@@ -171,6 +185,38 @@ def precise_timer_slack() -> bool:
 
 
 @contextlib.contextmanager
+def cpu_latency_request(microseconds: int = CPU_LATENCY_US):
+    """Hold a PM QoS CPU latency request of ``microseconds`` for the body (Linux's :data:`CPU_LATENCY_FILE`; the
+    kernel keeps the lowest request of all its holders, and drops one when its holder closes the file, or dies):
+    no CPU enters an idle state slower than that to leave. Yields whether the request holds: False where the
+    file cannot be opened (not Linux, or not root: the file is root's, mode 0600), and then nothing changed."""
+    try:
+        fd = os.open(CPU_LATENCY_FILE, os.O_WRONLY | os.O_CLOEXEC)
+    except OSError:
+        yield False
+        return
+    try:
+        try:
+            os.write(fd, struct.pack("i", microseconds))
+        except OSError:
+            yield False
+            return
+        yield True
+    finally:
+        os.close(fd)
+
+
+def cpu_latency_now() -> int | None:
+    """The CPU latency (us) the kernel keeps now, the lowest of every holder's request (its default where nobody
+    asks: 2,000 s); None where it cannot be read."""
+    try:
+        with open(CPU_LATENCY_FILE, "rb") as f:
+            return struct.unpack("i", f.read(4))[0]
+    except (OSError, struct.error):
+        return None
+
+
+@contextlib.contextmanager
 def paced_section(
     priority: int | None = None,
     *,
@@ -186,6 +232,7 @@ def paced_section(
       mostly sleeps wants it short (woken, it waits at most that long for a thread running Python); a loop that
       computes as long as the other threads wants it long (a short one makes its own work hand the GIL over
       every 0.2 ms);
+    * a CPU wake-up latency of :data:`CPU_LATENCY_US` (:func:`cpu_latency_request`; where allowed);
     * ``pause_collector``: the cyclic garbage collector off and what exists at entry frozen out of its sight (a full
       collection of a large heap stops every thread of the process for tens of milliseconds); what the loop frees
       goes by reference counting; the collector back on and the heap unfrozen at exit. For bounded loops (a
@@ -197,7 +244,9 @@ def paced_section(
     collecting = gc.isenabled()
     # freeze here only a heap not frozen already (a device's, at activation, stays as its owner froze it)
     freezing = pause_collector and not gc.get_freeze_count()
+    latency = contextlib.ExitStack()
     try:
+        latency.enter_context(cpu_latency_request())
         precise_timer_slack()
         if pause_collector:
             gc.disable()
@@ -207,6 +256,7 @@ def paced_section(
             sys.setswitchinterval(switch_interval)
         yield
     finally:
+        latency.close()
         sys.setswitchinterval(switch)
         if freezing:  # frozen here, not by someone before
             gc.unfreeze()

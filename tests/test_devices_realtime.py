@@ -158,6 +158,28 @@ def test_at_ordinary_priority_the_loops_threads_ask_for_a_short_slice(block_worl
         assert sched_attr() == before  # the caller's thread asked while the trajectory ran, and gave it back
 
 
+def test_in_real_time_the_cpus_stay_out_of_slow_idle_states_while_the_device_runs_and_only_then(
+    block_world, tmp_path
+):
+    """The drives' thread and the master's loops ask the kernel for a CPU wake-up latency of 0 (PM QoS, as cyclictest
+    does), so that a wake-up is not held back by a CPU coming out of an idle state: for as long as the device is
+    active, and no longer."""
+    from surgiplan.scheduling import CPU_LATENCY_US, cpu_latency_now
+
+    before = cpu_latency_now()
+    if before is None:
+        pytest.skip("no PM QoS CPU latency interface to read here (not Linux, or not root)")
+    assert before > CPU_LATENCY_US
+    space = gimbal_space(block_world)
+    path = gimbal_path(space, GAP_TIPS)
+    settings = {"fulcrum": FULCRUM, "clock": "realtime", **LENIENT, "simulation": {"sync_timeout": 0.5}}
+    with active(CastGimbalDevice, settings, block_world, tmp_path) as device:
+        assert cpu_latency_now() == CPU_LATENCY_US
+        assert device.execute(Trajectory(path[:20], space, "test")).status == "completed"
+        assert cpu_latency_now() == CPU_LATENCY_US
+    assert cpu_latency_now() == before
+
+
 def test_the_master_waits_for_a_syncs_answers_no_longer_than_it_is_told(block_world, tmp_path):
     """A real-time loop judges a SYNC's answers a whole period after the SYNC went (a SYNC that went late must not
     leave the drives less): DriveMaster.wait_for_answers returns as soon as every drive has answered the latest

@@ -80,4 +80,4 @@ def test_the_kernels_preemption_model_is_read_from_its_configuration_and_boot_li
     assert preemption("CONFIG_PREEMPT=y\nCONFIG_PREEMPT_RT=y\n", "") == "full, real-time (PREEMPT_RT)"
     assert preemption("CONFIG_PREEMPT=y\n", "") == "full"
     assert preemption("", "") == "unknown"
-    assert set(kernel()) == {"release", "preemption", "kdamonds"}
+    assert set(kernel()) == {"release", "preemption", "kdamonds", "cpuidle", "cpu_latency_request"}

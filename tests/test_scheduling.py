@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import gc
 import sys
+import time
+from pathlib import Path
 
 import pytest
-from surgiplan.scheduling import SWITCH_INTERVAL, paced_section
+from surgiplan.scheduling import CPU_LATENCY_US, SWITCH_INTERVAL, cpu_latency_now, paced_section
 
 
 @pytest.fixture
@@ -48,6 +50,35 @@ def test_without_pausing_the_collector_keeps_running_and_nothing_is_frozen(unfro
         assert gc.isenabled()
         assert gc.get_freeze_count() == 0
     assert gc.isenabled()
+
+
+def _slow_idle_entries() -> int | None:
+    """How many times any CPU entered an idle state slower to leave than CPU_LATENCY_US, by the kernel's cpuidle
+    counters (None where the machine has no such state)."""
+    states = [
+        d
+        for d in Path("/sys/devices/system/cpu").glob("cpu[0-9]*/cpuidle/state[0-9]*")
+        if int((d / "latency").read_text()) > CPU_LATENCY_US
+    ]
+    return sum(int((d / "usage").read_text()) for d in states) if states else None
+
+
+def test_a_paced_section_keeps_the_cpus_out_of_slow_idle_states_then_lets_them_go():
+    before = cpu_latency_now()
+    if before is None:
+        pytest.skip("no PM QoS CPU latency interface to read here (not Linux, or not root)")
+    slow = _slow_idle_entries()
+    time.sleep(0.2)
+    idle_outside = None if slow is None else _slow_idle_entries() - slow
+    with paced_section(switch_interval=None):
+        assert cpu_latency_now() == CPU_LATENCY_US
+        slow = _slow_idle_entries()
+        time.sleep(0.2)  # both CPUs idle, but for this thread's timer: polling, not halting
+        idle_inside = None if slow is None else _slow_idle_entries() - slow
+    assert cpu_latency_now() == before  # the request went with the section
+    if idle_outside is not None:
+        assert idle_outside > 0  # the counters see an idle machine halt: the check below can fail
+        assert idle_inside == 0
 
 
 # ----------------------------------------------------------------------------- SlackCollector

@@ -26,6 +26,7 @@ receive-and-timer loop in a thread (:meth:`DriveSimulator.start`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ from pathlib import Path
 import can
 import numpy as np
 from surgiplan.registry import default_registry
+from surgiplan.scheduling import cpu_latency_request
 
 from .. import cia402
 from ..bus import ArmedFaults
@@ -246,6 +248,7 @@ class DriveSimulator(
         self.scheduler.call_every(TICK, self._tick, self.t + TICK)
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._latency = contextlib.ExitStack()  # the CPU latency request held in real time
 
     def _now(self) -> float:
         return self._event_time if self._event_time is not None else self.clock.now()
@@ -298,7 +301,10 @@ class DriveSimulator(
     # ------------------------------------------------------------------ real time
     def start(self, priority: int | None = None) -> None:
         """Real-time mode: receive and run timers in a thread until :meth:`stop` (under SCHED_FIFO at
-        ``priority``, with the loopback hub's thread if this bus hosts it)."""
+        ``priority``, with the loopback hub's thread if this bus hosts it), the CPUs kept out of slow idle states
+        meanwhile (:func:`surgiplan.scheduling.cpu_latency_request`, where allowed: a drive's electronics do not
+        sleep between SYNCs)."""
+        self._latency.enter_context(cpu_latency_request())
         self._thread = threading.Thread(target=self._loop, name="surgiplan-simulated-drives", daemon=True)
         self._thread.start()
         set_realtime_priority(priority, self._thread.native_id)
@@ -360,6 +366,7 @@ class DriveSimulator(
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
+        self._latency.close()
         for node in self.nodes.values():
             node.nmt.stop_heartbeat()
         if self.network.bus is not None:
