@@ -95,6 +95,12 @@ def readme_table(data: dict | None = None) -> str:
             f"ordinary priority, no missed cycle: {'met' if clean(ordinary[0]) else 'not met'} "
             f"({ordinary[0]['runs_without_missed']} runs). The hypervisor stole {stolen} clock ticks of this "
             "machine's time during those runs (/proc/stat)."
+            + "".join(
+                f" The machine's floor in the same session, rt-tests' cyclictest at 1 kHz under SCHED_FIFO: "
+                f"{f['runs_without_lapse']} runs without a wake-up a period late (below)."
+                for f in rows
+                if f["section"] == "scheduling_floor" and "runs_without_lapse" in f
+            )
             + (
                 " Beside every run "
                 + witness_words(fifo[0].get("witness"))
