@@ -33,6 +33,10 @@ LOOP_SLICE = 1e-4
 #: of entering any idle state that takes time to leave (halting, on a virtual machine); as cyclictest asks
 CPU_LATENCY_US = 0
 
+#: the environment variable that overrides :data:`CPU_LATENCY_US` for every paced section of a run: a whole number
+#: of microseconds, or ``off`` for no request (idle CPUs may halt: less power, later wake-ups)
+CPU_LATENCY_ENV = "SURGIPLAN_CPU_LATENCY_US"
+
 #: the kernel's PM QoS CPU latency interface: a request holds while its file stays open
 #: (the kernel's Documentation/power/pm_qos_interface.rst)
 CPU_LATENCY_FILE = "/dev/cpu_dma_latency"
@@ -185,11 +189,18 @@ def precise_timer_slack() -> bool:
 
 
 @contextlib.contextmanager
-def cpu_latency_request(microseconds: int = CPU_LATENCY_US):
+def cpu_latency_request(microseconds: int | None = None):
     """Hold a PM QoS CPU latency request of ``microseconds`` for the body (Linux's :data:`CPU_LATENCY_FILE`; the
     kernel keeps the lowest request of all its holders, and drops one when its holder closes the file, or dies):
-    no CPU enters an idle state slower than that to leave. Yields whether the request holds: False where the
-    file cannot be opened (not Linux, or not root: the file is root's, mode 0600), and then nothing changed."""
+    no CPU enters an idle state slower than that to leave. None: :data:`CPU_LATENCY_ENV` if set, else
+    :data:`CPU_LATENCY_US`. Yields whether the request holds: False where the file cannot be opened (not Linux,
+    or not root: the file is root's, mode 0600) or the environment says ``off``, and then nothing changed.
+    Raises :class:`surgiplan.errors.ConfigError` for a malformed :data:`CPU_LATENCY_ENV`."""
+    if microseconds is None:
+        microseconds = cpu_latency_setting()
+    if microseconds is None:
+        yield False
+        return
     try:
         fd = os.open(CPU_LATENCY_FILE, os.O_WRONLY | os.O_CLOEXEC)
     except OSError:
@@ -204,6 +215,25 @@ def cpu_latency_request(microseconds: int = CPU_LATENCY_US):
         yield True
     finally:
         os.close(fd)
+
+
+def cpu_latency_setting() -> int | None:
+    """The CPU wake-up latency (us) paced sections ask for: :data:`CPU_LATENCY_ENV` if set (None for ``off``),
+    else :data:`CPU_LATENCY_US`. Raises :class:`surgiplan.errors.ConfigError` naming the variable when it is
+    neither a whole number of microseconds (0 or more) nor ``off``."""
+    text = os.environ.get(CPU_LATENCY_ENV, "").strip()
+    if not text:
+        return CPU_LATENCY_US
+    if text.lower() == "off":
+        return None
+    if not text.isdigit() or int(text) > 2_000_000_000:
+        from .errors import ConfigError
+
+        raise ConfigError(
+            f"environment variable {CPU_LATENCY_ENV}={text!r}: expected a whole number of microseconds "
+            "(0 to 2000000000; 0 keeps idle CPUs polling) or 'off' (no request)"
+        )
+    return int(text)
 
 
 def cpu_latency_now() -> int | None:
@@ -232,13 +262,15 @@ def paced_section(
       mostly sleeps wants it short (woken, it waits at most that long for a thread running Python); a loop that
       computes as long as the other threads wants it long (a short one makes its own work hand the GIL over
       every 0.2 ms);
-    * a CPU wake-up latency of :data:`CPU_LATENCY_US` (:func:`cpu_latency_request`; where allowed);
+    * a CPU wake-up latency of :data:`CPU_LATENCY_US` (:func:`cpu_latency_request`; where allowed;
+      :data:`CPU_LATENCY_ENV` overrides it, and a malformed value raises ConfigError before anything changes);
     * ``pause_collector``: the cyclic garbage collector off and what exists at entry frozen out of its sight (a full
       collection of a large heap stops every thread of the process for tens of milliseconds); what the loop frees
       goes by reference counting; the collector back on and the heap unfrozen at exit. For bounded loops (a
       trajectory, a device's session), or for a loop of any length that runs a :class:`SlackCollector` in its idle
       time.
     """
+    latency_us = cpu_latency_setting()  # a malformed setting is refused before anything changes
     previous = set_realtime_priority(priority)
     switch = sys.getswitchinterval()
     collecting = gc.isenabled()
@@ -246,7 +278,8 @@ def paced_section(
     freezing = pause_collector and not gc.get_freeze_count()
     latency = contextlib.ExitStack()
     try:
-        latency.enter_context(cpu_latency_request())
+        if latency_us is not None:
+            latency.enter_context(cpu_latency_request(latency_us))
         precise_timer_slack()
         if pause_collector:
             gc.disable()

@@ -158,9 +158,7 @@ def test_at_ordinary_priority_the_loops_threads_ask_for_a_short_slice(block_worl
         assert sched_attr() == before  # the caller's thread asked while the trajectory ran, and gave it back
 
 
-def test_in_real_time_the_cpus_stay_out_of_slow_idle_states_while_the_device_runs_and_only_then(
-    block_world, tmp_path
-):
+def test_in_real_time_the_cpus_stay_out_of_slow_idle_states_while_the_device_runs_and_only_then(block_world, tmp_path):
     """The drives' thread and the master's loops ask the kernel for a CPU wake-up latency of 0 (PM QoS, as cyclictest
     does), so that a wake-up is not held back by a CPU coming out of an idle state: for as long as the device is
     active, and no longer."""

@@ -8,7 +8,15 @@ import time
 from pathlib import Path
 
 import pytest
-from surgiplan.scheduling import CPU_LATENCY_US, SWITCH_INTERVAL, cpu_latency_now, paced_section
+from surgiplan.errors import ConfigError
+from surgiplan.scheduling import (
+    CPU_LATENCY_ENV,
+    CPU_LATENCY_US,
+    SWITCH_INTERVAL,
+    cpu_latency_now,
+    cpu_latency_setting,
+    paced_section,
+)
 
 
 @pytest.fixture
@@ -79,6 +87,35 @@ def test_a_paced_section_keeps_the_cpus_out_of_slow_idle_states_then_lets_them_g
     if idle_outside is not None:
         assert idle_outside > 0  # the counters see an idle machine halt: the check below can fail
         assert idle_inside == 0
+
+
+def test_the_environment_sets_the_latency_a_paced_section_asks_for_or_turns_the_request_off(monkeypatch):
+    monkeypatch.delenv(CPU_LATENCY_ENV, raising=False)
+    assert cpu_latency_setting() == CPU_LATENCY_US
+    monkeypatch.setenv(CPU_LATENCY_ENV, " 50 ")
+    assert cpu_latency_setting() == 50
+    monkeypatch.setenv(CPU_LATENCY_ENV, "OFF")
+    assert cpu_latency_setting() is None
+    before = cpu_latency_now()
+    with paced_section(switch_interval=None):
+        assert cpu_latency_now() == before  # no request: idle CPUs halt as they would
+    if before is not None:
+        monkeypatch.setenv(CPU_LATENCY_ENV, "50")
+        with paced_section(switch_interval=None):
+            assert cpu_latency_now() == min(50, before)
+
+
+@pytest.mark.parametrize("bad", ["-1", "1.5", "fast", "3000000000"])
+def test_a_malformed_latency_setting_is_refused_by_name_before_anything_changes(monkeypatch, bad):
+    monkeypatch.setenv(CPU_LATENCY_ENV, bad)
+    switch = sys.getswitchinterval()
+    collecting = gc.isenabled()
+    with pytest.raises(ConfigError) as caught:
+        with paced_section(pause_collector=True):
+            pytest.fail("the body ran")
+    assert f"{CPU_LATENCY_ENV}={bad!r}" in str(caught.value)
+    assert "whole number of microseconds" in str(caught.value) and "'off'" in str(caught.value)
+    assert sys.getswitchinterval() == switch and gc.isenabled() == collecting
 
 
 # ----------------------------------------------------------------------------- SlackCollector

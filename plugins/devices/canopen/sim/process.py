@@ -158,6 +158,10 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signum, lambda *_: stop.set())
     try:
         simulator.start(args.realtime_priority)
+    except SurgiplanError as exc:  # a malformed SURGIPLAN_CPU_LATENCY_US
+        print(f"error: {exc}", file=sys.stderr)
+        simulator.close()
+        return 2
     except OSError as exc:
         print(f"error: --realtime-priority {args.realtime_priority}: {exc}", file=sys.stderr)
         simulator.close()
