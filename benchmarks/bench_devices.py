@@ -119,8 +119,9 @@ def main() -> None:
     print("\n## the machine's own floor: a bare 1 kHz loop", flush=True)
     floor = scheduling_floor(5.0 if args.quick else 20.0)
     print("\n## the same floor as rt-tests' cyclictest measures it, in runs as long as the control loop's", flush=True)
-    floor.append(cyclictest_floor(2 if args.quick else runs, seconds))
-    print(floor[-1], flush=True)
+    for polling in (False, True):
+        floor.append(cyclictest_floor(2 if args.quick else runs, seconds, polling))
+        print(floor[-1], flush=True)
     print("\n## garbage collection and missed cycles", flush=True)
     collection = garbage_collection(scene, 2 if args.quick else 4)
     print("\n## the bus at 1 Mbit/s", flush=True)

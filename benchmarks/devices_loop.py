@@ -382,13 +382,15 @@ def scheduling_floor(seconds: float) -> list[dict]:
     return rows
 
 
-def cyclictest_floor(runs: int, seconds: float) -> dict:
+def cyclictest_floor(runs: int, seconds: float, polling: bool) -> dict:
     """The machine's floor as rt-tests' ``cyclictest`` measures it (the Linux real-time community's latency test,
-    not ours): one thread under SCHED_FIFO at the control loop's priority, 1 kHz, memory locked, the CPU wake-up
-    latency 0 (its default, as the control loop asks), ``runs`` runs of ``seconds``. A wake-up more than a period
-    late is a lapse, as the control loop counts its missed cycles (cyclictest skips the missed intervals alike): a
-    run of the control loop cannot be clean more often than this bare C loop's."""
-    name = f"cyclictest (rt-tests), 1 kHz, SCHED_FIFO {PRIORITY}, {runs} x {seconds:g} s"
+    not ours): one thread under SCHED_FIFO at the control loop's priority, 1 kHz, memory locked, ``runs`` runs of
+    ``seconds``; ``polling``: with cyclictest's default CPU wake-up latency request of 0 (idle CPUs poll, as with
+    ``SURGIPLAN_CPU_LATENCY_US=0``), else with ``--laptop`` (no request: the control loop's default). A wake-up
+    more than a period late is a lapse, as the control loop counts its missed cycles (cyclictest skips the missed
+    intervals alike): a run of the control loop cannot be clean more often than this bare C loop's."""
+    how = "CPU latency request 0 (its default)" if polling else "no CPU latency request (--laptop)"
+    name = f"cyclictest (rt-tests), 1 kHz, SCHED_FIFO {PRIORITY}, {how}, {runs} x {seconds:g} s"
     exe = shutil.which("cyclictest")
     if exe is None:
         return {"loop": name, "error": "cyclictest not installed (Debian: apt-get install rt-tests)"}
@@ -399,9 +401,24 @@ def cyclictest_floor(runs: int, seconds: float) -> dict:
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "cyclictest.json"
         for _ in range(runs):
-            command = [exe, "-m", "-q", "-t1", "-p", str(PRIORITY), "-i", "1000", "-l", str(round(seconds * 1000))]
+            command = [
+                "cyclictest",
+                "-m",
+                "-q",
+                "-t1",
+                "-p",
+                str(PRIORITY),
+                "-i",
+                "1000",
+                "-l",
+                str(round(seconds * 1000)),
+            ]
+            command += [] if polling else ["--laptop"]
             done = subprocess.run(
-                [*command, "-h", "20000", f"--json={out}"], capture_output=True, text=True, timeout=seconds + 60
+                [exe, *command[1:], "-h", "20000", f"--json={out}"],
+                capture_output=True,
+                text=True,
+                timeout=seconds + 60,
             )
             if done.returncode != 0 or not out.exists():
                 return {"loop": name, "error": f"cyclictest failed: {(done.stderr or done.stdout).strip()[:300]}"}

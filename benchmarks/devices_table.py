@@ -83,6 +83,7 @@ def readme_table(data: dict | None = None) -> str:
     def clean(r: dict) -> bool:
         return r.get("runs_without_missed", "").split("/")[0] == str(machine["runs_per_rate"])
 
+    floors = [r for r in rows if r["section"] == "scheduling_floor" and "runs_without_lapse" in r]
     fifo = [r for r in loops if "SCHED_FIFO" in r["drives"] and r["rate_hz"] == 1000]
     ordinary = [r for r in loops if r["drives"] == SEPARATE and r["rate_hz"] == 500]
     if fifo and ordinary:
@@ -95,11 +96,16 @@ def readme_table(data: dict | None = None) -> str:
             f"ordinary priority, no missed cycle: {'met' if clean(ordinary[0]) else 'not met'} "
             f"({ordinary[0]['runs_without_missed']} runs). The hypervisor stole {stolen} clock ticks of this "
             "machine's time during those runs (/proc/stat)."
-            + "".join(
-                f" The machine's floor in the same session, rt-tests' cyclictest at 1 kHz under SCHED_FIFO: "
-                f"{f['runs_without_lapse']} runs without a wake-up a period late (below)."
-                for f in rows
-                if f["section"] == "scheduling_floor" and "runs_without_lapse" in f
+            + (
+                " The machine's floor in the same session, rt-tests' cyclictest at 1 kHz under SCHED_FIFO, runs "
+                "without a wake-up a period late: "
+                + "; ".join(
+                    f"{f['runs_without_lapse']} {'polling' if 'request 0' in f['loop'] else 'halting (as the loop)'}"
+                    for f in floors
+                )
+                + " (below)."
+                if floors
+                else ""
             )
             + (
                 " Beside every run "

@@ -61,37 +61,49 @@ def test_without_pausing_the_collector_keeps_running_and_nothing_is_frozen(unfro
 
 
 def _slow_idle_entries() -> int | None:
-    """How many times any CPU entered an idle state slower to leave than CPU_LATENCY_US, by the kernel's cpuidle
-    counters (None where the machine has no such state)."""
+    """How many times any CPU entered an idle state that takes time to leave (exit latency above 0), by the kernel's
+    cpuidle counters (None where the machine has no such state)."""
     states = [
         d
         for d in Path("/sys/devices/system/cpu").glob("cpu[0-9]*/cpuidle/state[0-9]*")
-        if int((d / "latency").read_text()) > CPU_LATENCY_US
+        if int((d / "latency").read_text()) > 0
     ]
     return sum(int((d / "usage").read_text()) for d in states) if states else None
 
 
-def test_a_paced_section_keeps_the_cpus_out_of_slow_idle_states_then_lets_them_go():
+def _idle_entries_while_sleeping(seconds: float = 0.2) -> int | None:
+    slow = _slow_idle_entries()
+    time.sleep(seconds)  # both CPUs idle, but for this thread's timer
+    return None if slow is None else _slow_idle_entries() - slow
+
+
+def test_asked_to_a_paced_section_keeps_the_cpus_out_of_slow_idle_states_then_lets_them_go(monkeypatch):
     before = cpu_latency_now()
     if before is None:
         pytest.skip("no PM QoS CPU latency interface to read here (not Linux, or not root)")
-    slow = _slow_idle_entries()
-    time.sleep(0.2)
-    idle_outside = None if slow is None else _slow_idle_entries() - slow
+    monkeypatch.setenv(CPU_LATENCY_ENV, "0")
+    idle_outside = _idle_entries_while_sleeping()
     with paced_section(switch_interval=None):
-        assert cpu_latency_now() == CPU_LATENCY_US
-        slow = _slow_idle_entries()
-        time.sleep(0.2)  # both CPUs idle, but for this thread's timer: polling, not halting
-        idle_inside = None if slow is None else _slow_idle_entries() - slow
+        assert cpu_latency_now() == 0
+        idle_inside = _idle_entries_while_sleeping()  # polling, not halting
     assert cpu_latency_now() == before  # the request went with the section
     if idle_outside is not None:
         assert idle_outside > 0  # the counters see an idle machine halt: the check below can fail
         assert idle_inside == 0
 
 
-def test_the_environment_sets_the_latency_a_paced_section_asks_for_or_turns_the_request_off(monkeypatch):
+def test_by_default_a_paced_section_asks_for_no_cpu_latency(monkeypatch):
     monkeypatch.delenv(CPU_LATENCY_ENV, raising=False)
-    assert cpu_latency_setting() == CPU_LATENCY_US
+    assert CPU_LATENCY_US is None and cpu_latency_setting() is None
+    before = cpu_latency_now()
+    with paced_section(switch_interval=None):
+        assert cpu_latency_now() == before
+        if before is not None:
+            idle = _idle_entries_while_sleeping()
+            assert idle is None or idle > 0  # idle CPUs halt as they would
+
+
+def test_the_environment_sets_the_latency_a_paced_section_asks_for_or_turns_the_request_off(monkeypatch):
     monkeypatch.setenv(CPU_LATENCY_ENV, " 50 ")
     assert cpu_latency_setting() == 50
     monkeypatch.setenv(CPU_LATENCY_ENV, "OFF")

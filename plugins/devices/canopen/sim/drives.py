@@ -301,9 +301,9 @@ class DriveSimulator(
     # ------------------------------------------------------------------ real time
     def start(self, priority: int | None = None) -> None:
         """Real-time mode: receive and run timers in a thread until :meth:`stop` (under SCHED_FIFO at
-        ``priority``, with the loopback hub's thread if this bus hosts it), the CPUs kept out of slow idle states
-        meanwhile (:func:`surgiplan.scheduling.cpu_latency_request`, where allowed: a drive's electronics do not
-        sleep between SYNCs)."""
+        ``priority``, with the loopback hub's thread if this bus hosts it), holding the CPU wake-up latency request
+        that paced sections make, if any (:func:`surgiplan.scheduling.cpu_latency_request`: none unless
+        ``SURGIPLAN_CPU_LATENCY_US`` asks), as the master's loop does."""
         self._latency.enter_context(cpu_latency_request())
         self._thread = threading.Thread(target=self._loop, name="surgiplan-simulated-drives", daemon=True)
         self._thread.start()
