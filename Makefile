@@ -45,7 +45,7 @@ run: $(VENV)/.run-deps
 lint: $(VENV)/.test-deps
 	$(BIN)/ruff check .
 
-test: lint browser
+test: lint browser rt-tests
 	$(BIN)/python -m pytest -q
 
 # the site: Sphinx with warnings as errors (-W: a broken link, an unresolved reference, an undocumented public
@@ -56,8 +56,9 @@ docs: $(VENV)/.test-deps
 	@echo "serving build/docs on http://127.0.0.1:$(DOCS_PORT)/ (Ctrl-C stops)"
 	$(BIN)/python -m http.server --bind 127.0.0.1 --directory build/docs $(DOCS_PORT)
 
-# The real-time benchmarks measure the machine's own floor with rt-tests' cyclictest (Debian package rt-tests);
-# installed with apt where we may, as chromium is; elsewhere that row of the results says it is missing.
+# The real-time benchmarks measure the machine's own floor with rt-tests' cyclictest (Debian package rt-tests), and
+# a test checks how they read it: installed with apt where we may, as chromium is; elsewhere that test skips and
+# the benchmark's row says cyclictest is missing.
 rt-tests:
 	@command -v cyclictest >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \

@@ -145,8 +145,8 @@ def readme_table(data: dict | None = None) -> str:
                 + ", ".join(str(n) for n in r["lapses_per_run"])
                 + ", worst latency per run "
                 + ", ".join(f"{x:g}" for x in r["max_latency_ms_per_run"])
-                + f" ms, {r['steal_ticks']} ticks stolen by the hypervisor; no run of the control loop can be "
-                "clean more often than this"
+                + f" ms, {r['steal_ticks']} ticks stolen by the hypervisor; no control loop whose CPUs idle "
+                "the same way can be clean more often"
             )
         elif r["section"] == "scheduling_floor" and "error" not in r:
             lapses = ", ".join(f"{x:g}" for x in r["lapses_ms"])

@@ -212,12 +212,11 @@ def cpu_latency_request(microseconds: int | None = None):
         yield False
         return
     try:
-        try:
-            os.write(fd, struct.pack("i", microseconds))
-        except OSError:
-            yield False
-            return
-        yield True
+        held = os.write(fd, struct.pack("i", microseconds)) == 4
+    except OSError:
+        held = False
+    try:
+        yield held
     finally:
         os.close(fd)
 
