@@ -388,7 +388,8 @@ def cyclictest_floor(runs: int, seconds: float, polling: bool) -> dict:
     ``seconds``; ``polling``: with cyclictest's default CPU wake-up latency request of 0 (idle CPUs poll, as with
     ``SURGIPLAN_CPU_LATENCY_US=0``), else with ``--laptop`` (no request: the control loop's default). A wake-up
     more than a period late is a lapse, as the control loop counts its missed cycles (cyclictest skips the missed
-    intervals alike): a run of the control loop cannot be clean more often than this bare C loop's."""
+    intervals alike): a control loop whose CPUs idle the same way cannot be clean more often than this bare C
+    loop."""
     how = "CPU latency request 0 (its default)" if polling else "no CPU latency request (--laptop)"
     name = f"cyclictest (rt-tests), 1 kHz, SCHED_FIFO {PRIORITY}, {how}, {runs} x {seconds:g} s"
     exe = shutil.which("cyclictest")
@@ -398,22 +399,12 @@ def cyclictest_floor(runs: int, seconds: float, polling: bool) -> dict:
     found = re.search(r"cyclictest V ?(\S+)", banner.stdout + banner.stderr)
     lapses, worst = [], []
     stolen = steal_ticks()
+    command = ["cyclictest", "-m", "-q", "-t1", "-p", str(PRIORITY), "-i", "1000", "-l", str(round(seconds * 1000))]
+    command += [] if polling else ["--laptop"]
     with tempfile.TemporaryDirectory() as folder:
         out = Path(folder) / "cyclictest.json"
         for _ in range(runs):
-            command = [
-                "cyclictest",
-                "-m",
-                "-q",
-                "-t1",
-                "-p",
-                str(PRIORITY),
-                "-i",
-                "1000",
-                "-l",
-                str(round(seconds * 1000)),
-            ]
-            command += [] if polling else ["--laptop"]
+            out.unlink(missing_ok=True)  # a run that writes no report must not be read as the run before it
             done = subprocess.run(
                 [exe, *command[1:], "-h", "20000", f"--json={out}"],
                 capture_output=True,
