@@ -26,18 +26,25 @@ $(VENV)/.test-deps: pyproject.toml examples/surgiplan-hello/pyproject.toml | $(B
 	$(PIP_QUIET) -e '.[dev,dask,ompl,browser,pardiso,interop,mcap,docs]' -e examples/surgiplan-hello
 	touch $@ $(VENV)/.run-deps
 
+# $(call apt_install,COMMAND,PACKAGE,FOR WHAT,WITHOUT IT): nothing when COMMAND is there; else, as root with apt,
+# install Debian's PACKAGE (apt-get update only when the plain install fails); else say what WITHOUT IT happens.
+# A failed install warns and goes on: what needs the tool says so itself (a skip, or a row naming what is missing).
+define apt_install
+@command -v $(1) >/dev/null 2>&1 || { \
+  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+    echo "installing $(2) (apt) for $(3)"; \
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -q $(2) >/dev/null 2>&1 || \
+    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q $(2) >/dev/null; } || \
+    echo "warning: could not install $(2): $(4)"; \
+  else echo "warning: no $(1) and no root to install it (apt-get install $(2)): $(4)"; fi; }
+endef
+
 # The browser tests (report.html, the live view) drive Debian's chromium through Playwright's client
 # (never `playwright install`, which downloads a browser build). Quick when it is there; installed with
 # apt where we may (CI runs as root); elsewhere those tests skip and say why (with CI set they fail instead,
 # tests/ci_skips.py: CI cannot pass with its browser or interop peers missing).
 browser:
-	@command -v chromium >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing chromium (apt) for the browser tests"; \
-	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1 || \
-	    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null; } || \
-	    echo "warning: could not install chromium: the browser tests will skip (fail with CI set)"; \
-	  else echo "warning: no chromium and no root to install it (apt-get install chromium): the browser tests will skip"; fi; }
+	$(call apt_install,chromium,chromium,the browser tests,the browser tests will skip (fail with CI set))
 
 run: $(VENV)/.run-deps
 	$(BIN)/surgiplan run $(MAIN_JOB)
@@ -60,13 +67,7 @@ docs: $(VENV)/.test-deps
 # a test checks how they read it: installed with apt where we may, as chromium is; elsewhere that test skips and
 # the benchmark's row says cyclictest is missing.
 rt-tests:
-	@command -v cyclictest >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing rt-tests (apt) for the real-time benchmarks' floor"; \
-	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q rt-tests >/dev/null 2>&1 || \
-	    { apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q rt-tests >/dev/null; } || \
-	    echo "warning: could not install rt-tests: the benchmarks' cyclictest floor will say so"; \
-	  else echo "warning: no cyclictest and no root to install it (apt-get install rt-tests)"; fi; }
+	$(call apt_install,cyclictest,rt-tests,the real-time benchmarks' floor,the benchmarks' cyclictest floor will say so)
 
 bench: $(VENV)/.test-deps rt-tests
 	$(BIN)/python benchmarks/run_all.py

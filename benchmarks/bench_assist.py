@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import save, table
+from cyclictest import cyclictest_floor
 from schedtrace import SchedTrace, benchmark_threads
 from schedtrace import summary as schedtrace_summary
 from surgiplan import load_pipeline, run_pipeline
@@ -53,6 +54,10 @@ ON = {"fade": "none"}  # the config's fixture, at full assistance
 #: benchmark's time on a shared machine), and the real-time loop's target
 RATE = 250.0
 REALTIME_RATE = 500.0
+#: the master loop's priority under SCHED_FIFO in its real-time configuration (the drives': DRIVES_PRIORITY)
+FIFO_PRIORITY = 30
+#: runs of the machine's floor (cyclictest) after the real-time attempts
+FLOOR_RUNS = 10
 
 
 def pipeline_file(tmp: Path, settings: dict) -> Path:
@@ -199,8 +204,8 @@ def realtime_loops(tmp: Path, plan, space, runs: int) -> list[dict]:
     ]  # fmt: skip
     if fifo_allowed():
         configurations.append(
-            ("other process (loopback bus), SCHED_FIFO 30 (drives 20)",
-             lambda: realtime_elsewhere(tmp, plan, space, 0, 30))
+            (f"other process (loopback bus), SCHED_FIFO {FIFO_PRIORITY} (drives 20)",
+             lambda: realtime_elsewhere(tmp, plan, space, 0, FIFO_PRIORITY))
         )  # fmt: skip
     else:
         print("no SCHED_FIFO here: its configuration is skipped", flush=True)
@@ -283,6 +288,13 @@ def main(argv: list[str] | None = None) -> int:
         # the real-time loop at 500 Hz: the drives in a thread of this process, then in a process of their own
         # (the loop at ordinary priority, then under SCHED_FIFO where allowed)
         realtime = realtime_loops(tmp, plan, space, 1 if args.quick else args.realtime_runs)
+    # the machine's floor for the same loop, measured by rt-tests' cyclictest in the same session: its rate, its
+    # priority under SCHED_FIFO, a cycle late by more than a period lost, as long as an attempt
+    floor = cyclictest_floor(
+        2 if args.quick else FLOOR_RUNS, 2.0 if args.quick else 8.0, False, priority=FIFO_PRIORITY,
+        interval_us=round(1e6 / REALTIME_RATE),
+    )  # fmt: skip
+    print(floor, flush=True)
     summary = []
     for arm in ("off", "on"):
         mine = [r for r in rows if r["assist"] == arm]
@@ -308,6 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         "realtime_seconds": 8.0,
         "realtime_runs": 1 if args.quick else args.realtime_runs,
         "target_rate_hz": REALTIME_RATE,
+        "floor": floor,
     }
     print(table(summary, list(summary[0])))
     print(f"deviation p95 lower with assist in {better}/{seeds} paired seeds")

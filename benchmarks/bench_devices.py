@@ -62,12 +62,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import package_version, save, table
+from cyclictest import cyclictest_floor
 from devices_kinematics import inverse_kinematics
 from devices_loop import (
     ROOT,
     bus_ceiling,
     control_loop,
-    cyclictest_floor,
     garbage_collection,
     scheduling_floor,
     simulation_speed,
@@ -120,7 +120,7 @@ def main() -> None:
     floor = scheduling_floor(5.0 if args.quick else 20.0)
     print("\n## the same floor as rt-tests' cyclictest measures it, in runs as long as the control loop's", flush=True)
     for polling in (False, True):
-        floor.append(cyclictest_floor(2 if args.quick else runs, seconds, polling))
+        floor.append(cyclictest_floor(2 if args.quick else runs, seconds, polling, priority=PRIORITY))
         print(floor[-1], flush=True)
     print("\n## garbage collection and missed cycles", flush=True)
     collection = garbage_collection(scene, 2 if args.quick else 4)

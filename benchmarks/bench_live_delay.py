@@ -65,6 +65,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_support import feed_url, live_view, stalled_client, wait_for  # noqa: E402
 from common import paced_run_arguments, save, table  # noqa: E402
+from cyclictest import cyclictest_floor  # noqa: E402
 from pipeline_support import block_world_pipeline, recommended_stage  # noqa: E402
 from readme_blocks.formatting import wakeup_cause  # noqa: E402
 from schedtrace import SchedTrace, benchmark_threads, slowest_during  # noqa: E402
@@ -74,6 +75,8 @@ from witness import Witness  # noqa: E402
 
 PATH_MM = 190.0  # about the beginner's recommended path in the block world
 LATE_MS = 2.0
+#: the attempt's samples a second (the synthetic trainee's rate, paced in real time)
+RATE = 100
 #: the stage's threads at ordinary priority (the shortest slice, surgiplan.scheduling), then under SCHED_FIFO
 #: (guidance.realtime_priority), as a real-time loop runs
 SCHEDULING = (("ordinary", None), ("SCHED_FIFO 10", 10))
@@ -214,7 +217,7 @@ def pipeline(tmp: Path, seconds: float, priority: int | None) -> Path:
         "name": "attempt",
         "plugin": "synthetic_trainee",
         "path_from": "recommended",
-        "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": 100, "speed": PATH_MM / seconds},
+        "settings": {"level": "beginner", "seed": 3, "pace": 1, "rate": RATE, "speed": PATH_MM / seconds},
         **({"guidance": {"realtime_priority": priority}} if priority else {}),
     }
     stages = [recommended_stage("beginner", 2000, k=15, artifact=tmp / "roadmap.npz"), guide]
@@ -450,12 +453,19 @@ def main() -> None:
             browser.close()
     print(table(rows, list(rows[1])))
     print(table(viewer_runs, [k for k, v in viewer_runs[0].items() if not isinstance(v, list)]))
+    # the machine's floor for the same deadline, measured by rt-tests' cyclictest in the same session: the stage's
+    # rate and priority under SCHED_FIFO, a wake-up later than LATE_MS a lapse, as many runs as attempts, as long
+    fifo = next(p for _, p in SCHEDULING if p)
+    floor = cyclictest_floor(
+        2 * runs, seconds, False, priority=fifo, interval_us=round(1e6 / RATE), late_us=round(1000 * LATE_MS)
+    )
+    print(floor, flush=True)
     if quick:
         return
     after = os.getloadavg()
     notes = (
         f"load average before {load[0]:.2f}/{load[1]:.2f}/{load[2]:.2f} and after {after[0]:.2f}/{after[1]:.2f}/"
-        f"{after[2]:.2f} (1/5/15 min; 2 cores, shared); 100 samples/s, {seconds:g} s attempts; target: 0 samples "
+        f"{after[2]:.2f} (1/5/15 min; 2 cores, shared); {RATE} samples/s, {seconds:g} s attempts; target: 0 samples "
         f"delayed by more than {LATE_MS:g} ms by the viewer"
     )
     chromium = subprocess.run(["chromium", "--version"], capture_output=True, text=True).stdout.strip()
@@ -472,7 +482,7 @@ def main() -> None:
                     "automation attached during the attempt (benchmarks/unattended_page.py)",
                 }
             },
-            extra={"viewer_runs": viewer_runs, "seconds": seconds, "late_ms": LATE_MS},
+            extra={"viewer_runs": viewer_runs, "seconds": seconds, "late_ms": LATE_MS, "floor": floor},
         ),
     )
 

@@ -1,8 +1,8 @@
 """bench_devices.py, parts 1-3 and 5: the real-time CiA 402 loop with the gimbal's 4 drives, measured.
 
 The control loop at each rate with the drives in another process or in a thread (:func:`control_loop`), the
-machine's own floor for a 1 kHz loop (:func:`scheduling_floor`; measured by rt-tests' cyclictest too,
-:func:`cyclictest_floor`), the cost of a full garbage collection in the
+machine's own floor for a 1 kHz loop (:func:`scheduling_floor`; measured by rt-tests' cyclictest too, in
+``cyclictest.py``), the cost of a full garbage collection in the
 loop (:func:`garbage_collection`), the bus's capacity for the cyclic frames (:func:`bus_ceiling`) and the
 simulated clock's speed (:func:`simulation_speed`). Imported by bench_devices.py, which puts benchmarks/ and
 tests/ on the import path (``common``, ``devices_support``).
@@ -12,15 +12,11 @@ from __future__ import annotations
 
 import contextlib
 import gc
-import json
 import os
-import re
-import shutil
 import socket
 import statistics
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -380,53 +376,6 @@ def scheduling_floor(seconds: float) -> list[dict]:
     for row in rows:
         row["cpu_latency_request"] = held
     return rows
-
-
-def cyclictest_floor(runs: int, seconds: float, polling: bool) -> dict:
-    """The machine's floor as rt-tests' ``cyclictest`` measures it (the Linux real-time community's latency test,
-    not ours): one thread under SCHED_FIFO at the control loop's priority, 1 kHz, memory locked, ``runs`` runs of
-    ``seconds``; ``polling``: with cyclictest's default CPU wake-up latency request of 0 (idle CPUs poll, as with
-    ``SURGIPLAN_CPU_LATENCY_US=0``), else with ``--laptop`` (no request: the control loop's default). A wake-up
-    more than a period late is a lapse, as the control loop counts its missed cycles (cyclictest skips the missed
-    intervals alike): a control loop whose CPUs idle the same way cannot be clean more often than this bare C
-    loop."""
-    how = "CPU latency request 0 (its default)" if polling else "no CPU latency request (--laptop)"
-    name = f"cyclictest (rt-tests), 1 kHz, SCHED_FIFO {PRIORITY}, {how}, {runs} x {seconds:g} s"
-    exe = shutil.which("cyclictest")
-    if exe is None:
-        return {"loop": name, "error": "cyclictest not installed (Debian: apt-get install rt-tests)"}
-    banner = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=30)
-    found = re.search(r"cyclictest V ?(\S+)", banner.stdout + banner.stderr)
-    lapses, worst = [], []
-    stolen = steal_ticks()
-    command = ["cyclictest", "-m", "-q", "-t1", "-p", str(PRIORITY), "-i", "1000", "-l", str(round(seconds * 1000))]
-    command += [] if polling else ["--laptop"]
-    with tempfile.TemporaryDirectory() as folder:
-        out = Path(folder) / "cyclictest.json"
-        for _ in range(runs):
-            out.unlink(missing_ok=True)  # a run that writes no report must not be read as the run before it
-            done = subprocess.run(
-                [exe, *command[1:], "-h", "20000", f"--json={out}"],
-                capture_output=True,
-                text=True,
-                timeout=seconds + 60,
-            )
-            if done.returncode != 0 or not out.exists():
-                return {"loop": name, "error": f"cyclictest failed: {(done.stderr or done.stdout).strip()[:300]}"}
-            thread = json.loads(out.read_text())["thread"]["0"]
-            histogram = {int(k): int(v) for k, v in thread["histogram"].items()}
-            beyond = thread["cycles"] - sum(histogram.values())  # over the histogram's 20 ms
-            lapses.append(sum(v for k, v in histogram.items() if k > 1000) + beyond)
-            worst.append(round(thread["max"] / 1000, 2))
-    return {
-        "loop": name,
-        "version": found.group(1) if found else "unknown",
-        "command": " ".join(command),
-        "runs_without_lapse": f"{sum(n == 0 for n in lapses)}/{runs}",
-        "lapses_per_run": lapses,
-        "max_latency_ms_per_run": worst,
-        "steal_ticks": steal_ticks() - stolen,
-    }
 
 
 def garbage_collection(scene, runs: int) -> list[dict]:

@@ -36,7 +36,7 @@ def readme_table(data: dict | None = None) -> str:
     import json
 
     from common import RESULTS
-    from readme_blocks.formatting import witness_words
+    from readme_blocks.formatting import floor_words, witness_words
 
     if data is None:
         data = json.loads((RESULTS / "devices.json").read_text())
@@ -139,15 +139,7 @@ def readme_table(data: dict | None = None) -> str:
     lines.append("")
     for r in rows:
         if r["section"] == "scheduling_floor" and "runs_without_lapse" in r:
-            lines.append(
-                f"- {r['loop']} (the machine's own floor, measured by a tool we did not write; {r['command']}): "
-                f"runs without a wake-up more than a period late {r['runs_without_lapse']}, such wake-ups per run "
-                + ", ".join(str(n) for n in r["lapses_per_run"])
-                + ", worst latency per run "
-                + ", ".join(f"{x:g}" for x in r["max_latency_ms_per_run"])
-                + f" ms, {r['steal_ticks']} ticks stolen by the hypervisor; no control loop whose CPUs idle "
-                "the same way can be clean more often"
-            )
+            lines.append(f"- {floor_words(r)}")
         elif r["section"] == "scheduling_floor" and "error" not in r:
             lapses = ", ".join(f"{x:g}" for x in r["lapses_ms"])
             lines.append(

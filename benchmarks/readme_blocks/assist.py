@@ -9,6 +9,7 @@ from .formatting import (
     HOST_DELIVERY_MS,
     QUEUED_MS,
     find,
+    floor_words,
     load,
     section,
     table,
@@ -174,4 +175,6 @@ def render_assist(results: Path) -> str:
             f" {len(lasted_short)} attempt{'s' if len(lasted_short) > 1 else ''} lasted but missed SYNCs (a cycle "
             f"began more than a period late): {'; '.join(slowest)}."
         )
+    if "floor" in loop:  # results since the floor was measured beside the attempts
+        verdict += " " + floor_words(loop["floor"])
     return "\n\n".join((section(head, body, tail), realtime, wrap(verdict)))

@@ -192,3 +192,18 @@ def thread_label(name: str | None) -> str:
         if name.startswith(prefix):
             return label
     return name
+
+
+def floor_words(row: dict) -> str:
+    """One sentence for a README block: ``cyclictest.cyclictest_floor``'s row as measured, or why
+    there is none."""
+    if "error" in row:
+        return f"The machine's floor ({row['loop']}) was not measured: {row['error']}."
+    late = row.get("late_over_ms", 1.0)
+    return (
+        f"The machine's floor in the same session, measured by a tool we did not write ({row['loop']}; "
+        f"`{row['command']}`): runs with no wake-up more than {late:g} ms late {row['runs_without_lapse']}; such "
+        f"wake-ups per run {', '.join(str(n) for n in row['lapses_per_run'])}; worst latency per run "
+        f"{', '.join(f'{x:g}' for x in row['max_latency_ms_per_run'])} ms; {row['steal_ticks']} ticks stolen by "
+        "the hypervisor meanwhile. A loop of ours whose CPUs idle the same way cannot be on time more often."
+    )

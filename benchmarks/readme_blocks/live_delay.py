@@ -9,6 +9,7 @@ from .formatting import (
     HOST_DELIVERY_MS,
     QUEUED_MS,
     find,
+    floor_words,
     load,
     met,
     section,
@@ -151,6 +152,7 @@ def render_live_delay(results: Path) -> str:
         + f"; the page got {', '.join(str(r['page_samples']) for r in runs)} samples and was told of "
         f"{sum(r['page_drops'] + r['feed_drops'] for r in runs)} dropped."
         + _page_words(runs)
+        + (" " + floor_words(data["floor"]) if "floor" in data else "")
         + (
             " Time the host stole from this virtual machine per run (10 ms ticks, no viewer / viewer): "
             + ", ".join(
