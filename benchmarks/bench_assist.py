@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from common import save, table
 from cyclictest import cyclictest_floor
+from devices_table import DRIVES_PRIORITY, PRIORITY
 from schedtrace import SchedTrace, benchmark_threads
 from schedtrace import summary as schedtrace_summary
 from surgiplan import load_pipeline, run_pipeline
@@ -54,8 +55,6 @@ ON = {"fade": "none"}  # the config's fixture, at full assistance
 #: benchmark's time on a shared machine), and the real-time loop's target
 RATE = 250.0
 REALTIME_RATE = 500.0
-#: the master loop's priority under SCHED_FIFO in its real-time configuration (the drives': DRIVES_PRIORITY)
-FIFO_PRIORITY = 30
 #: runs of the machine's floor (cyclictest) after the real-time attempts
 FLOOR_RUNS = 10
 
@@ -128,7 +127,6 @@ def realtime_elsewhere(tmp: Path, plan, space, seed: int, priority: int | None) 
     ``priority`` for the loop, None: ordinary; the drives at DRIVES_PRIORITY where allowed): the assistance
     summary."""
     from devices_loop import drives_process, fifo_allowed
-    from devices_table import DRIVES_PRIORITY
 
     spec = load_pipeline(pipeline_file(tmp, {"hand": {"level": "beginner", "seed": seed}})).stages[1]
     critical = intervals(list(plan.critical_regions))
@@ -204,8 +202,8 @@ def realtime_loops(tmp: Path, plan, space, runs: int) -> list[dict]:
     ]  # fmt: skip
     if fifo_allowed():
         configurations.append(
-            (f"other process (loopback bus), SCHED_FIFO {FIFO_PRIORITY} (drives 20)",
-             lambda: realtime_elsewhere(tmp, plan, space, 0, FIFO_PRIORITY))
+            (f"other process (loopback bus), SCHED_FIFO {PRIORITY} (drives {DRIVES_PRIORITY})",
+             lambda: realtime_elsewhere(tmp, plan, space, 0, PRIORITY))
         )  # fmt: skip
     else:
         print("no SCHED_FIFO here: its configuration is skipped", flush=True)
@@ -291,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     # the machine's floor for the same loop, measured by rt-tests' cyclictest in the same session: its rate, its
     # priority under SCHED_FIFO, a cycle late by more than a period lost, as long as an attempt
     floor = cyclictest_floor(
-        2 if args.quick else FLOOR_RUNS, 2.0 if args.quick else 8.0, False, priority=FIFO_PRIORITY,
+        2 if args.quick else FLOOR_RUNS, 2.0 if args.quick else 8.0, False, priority=PRIORITY,
         interval_us=round(1e6 / REALTIME_RATE),
     )  # fmt: skip
     print(floor, flush=True)
