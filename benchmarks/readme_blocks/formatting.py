@@ -200,8 +200,9 @@ def floor_words(row: dict) -> str:
     if "error" in row:
         return f"The machine's floor ({row['loop']}) was not measured: {row['error']}."
     late = row.get("late_over_ms", 1.0)
+    loop = row["loop"].replace("--laptop", "`--laptop`")  # an option, not prose: Markdown would make "--" a dash
     return (
-        f"The machine's floor in the same session, measured by a tool we did not write ({row['loop']}; "
+        f"The machine's floor in the same session, measured by a tool we did not write ({loop}; "
         f"`{row['command']}`): runs with no wake-up more than {late:g} ms late {row['runs_without_lapse']}; such "
         f"wake-ups per run {', '.join(str(n) for n in row['lapses_per_run'])}; worst latency per run "
         f"{', '.join(f'{x:g}' for x in row['max_latency_ms_per_run'])} ms; {row['steal_ticks']} ticks stolen by "
