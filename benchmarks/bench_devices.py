@@ -64,14 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from common import package_version, save, table
 from cyclictest import cyclictest_floor
 from devices_kinematics import inverse_kinematics
-from devices_loop import (
-    ROOT,
-    bus_ceiling,
-    control_loop,
-    garbage_collection,
-    scheduling_floor,
-    simulation_speed,
-)
+from devices_loop import ROOT, bus_ceiling, control_loop, garbage_collection, scheduling_floor, simulation_speed
 from devices_table import PRIORITY, SEPARATE, SEPARATE_RT, THREAD, readme_table
 from surgiplan import load_scene
 

@@ -230,7 +230,8 @@ def cpu_latency_setting() -> int | None:
         return CPU_LATENCY_US
     if text.lower() == "off":
         return None
-    if not text.isdigit() or int(text) > 2_000_000_000:
+    # ASCII digits only: str.isdigit also takes '²', which int() refuses with a ValueError instead of this message
+    if not (text.isascii() and text.isdigit()) or int(text) > 2_000_000_000:
         from .errors import ConfigError
 
         raise ConfigError(

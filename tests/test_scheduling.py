@@ -119,7 +119,7 @@ def test_the_environment_sets_the_latency_a_paced_section_asks_for_or_turns_the_
             assert cpu_latency_now() == min(50, before)
 
 
-@pytest.mark.parametrize("bad", ["-1", "1.5", "fast", "3000000000"])
+@pytest.mark.parametrize("bad", ["-1", "1.5", "fast", "3000000000", "²"])
 def test_a_malformed_latency_setting_is_refused_by_name_before_anything_changes(monkeypatch, bad):
     monkeypatch.setenv(CPU_LATENCY_ENV, bad)
     switch = sys.getswitchinterval()
